@@ -1,0 +1,111 @@
+"""The one interface every frame source implements: recordings on disk and live simulation.
+
+A source exposes its metadata (scenario, mount transforms, deck plane), the MRU log, the
+ground truth when it has one, and iterates frames of both sensors in acquisition order.
+A frame that could not be read still comes out, with `error` set, so a long run records
+it as missing and goes on.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+from data.scenario import Scenario
+
+SENSORS = ("lidar", "radar")
+LIDAR_FIELDS = ("intensity", "t", "label")
+RADAR_FIELDS = ("range", "azimuth", "elevation", "range_rate", "label")
+BODIES = ("crane", "feeder")
+BODY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
+TRUTH_COLUMNS = ("t", "D", "D_dot") + tuple(f"{b}_{c}" for b in BODIES for c in BODY_COLUMNS)
+MRU_COLUMNS = ("t", "roll", "pitch", "yaw", "roll_rate", "pitch_rate", "yaw_rate")
+
+
+@dataclass
+class Frame:
+    sensor: str  # "lidar" or "radar"
+    index: int  # per-sensor frame number
+    t_s: float  # acquisition time (frame start), seconds from the run start
+    points_sensor: np.ndarray  # (N,3) float64, sensor frame, metres
+    fields: dict[str, np.ndarray] = field(default_factory=dict)
+    path: str | None = None  # file it came from, for error messages
+    error: str | None = None  # why the frame is unusable (corrupt file, ...)
+
+    def __len__(self) -> int:
+        return len(self.points_sensor)
+
+
+@dataclass
+class MruLog:
+    """Crane-vessel attitude samples: Euler angles (rad) and their time derivatives (rad/s)."""
+
+    t_s: np.ndarray
+    rpy_rad: np.ndarray  # (N,3) roll, pitch, yaw; R = Rz(yaw) Ry(pitch) Rx(roll)
+    rpy_rate_radps: np.ndarray  # (N,3)
+    max_gap_s: float = 0.1  # beyond this gap between samples the log has no attitude
+
+    def attitude(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Attitude and rates at time t, linearly interpolated; None when t falls outside the
+        log or inside a gap longer than max_gap_s (the caller records a missing measurement)."""
+        t = self.t_s
+        if len(t) == 0 or t_s < t[0] - 1e-9 or t_s > t[-1] + 1e-9:
+            return None
+        j = int(np.clip(np.searchsorted(t, t_s), 1, len(t) - 1)) if len(t) > 1 else 0
+        if len(t) == 1:
+            return self.rpy_rad[0], self.rpy_rate_radps[0]
+        t0, t1 = t[j - 1], t[j]
+        if t1 - t0 > self.max_gap_s:
+            return None
+        w = 0.0 if t1 == t0 else (t_s - t0) / (t1 - t0)
+        rpy = self.rpy_rad[j - 1] + w * _wrap(self.rpy_rad[j] - self.rpy_rad[j - 1])
+        rate = self.rpy_rate_radps[j - 1] + w * (self.rpy_rate_radps[j] - self.rpy_rate_radps[j - 1])
+        return rpy, rate
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+@dataclass
+class Truth:
+    """Ground-truth table: columns of TRUTH_COLUMNS at the truth rate."""
+
+    columns: dict[str, np.ndarray]
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return self.columns["t"]
+
+    def at(self, name: str, t_s: np.ndarray) -> np.ndarray:
+        """A column linearly interpolated at times t (truth rate is 200 Hz by default)."""
+        return np.interp(t_s, self.columns["t"], self.columns[name])
+
+
+@dataclass
+class SourceMeta:
+    scenario: Scenario
+    T_crane_boomtip: np.ndarray  # 4x4, boom tip in the crane-vessel body frame
+    T_boomtip_sensor: dict[str, np.ndarray]  # sensor name -> 4x4
+    feeder_deck_plane_body: np.ndarray  # [a,b,c,d] in the feeder body frame
+
+
+class FrameSource(ABC):
+    """Frames from somewhere: `for frame in source` yields both sensors in time order."""
+
+    meta: SourceMeta
+    mru: MruLog
+    truth: Truth | None
+
+    @abstractmethod
+    def __iter__(self) -> Iterator[Frame]: ...
+
+    @abstractmethod
+    def __len__(self) -> int: ...
+
+    @property
+    def duration_s(self) -> float:
+        return self.meta.scenario.duration_s

@@ -1,0 +1,276 @@
+"""Recordings on disk: the layout `boomtip simulate` writes and `boomtip process` reads.
+
+    meta.json            format version, resolved scenario, mount transforms, deck plane
+    lidar/<t_ns>.pcd     x y z intensity t label          (sensor frame)
+    radar/<t_ns>.pcd     x y z range azimuth elevation range_rate label (sensor frame)
+    mru.csv              t, roll, pitch, yaw, roll_rate, pitch_rate, yaw_rate
+    truth.csv            t, D, D_dot, <body>_{x,y,z,roll,pitch,yaw,vx,vy,vz,wx,wy,wz}
+
+`<t_ns>` is the acquisition time in ns from the run start, on the clock of `t` (seconds).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from data.frames import MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from data.pcd import PcdError, atomic_write_bytes, read_pcd, write_pcd
+from data.scenario import ScenarioError, scenario_from_dict
+
+FORMAT_VERSION = 1
+
+
+class RecordingError(ValueError):
+    """A recording is unusable; the message names the file (and line) and what was expected."""
+
+
+# ---------------------------------------------------------------------------------------
+# Output folders: atomic, never clobbering without --force
+
+
+def prepare_output(out: Path, force: bool, inputs: tuple[Path, ...] = ()) -> Path:
+    """Check that OUT may be written and return a fresh staging folder beside it.
+
+    Results are written into the staging folder and moved into place by `commit_output`, so
+    an interrupted run never leaves a half-written OUT.
+    """
+    out = Path(out).resolve()
+    for inp in inputs:
+        inp = Path(inp).resolve()
+        if out == inp or inp in out.parents or out in inp.parents:
+            raise RecordingError(f"--out {out} overlaps the input {inp}; refusing to write over an input")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
+        raise RecordingError(f"--out {out} exists and is not empty; pass --force to replace it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = out.parent / f".{out.name}.partial-{os.getpid()}"
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir()
+    return staging
+
+
+def commit_output(staging: Path, out: Path) -> None:
+    out = Path(out).resolve()
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        out.rename(old)
+        staging.rename(out)
+        shutil.rmtree(old) if old.is_dir() else old.unlink()
+    else:
+        staging.rename(out)
+
+
+def write_json(path: Path, obj) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
+    names = list(columns)
+    table = np.column_stack([np.asarray(columns[n], dtype=float) for n in names]) if names else np.zeros((0, 0))
+    from io import StringIO
+
+    buf = StringIO()
+    np.savetxt(buf, table, delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t") -> dict[str, np.ndarray]:
+    """Read a numeric CSV with a header; errors name the file, line and what was expected."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+    if not lines:
+        raise RecordingError(f"{path}: empty file; expected a header {','.join(expected)}")
+    names = [c.strip() for c in lines[0].split(",")]
+    missing = [c for c in expected if c not in names]
+    if missing:
+        raise RecordingError(f"{path}: line 1: missing column(s) {', '.join(missing)}; header is {lines[0]!r}")
+    rows = []
+    for i, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        parts = line.split(",")
+        if len(parts) != len(names):
+            raise RecordingError(f"{path}: line {i}: {len(parts)} values, expected {len(names)}")
+        try:
+            rows.append([float(p) for p in parts])
+        except ValueError:
+            raise RecordingError(f"{path}: line {i}: a value is not a number: {line!r}") from None
+    table = np.array(rows, dtype=float).reshape(-1, len(names))
+    cols = {n: table[:, j] for j, n in enumerate(names)}
+    t = cols[time_column]
+    if not np.all(np.isfinite(t)):
+        bad = int(np.flatnonzero(~np.isfinite(t))[0]) + 2
+        raise RecordingError(f"{path}: line {bad}: time '{time_column}' is not finite")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        j = int(back[0]) + 1
+        raise RecordingError(
+            f"{path}: line {j + 2}: timestamps out of order: t={t[j]:.6f} after t={t[j - 1]:.6f}; expected strictly increasing times"
+        )
+    return cols
+
+
+# ---------------------------------------------------------------------------------------
+# Writing
+
+
+def frame_file_name(t_s: float) -> str:
+    return f"{int(round(t_s * 1e9)):013d}.pcd"
+
+
+def write_recording(
+    source: FrameSource, out: Path, force: bool = False, progress: Callable[[int], None] | None = None
+) -> dict:
+    """Write every frame, the MRU log and the truth of a source into OUT (atomically)."""
+    staging = prepare_output(out, force)
+    try:
+        for sensor in ("lidar", "radar"):
+            (staging / sensor).mkdir()
+        counts = {"lidar": 0, "radar": 0}
+        for frame in source:
+            write_pcd(staging / frame.sensor / frame_file_name(frame.t_s), frame.points_sensor, frame.fields)
+            counts[frame.sensor] += 1
+            if progress:
+                progress(1)
+        m = source.mru
+        mru_cols = {"t": m.t_s}
+        for i, a in enumerate(("roll", "pitch", "yaw")):
+            mru_cols[a] = m.rpy_rad[:, i]
+        for i, a in enumerate(("roll_rate", "pitch_rate", "yaw_rate")):
+            mru_cols[a] = m.rpy_rate_radps[:, i]
+        write_csv(staging / "mru.csv", mru_cols)
+        if source.truth is not None:
+            write_csv(staging / "truth.csv", {k: source.truth.columns[k] for k in source.truth.columns})
+        meta = meta_to_json(source.meta, counts)
+        write_json(staging / "meta.json", meta)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    commit_output(staging, out)
+    return meta
+
+
+def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict:
+    from data.frames import LIDAR_FIELDS, RADAR_FIELDS
+
+    return {
+        "format_version": FORMAT_VERSION,
+        "generator": "boomtip",
+        "scenario": meta.scenario.model_dump(mode="json"),
+        "T_crane_boomtip": meta.T_crane_boomtip,
+        "sensors": {
+            "lidar": {"T_boomtip_sensor": meta.T_boomtip_sensor["lidar"], "fields": ["x", "y", "z", *LIDAR_FIELDS]},
+            "radar": {"T_boomtip_sensor": meta.T_boomtip_sensor["radar"], "fields": ["x", "y", "z", *RADAR_FIELDS]},
+        },
+        "feeder_deck_plane_body": meta.feeder_deck_plane_body,
+        "frames": counts or {},
+        "conventions": {
+            "angles": "radians; R = Rz(yaw) Ry(pitch) Rx(roll) = Rotation.from_euler('xyz', [roll, pitch, yaw])",
+            "mru_rates": "time derivatives of roll, pitch, yaw (rad/s)",
+            "truth_twist": "velocity of the body origin and angular velocity, both in world axes",
+            "radar_range_rate": "d(range)/dt in m/s, positive when the range grows",
+            "lidar_t": "time offset of the point from the frame's acquisition time (s)",
+        },
+    }
+
+
+# ---------------------------------------------------------------------------------------
+# Reading
+
+
+def _matrix(value, where: str) -> np.ndarray:
+    m = np.asarray(value, dtype=float)
+    if m.shape != (4, 4):
+        raise RecordingError(f"{where}: expected a 4x4 matrix, got shape {m.shape}")
+    return m
+
+
+class Recording(FrameSource):
+    """A recording folder as a FrameSource."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise RecordingError(f"{self.root}: no such recording folder")
+        meta_path = self.root / "meta.json"
+        try:
+            meta = json.loads(meta_path.read_text())
+        except FileNotFoundError:
+            raise RecordingError(f"{meta_path}: missing; is {self.root} a boomtip recording?") from None
+        except json.JSONDecodeError as exc:
+            raise RecordingError(f"{meta_path}: line {exc.lineno}: not valid JSON: {exc.msg}") from None
+        version = meta.get("format_version")
+        if version != FORMAT_VERSION:
+            raise RecordingError(f"{meta_path}: format_version {version!r}; this boomtip reads version {FORMAT_VERSION}")
+        try:
+            scenario = scenario_from_dict(meta["scenario"], source=f"{meta_path} (scenario)")
+            self.meta = SourceMeta(
+                scenario=scenario,
+                T_crane_boomtip=_matrix(meta["T_crane_boomtip"], f"{meta_path}: T_crane_boomtip"),
+                T_boomtip_sensor={
+                    s: _matrix(meta["sensors"][s]["T_boomtip_sensor"], f"{meta_path}: sensors.{s}.T_boomtip_sensor")
+                    for s in ("lidar", "radar")
+                },
+                feeder_deck_plane_body=np.asarray(meta["feeder_deck_plane_body"], dtype=float),
+            )
+        except KeyError as exc:
+            raise RecordingError(f"{meta_path}: missing key {exc}") from None
+        except ScenarioError as exc:
+            raise RecordingError(str(exc)) from None
+        mru = read_csv(self.root / "mru.csv", MRU_COLUMNS)
+        rate = scenario.mru.rate_hz
+        self.mru = MruLog(
+            mru["t"],
+            np.column_stack([mru["roll"], mru["pitch"], mru["yaw"]]),
+            np.column_stack([mru["roll_rate"], mru["pitch_rate"], mru["yaw_rate"]]),
+            max_gap_s=max(0.1, 5.0 / rate),
+        )
+        truth_path = self.root / "truth.csv"
+        self.truth = Truth(read_csv(truth_path, TRUTH_COLUMNS)) if truth_path.exists() else None
+        self._files = self._list_frames()
+
+    def _list_frames(self) -> list[tuple[int, str, Path]]:
+        items = []
+        for sensor in ("lidar", "radar"):
+            folder = self.root / sensor
+            if not folder.is_dir():
+                continue
+            for p in folder.glob("*.pcd"):
+                try:
+                    t_ns = int(p.stem)
+                except ValueError:
+                    raise RecordingError(f"{p}: frame file names must be the acquisition time in ns, e.g. 0000100000000.pcd") from None
+                items.append((t_ns, sensor, p))
+        return sorted(items)
+
+    def __len__(self) -> int:
+        return len(self._files)
+
+    def __iter__(self) -> Iterator[Frame]:
+        index = {"lidar": 0, "radar": 0}
+        for t_ns, sensor, path in self._files:
+            i = index[sensor]
+            index[sensor] += 1
+            t_s = t_ns * 1e-9
+            try:
+                points, fields = read_pcd(path)
+            except PcdError as exc:
+                yield Frame(sensor, i, t_s, np.zeros((0, 3)), {}, path=str(path), error=str(exc))
+                continue
+            yield Frame(sensor, i, t_s, points, fields, path=str(path))

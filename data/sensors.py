@@ -1,0 +1,179 @@
+"""Sensor models at the boom tip: LiDAR (grid or spinning), radar, MRU.
+
+Sensor frame convention: a ray with azimuth az (about the sensor z axis, from x) and
+elevation el (towards z) points along [cos el cos az, cos el sin az, sin el]. With the
+default mount the boresight x looks straight down, y runs along the ship and z across.
+
+The pattern functions give ray directions and per-ray timing; the measure functions turn
+ray-cast hits into what the sensor reports (noise, quantisation, intensity, dropouts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from data.raycast import Hits
+from data.scenario import Lidar, Radar
+from data.scene import RCS_DETECTION_FACTOR, Body, Label
+
+INTENSITY_REFERENCE_RANGE_M = 50.0  # a white diffuse target at normal incidence here reads 1.0
+
+
+def spherical_dirs(az_rad: np.ndarray, el_rad: np.ndarray) -> np.ndarray:
+    ce = np.cos(el_rad)
+    return np.stack([ce * np.cos(az_rad), ce * np.sin(az_rad), np.sin(el_rad)], axis=-1)
+
+
+def axis_grid(fov_deg: float, res_deg: float) -> np.ndarray:
+    """Angles (rad) covering a FOV centred on 0 at the given resolution, both ends included."""
+    n = int(np.floor(fov_deg / res_deg + 1e-9)) + 1
+    half = (n - 1) * res_deg / 2
+    return np.deg2rad(np.linspace(-half, half, n))
+
+
+@dataclass(frozen=True)
+class ScanPattern:
+    dirs_sensor: np.ndarray  # (K,3) unit
+    column: np.ndarray  # (K,) which firing column each ray belongs to
+    column_time_s: np.ndarray  # (C,) time offset of each column from the frame start
+
+
+def lidar_pattern(cfg: Lidar) -> ScanPattern:
+    if cfg.pattern == "grid":
+        az = axis_grid(cfg.fov_h_deg, cfg.res_h_deg)
+        el = axis_grid(cfg.fov_v_deg, cfg.res_v_deg)
+        # The grid scans column by column (one azimuth, all elevations) across sweep_fraction of the period.
+        column_time = np.arange(len(az)) / len(az) * cfg.sweep_fraction / cfg.rate_hz
+    else:
+        az = np.arange(cfg.columns) * (2 * np.pi / cfg.columns)
+        el = np.deg2rad(np.linspace(-cfg.channel_fov_deg / 2, cfg.channel_fov_deg / 2, cfg.channels))
+        column_time = np.arange(cfg.columns) / cfg.columns / cfg.rate_hz  # one revolution per frame
+    az_g, el_g = np.meshgrid(az, el, indexing="ij")
+    column = np.repeat(np.arange(len(az)), len(el))
+    return ScanPattern(spherical_dirs(az_g.ravel(), el_g.ravel()), column, column_time)
+
+
+def radar_pattern(cfg: Radar) -> ScanPattern:
+    az = axis_grid(cfg.fov_az_deg, cfg.res_az_deg)
+    el = axis_grid(cfg.fov_el_deg, cfg.res_el_deg)
+    az_g, el_g = np.meshgrid(az, el, indexing="ij")
+    k = az_g.size
+    return ScanPattern(spherical_dirs(az_g.ravel(), el_g.ravel()), np.zeros(k, dtype=np.int64), np.zeros(1))
+
+
+@dataclass
+class FaceLookup:
+    """Per-hit material lookup across bodies (flat arrays, offset per body)."""
+
+    label: np.ndarray
+    reflectivity: np.ndarray
+    retro: np.ndarray
+    rcs: np.ndarray
+    offset: np.ndarray
+
+    @classmethod
+    def from_bodies(cls, bodies: list[Body]) -> "FaceLookup":
+        sizes = np.array([len(b.face_label) for b in bodies])
+        return cls(
+            np.concatenate([b.face_label for b in bodies]),
+            np.concatenate([b.face_reflectivity for b in bodies]),
+            np.concatenate([b.face_retro for b in bodies]),
+            np.concatenate([b.face_rcs for b in bodies]),
+            np.concatenate([[0], np.cumsum(sizes)[:-1]]),
+        )
+
+    def flat(self, hits: Hits, mask: np.ndarray) -> np.ndarray:
+        return self.offset[hits.body[mask]] + hits.face[mask]
+
+
+def lidar_measure(
+    cfg: Lidar,
+    hits: Hits,
+    pattern: ScanPattern,
+    dirs_world: np.ndarray,
+    faces: FaceLookup,
+    sea_body: int | None,
+    sea_probability: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label."""
+    keep = hits.hit & (hits.range_m >= cfg.min_range_m) & (hits.range_m <= cfg.max_range_m)
+    if sea_body is not None:  # sea clutter: only a fraction of sea hits return
+        sea = keep & (hits.body == sea_body)
+        keep &= ~sea | (rng.random(len(keep)) < sea_probability)
+    if cfg.dropout_probability > 0:
+        keep &= rng.random(len(keep)) >= cfg.dropout_probability
+    idx = np.flatnonzero(keep)
+    f = faces.flat(hits, keep)
+    r = hits.range_m[idx]
+    cos_inc = np.clip(np.abs(np.einsum("ij,ij->i", hits.normal_world[idx], dirs_world[idx])), 1e-3, 1.0)
+    falloff = (INTENSITY_REFERENCE_RANGE_M / r) ** 2
+    diffuse = faces.reflectivity[f] * cos_inc
+    # Retro-reflectors send light back towards the source in a narrow lobe around normal incidence.
+    inc = np.arccos(cos_inc)
+    retro = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
+    intensity = np.where(faces.retro[f], np.maximum(retro, diffuse), diffuse) * falloff
+    if cfg.intensity_noise > 0:
+        intensity = intensity * np.maximum(1 + cfg.intensity_noise * rng.standard_normal(len(idx)), 0.05)
+    if cfg.range_noise_m > 0:
+        # Weaker returns are noisier: sigma grows as 1/sqrt(intensity), capped.
+        gain = np.clip(np.sqrt(1.0 / np.maximum(intensity, 1e-9)), 1.0, cfg.weak_return_noise_gain)
+        r = r + cfg.range_noise_m * gain * rng.standard_normal(len(idx))
+    if cfg.range_resolution_m > 0:
+        r = np.round(r / cfg.range_resolution_m) * cfg.range_resolution_m
+    points = pattern.dirs_sensor[idx] * r[:, None]
+    t_offset = pattern.column_time_s[pattern.column[idx]] if cfg.motion_during_sweep else np.zeros(len(idx))
+    fields = {
+        "intensity": intensity.astype(np.float32),
+        "t": t_offset.astype(np.float32),
+        "label": faces.label[f].astype(np.int32),
+    }
+    return points, fields
+
+
+def radar_measure(
+    cfg: Radar,
+    hits: Hits,
+    pattern: ScanPattern,
+    range_rate_true_mps: np.ndarray,
+    faces: FaceLookup,
+    sea_body: int | None,
+    sea_probability: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Turn radar beam hits into detections: x y z (sensor frame), range, azimuth, elevation,
+    range_rate (d range / dt, positive when the range grows) and label."""
+    keep = hits.hit & (hits.range_m >= cfg.min_range_m) & (hits.range_m <= cfg.max_range_m)
+    f_all = np.zeros(len(keep), dtype=np.int64)
+    f_all[keep] = faces.flat(hits, keep)
+    p_det = cfg.detection_probability * RCS_DETECTION_FACTOR[faces.rcs[f_all]]
+    if sea_body is not None:
+        p_det = np.where(hits.body == sea_body, sea_probability, p_det)
+    keep &= rng.random(len(keep)) < p_det
+    idx = np.flatnonzero(keep)
+    n = len(idx)
+    d = pattern.dirs_sensor[idx]
+    rng_m = hits.range_m[idx] + cfg.range_noise_m * rng.standard_normal(n)
+    az = np.arctan2(d[:, 1], d[:, 0]) + np.deg2rad(cfg.azimuth_noise_deg) * rng.standard_normal(n)
+    el = np.arcsin(np.clip(d[:, 2], -1, 1)) + np.deg2rad(cfg.elevation_noise_deg) * rng.standard_normal(n)
+    rr = range_rate_true_mps[idx] + cfg.range_rate_noise_mps * rng.standard_normal(n)
+    label = faces.label[f_all[idx]].astype(np.int32)
+    # False alarms: uniform in the field of view, range and range rate.
+    n_fa = rng.poisson(cfg.false_alarms_per_scan) if cfg.false_alarms_per_scan > 0 else 0
+    if n_fa:
+        az = np.concatenate([az, np.deg2rad(rng.uniform(-cfg.fov_az_deg / 2, cfg.fov_az_deg / 2, n_fa))])
+        el = np.concatenate([el, np.deg2rad(rng.uniform(-cfg.fov_el_deg / 2, cfg.fov_el_deg / 2, n_fa))])
+        rng_m = np.concatenate([rng_m, rng.uniform(cfg.min_range_m, cfg.max_range_m, n_fa)])
+        rr = np.concatenate([rr, rng.uniform(-cfg.max_abs_range_rate_mps, cfg.max_abs_range_rate_mps, n_fa)])
+        label = np.concatenate([label, np.full(n_fa, int(Label.NONE), dtype=np.int32)])
+    points = spherical_dirs(az, el) * rng_m[:, None]
+    fields = {
+        "range": rng_m.astype(np.float32),
+        "azimuth": az.astype(np.float32),
+        "elevation": el.astype(np.float32),
+        "range_rate": rr.astype(np.float32),
+        "label": label,
+    }
+    return points, fields
