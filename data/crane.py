@@ -871,8 +871,8 @@ def scenario_hook_1(params: CraneParams | None = None, limits: JointLimits | Non
     l0 = _tip_height(P, mu0) - DECK_HEIGHT_M
     joints = CraneJointProfiles.from_moves(
         90 * DEG, mu0, l0,
-        slew_moves=[(80.0, 0.0)], luff_moves=[(80.0, 60 * DEG)],
-        hoist_moves=[(10.0, 60.0), (250.0, 175.0)], limits=limits,
+        slew_moves=[(100.0, 0.0)], luff_moves=[(100.0, 60 * DEG)],
+        hoist_moves=[(10.0, 40.0), (250.0, 175.0)], limits=limits,
     )
     return ScenarioSpec(joints, StaticVessel(), 700.0)
 

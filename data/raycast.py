@@ -32,12 +32,16 @@ class RayCaster:
     def __init__(self, bodies: list[Body]) -> None:
         self.bodies = bodies
         self.scenes = []
+        self.face_normals = []
         for b in bodies:
             scene = o3d.t.geometry.RaycastingScene()
             scene.add_triangles(
                 o3d.core.Tensor(b.vertices.astype(np.float32)), o3d.core.Tensor(b.triangles.astype(np.uint32))
             )
             self.scenes.append(scene)
+            tri = b.vertices[b.triangles]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            self.face_normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12))
 
     def cast(
         self,
@@ -47,43 +51,41 @@ class RayCaster:
         p_world_body: list[np.ndarray],
         pose_index: np.ndarray | None = None,
     ) -> Hits:
-        """Cast K rays (unit directions) against all bodies.
+        """Cast K rays (unit directions) against all bodies. `origins_world` is (K,3) or (3,).
 
         R_world_body[b] is (M,3,3) and p_world_body[b] is (M,3): the pose of body b at M
         instants; `pose_index` (K,) says which instant each ray belongs to (scene motion
         during a sweep). With M = 1, pose_index may be None.
         """
-        k = len(origins_world)
-        best_t = np.full(k, np.inf)
+        k = len(dirs_world)
+        origins_world = np.broadcast_to(origins_world, (k, 3)) if origins_world.ndim == 1 else origins_world
+        best_t = np.full(k, np.inf, dtype=np.float32)
         best_body = np.full(k, -1, dtype=np.int64)
         best_face = np.full(k, -1, dtype=np.int64)
-        best_n_body = np.zeros((k, 3))
         idx = np.zeros(k, dtype=np.int64) if pose_index is None else pose_index
+        rays = np.empty((k, 6), dtype=np.float32)
         for b, scene in enumerate(self.scenes):
+            R, p = R_world_body[b], p_world_body[b]
             if pose_index is None:  # one pose for the whole frame: one matrix product
-                R0 = R_world_body[b][0]
-                o_b = (origins_world - p_world_body[b][0]) @ R0  # rows: R^T (o - p)
-                d_b = dirs_world @ R0
+                rays[:, :3] = (origins_world[:1] - p[0]) @ R[0] if origins_world.strides[0] == 0 else (origins_world - p[0]) @ R[0]
+                rays[:, 3:] = dirs_world @ R[0]
             else:
-                R = R_world_body[b][idx]  # (K,3,3)
-                o_b = np.einsum("kji,kj->ki", R, origins_world - p_world_body[b][idx])
-                d_b = np.einsum("kji,kj->ki", R, dirs_world)
-            rays = o3d.core.Tensor(np.hstack([o_b, d_b]).astype(np.float32))
-            ans = scene.cast_rays(rays)
-            t = ans["t_hit"].numpy().astype(float)
-            closer = t < best_t
+                rays[:, :3] = np.einsum("kji,kj->ki", R[idx], origins_world - p[idx])  # R^T (o - p)
+                rays[:, 3:] = np.einsum("kji,kj->ki", R[idx], dirs_world)
+            ans = scene.cast_rays(o3d.core.Tensor(rays))
+            t = ans["t_hit"].numpy()
+            closer = np.flatnonzero(t < best_t)
             best_t[closer] = t[closer]
             best_body[closer] = b
-            best_face[closer] = ans["primitive_ids"].numpy()[closer].astype(np.int64)
-            best_n_body[closer] = ans["primitive_normals"].numpy()[closer]
-        # Normals back to world axes with the pose of the body each ray hit.
+            best_face[closer] = ans["primitive_ids"].numpy()[closer]
+        # Normals from the precomputed face normals of the faces hit, rotated to world axes.
         normal_world = np.zeros((k, 3))
         for b in range(len(self.scenes)):
-            m = best_body == b
-            if not m.any():
+            m = np.flatnonzero(best_body == b)
+            if len(m) == 0:
                 continue
-            if pose_index is None:
-                normal_world[m] = best_n_body[m] @ R_world_body[b][0].T
-            else:
-                normal_world[m] = np.einsum("kij,kj->ki", R_world_body[b][idx[m]], best_n_body[m])
-        return Hits(best_t, best_body, best_face, normal_world)
+            n_b = self.face_normals[b][best_face[m]]
+            R = R_world_body[b]
+            normal_world[m] = n_b @ R[0].T if pose_index is None else np.einsum("kij,kj->ki", R[idx[m]], n_b)
+        range_m = np.where(best_body >= 0, best_t.astype(np.float64), np.inf)
+        return Hits(range_m, best_body, best_face, normal_world)

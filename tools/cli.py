@@ -99,6 +99,46 @@ def simulate(
     )
 
 
+def write_bench_json(path: Optional[Path], result: dict, force: bool) -> None:
+    if path is None:
+        return
+    from data.recording import RecordingError, write_json
+
+    if path.exists() and not force:
+        raise RecordingError(f"--json {path} exists; pass --force to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, result)
+
+
+JsonOpt = typer.Option(None, "--json", help="Also write the figures (ratio, times, accuracies) to this JSON file.")
+ForceOpt = typer.Option(False, "--force", help="Replace an existing --json file.")
+
+
+@bench_app.command("raycast")
+def bench_raycast_cmd(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    frames: int = typer.Option(20, "--frames", min=1),
+    simulate_s: float = typer.Option(60.0, "--simulate-s", help="Also time `simulate` over this many seconds (0: skip)."),
+    set_: Optional[list[str]] = SetOpt,
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """LiDAR frames/s vs the trimesh route on the same frames; simulate vs real time."""
+    from tools.bench import bench_raycast
+
+    with user_errors():
+        s = resolve_scenario(scenario, set_)
+        r = bench_raycast(s, frames=frames, simulate_s=simulate_s)
+        write_bench_json(json_path, r, force)
+    print(f"raycast  {r['triangles']} triangles, {r['rays_per_frame']} rays/frame, {r['points_per_frame']:.0f} points/frame, {frames} frames")
+    print(f"  boomtip (Open3D scenes, rays moved per body): {r['boomtip_fps']:8.1f} frames/s")
+    print(f"  baseline (posed trimesh + embreex per frame): {r['baseline_fps']:8.1f} frames/s")
+    print(f"  ratio {r['ratio']:.1f}x   hit agreement {100 * r['hit_agreement']:.2f} %")
+    if "simulate_realtime_factor" in r:
+        print(f"simulate {r['simulate_duration_s']:g} s of {s.name} in {r['simulate_wall_s']:.1f} s: "
+              f"{r['simulate_realtime_factor']:.1f}x real time")
+
+
 def main() -> None:  # pragma: no cover - console entry point
     app()
 
