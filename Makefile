@@ -1,0 +1,32 @@
+# boomtip: `make run` sets everything up and runs the main job on the default scenario;
+# `make test` sets everything up and runs the tests. Both are idempotent.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN     = $(VENV)/bin
+OUT    ?= runs/sts-loaded
+SCENARIO ?= sts-loaded
+
+.PHONY: setup run test bench clean
+
+$(BIN)/boomtip: pyproject.toml
+	bash tools/install_system_deps.sh
+	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "boomtip needs Python >= 3.11, found " + sys.version' 
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[test]"
+	@touch $(BIN)/boomtip
+
+setup: $(BIN)/boomtip
+
+run: setup
+	$(BIN)/boomtip run --scenario $(SCENARIO) --out $(OUT) --force --rerun
+
+test: setup
+	$(BIN)/python -m pytest
+
+bench: setup
+	$(BIN)/boomtip bench raycast --json runs/bench/raycast.json --force
+	$(BIN)/boomtip bench perception --json runs/bench/perception.json --force
+
+clean:
+	rm -rf $(VENV) runs *.egg-info

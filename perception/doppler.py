@@ -1,0 +1,286 @@
+"""Radar Doppler velocity and relative heave rate (document 000 section 4.1.3, REFERENCE.md).
+
+Inputs are radar detections in the SENSOR frame: unit beam directions ``b_i`` (N, 3) and range
+rates ``r_dot_i`` in m/s, POSITIVE WHEN THE RANGE GROWS (target receding).
+
+Velocity convention
+-------------------
+``u`` is the velocity of the observed rigid body (the feeder) RELATIVE TO THE SENSOR, evaluated at
+the sensor origin (the body's velocity field extended to the origin), in sensor axes, m/s:
+``u = v_body(p_sensor) - p_sensor_dot``. The relative velocity of a body point x is
+``v(x) = u + w x x`` and its range rate is ``r_dot = b . v(x)`` with ``b = x/|x|``. Because
+``b . (w x |x| b) = 0`` the rotation drops out and ``r_dot_i = b_i . u`` EXACTLY: one scan
+observes u (3 unknowns, the rank-3 result of doc. 000 eq. 4.23) and nothing of w.
+Range rate is a scalar (d|x|/dt), so the same holds if the sensor axes rotate; u is then the
+apparent velocity of the body point momentarily at the origin, expressed in the sensor axes.
+
+Heave-rate convention
+---------------------
+``wire_dir`` is the unit direction of the crane wire / gravity, pointing DOWN from the tip.
+D is the distance from the tip down along ``wire_dir`` to the deck plane; D decreases when the
+deck comes up towards the tip.
+  * :func:`d_dot_document`: document 000 eq. 4.29 (rotation and deck tilt ignored):
+    ``D_dot = u . wire_dir``.
+  * :func:`d_dot_rotation_aware`: exact, ``D_dot = (n . u + D n . (w x wire_dir)) / (n . wire_dir)``
+    (REFERENCE.md: ``-[n.u - D n.(w x e_z)] / (n.e_z)`` with e_z = -wire_dir), valid in a frame that
+    TRANSLATES with the tip but does NOT rotate (gravity-levelled), where wire_dir is constant.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = [
+    "DopplerConfig",
+    "DopplerFit",
+    "doppler_velocity",
+    "d_dot_document",
+    "d_dot_rotation_aware",
+    "deck_angular_velocity",
+]
+
+
+class DopplerConfig(BaseModel):
+    """Robust least-squares ego/target velocity from range rates (m/s)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    inlier_threshold_mps: float = Field(0.3, gt=0, description="|r_dot - b.u| below this is an inlier, m/s")
+    confidence: float = Field(0.999, gt=0, lt=1, description="RANSAC confidence of one all-inlier triplet")
+    max_iterations: int = Field(500, ge=1, description="cap on RANSAC hypotheses")
+    batch_size: int = Field(128, ge=1, description="hypotheses solved and scored at once")
+    min_inliers: int = Field(3, ge=3, description="fewer inliers -> None")
+    refit_iterations: int = Field(2, ge=1, description="least-squares refit / inlier re-selection rounds")
+    huber_delta_mps: float | None = Field(
+        None, gt=0, description="if set, final Huber IRLS on the inliers with this delta, m/s"
+    )
+    huber_iterations: int = Field(5, ge=1)
+    max_condition: float = Field(1e3, gt=1, description="cond(B_inliers) above this -> degenerate, None")
+    min_triplet_det: float = Field(1e-6, gt=0, description="|det| of a minimal 3x3 beam set below this is skipped")
+
+
+@dataclass
+class DopplerFit:
+    """Velocity fit.
+
+    velocity_sensor: u (3,), m/s, relative velocity of the observed body at the sensor origin,
+        sensor axes (see module docstring for the sign).
+    inlier_mask: bool (N,).
+    residual_rms_mps: RMS of r_dot - b.u over the inliers, m/s.
+    covariance: 3x3, (m/s)^2, sigma^2 (B^T W B)^-1 over the inliers with sigma^2 the residual variance
+        (dof N_in - 3).
+    condition_number: cond of the inlier beam matrix B (geometry quality; large = poorly observed axis).
+    iterations: RANSAC hypotheses drawn.
+    """
+
+    velocity_sensor: np.ndarray
+    inlier_mask: np.ndarray
+    residual_rms_mps: float
+    covariance: np.ndarray
+    condition_number: float
+    iterations: int
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _lsq(b: np.ndarray, r: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+    """Weighted least squares u = argmin sum w (b.u - r)^2 via the 3x3 normal equations."""
+    if w is None:
+        a = b.T @ b
+        y = b.T @ r
+    else:
+        bw = b * w[:, None]
+        a = bw.T @ b
+        y = bw.T @ r
+    return np.linalg.solve(a, y)
+
+
+def doppler_velocity(
+    beam_dirs: np.ndarray,
+    range_rate_mps: np.ndarray,
+    cfg: DopplerConfig | None = None,
+    rng: np.random.Generator | None = None,
+) -> DopplerFit | None:
+    """Fit u with ``range_rate_i = b_i . u`` (sensor frame, m/s), robust to outliers.
+
+    ``beam_dirs`` (N, 3) are normalised here; ``range_rate_mps`` (N,) positive when receding.
+    Steps: vectorised RANSAC over minimal 3-detection sets (batched 3x3 solves, one (N x batch)
+    residual matrix per batch, adaptive stop from the best inlier ratio), least-squares refits on the
+    inliers with re-selection, optional Huber IRLS, covariance ``sigma^2 (B^T B)^-1``.
+    Returns None with fewer than 3 (finite) detections, fewer than ``cfg.min_inliers`` inliers, or a
+    degenerate geometry (cond(B) > ``cfg.max_condition``, e.g. all beams nearly parallel).
+    """
+    cfg = cfg or DopplerConfig()
+    rng = rng if rng is not None else np.random.default_rng()
+    b_all = np.asarray(beam_dirs, dtype=np.float64).reshape(-1, 3)
+    r_all = np.asarray(range_rate_mps, dtype=np.float64).reshape(-1)
+    if len(b_all) != len(r_all):
+        raise ValueError("beam_dirs and range_rate_mps must have the same length")
+    n_all = len(r_all)
+    norms = np.linalg.norm(b_all, axis=1)
+    valid = np.isfinite(r_all) & np.all(np.isfinite(b_all), axis=1) & (norms > 0)
+    vidx = np.flatnonzero(valid)
+    if len(vidx) < 3:
+        return None
+    b = b_all[vidx] / norms[vidx, None]
+    r = r_all[vidx]
+    n = len(r)
+    thr = cfg.inlier_threshold_mps
+
+    best_count, best_u, drawn = -1, None, 0
+    needed = float(cfg.max_iterations)
+    while drawn < min(needed, cfg.max_iterations):
+        k = min(cfg.batch_size, cfg.max_iterations - drawn)
+        tri = rng.integers(0, n, size=(k, 3))
+        drawn += k
+        a = b[tri]  # (k, 3, 3): rows are the beams of one triplet
+        y = r[tri]  # (k, 3)
+        ok = np.abs(np.linalg.det(a)) > cfg.min_triplet_det
+        if not np.any(ok):
+            continue
+        u = np.linalg.solve(a[ok], y[ok][..., None])[..., 0]  # (k', 3)
+        res = b @ u.T  # (n, k')
+        res -= r[:, None]
+        np.abs(res, out=res)
+        counts = np.count_nonzero(res < thr, axis=0)
+        j = int(np.argmax(counts))
+        if counts[j] > best_count:
+            best_count, best_u = int(counts[j]), u[j]
+            w_in = best_count / n
+            needed = math.inf if w_in <= 0 else (
+                1.0 if w_in >= 1 else math.log(1 - cfg.confidence) / math.log1p(-(w_in**3))
+            )
+    if best_u is None:
+        return None
+
+    u = best_u
+    mask = np.abs(b @ u - r) < thr
+    for _ in range(cfg.refit_iterations):
+        if np.count_nonzero(mask) < 3:
+            return None
+        bi = b[mask]
+        if np.linalg.cond(bi) > cfg.max_condition:
+            return None
+        u = _lsq(bi, r[mask])
+        mask = np.abs(b @ u - r) < thr
+    n_in = int(np.count_nonzero(mask))
+    if n_in < max(cfg.min_inliers, 3):
+        return None
+    bi, ri = b[mask], r[mask]
+    cond = float(np.linalg.cond(bi))
+    if cond > cfg.max_condition:
+        return None
+    weights = None
+    if cfg.huber_delta_mps is not None:
+        for _ in range(cfg.huber_iterations):
+            e = np.abs(bi @ u - ri)
+            weights = np.where(e <= cfg.huber_delta_mps, 1.0, cfg.huber_delta_mps / np.maximum(e, 1e-12))
+            u = _lsq(bi, ri, weights)
+    res = bi @ u - ri
+    rms = float(np.sqrt(np.mean(res * res)))
+    dof = max(n_in - 3, 1)
+    if weights is None:
+        sigma2 = float(res @ res) / dof
+        cov = sigma2 * np.linalg.inv(bi.T @ bi)
+    else:
+        sigma2 = float((weights * res) @ res) / dof
+        cov = sigma2 * np.linalg.inv((bi * weights[:, None]).T @ bi)
+    full_mask = np.zeros(n_all, dtype=bool)
+    full_mask[vidx[mask]] = True
+    return DopplerFit(
+        velocity_sensor=u,
+        inlier_mask=full_mask,
+        residual_rms_mps=rms,
+        covariance=cov,
+        condition_number=cond,
+        iterations=drawn,
+    )
+
+
+def d_dot_document(u_sensor: np.ndarray, wire_dir_sensor: np.ndarray) -> float:
+    """Relative heave rate as in document 000 eq. 4.29 (deck rotation and tilt ignored), m/s.
+
+    ``D_dot = u . wire_dir`` with u the deck's velocity relative to the sensor (module docstring) and
+    wire_dir the unit DOWN direction. Derivation for a horizontal deck translating with u: the deck
+    plane ``n.x + d = 0`` (n = -wire_dir) moves with ``d_dot = -n.u``, and ``D = -d/(n.wire_dir) = d``,
+    so ``D_dot = -n.u = u.wire_dir``: a deck rising towards the tip (u.wire_dir < 0) makes D shrink.
+    """
+    w = np.asarray(wire_dir_sensor, dtype=np.float64)
+    w = w / np.linalg.norm(w)
+    return float(np.asarray(u_sensor, dtype=np.float64) @ w)
+
+
+def d_dot_rotation_aware(
+    u_sensor: np.ndarray,
+    deck_plane_sensor: np.ndarray,
+    wire_dir_sensor: np.ndarray,
+    omega_sensor: np.ndarray,
+    D_m: float | None = None,
+) -> float:
+    """Exact relative heave rate for a tilted, rotating deck, m/s.
+
+    Frame: origin at the tip/sensor, TRANSLATING with it but NOT ROTATING (gravity-levelled), so
+    ``wire_dir`` (unit, pointing down) is constant. The caller converts from the rotating sensor
+    frame (MRU attitude + mount rotation) and removes the crane's own angular rate from omega.
+
+    With the deck plane ``n.x + d = 0`` (unit n; either sign), the deck's relative velocity field
+    ``v(x) = u + w x x`` (u = field at the origin, as returned by :func:`doppler_velocity`;
+    w = ``omega_sensor``, the deck's angular velocity relative to this frame) and
+    ``D = -d/(n.wire_dir)``:
+      * a point x fixed on the deck keeps ``n.x + d = 0`` and ``n_dot = w x n``, so
+        ``(w x n).x + n.(u + w x x) + d_dot = 0``; the two w terms cancel, giving ``d_dot = -n.u``;
+      * ``D_dot = -d_dot/(n.w_d) + d (n_dot.w_d)/(n.w_d)^2`` with ``w_d`` = wire_dir, and
+        ``n_dot.w_d = (w x n).w_d = -n.(w x w_d)``, d = -D (n.w_d), hence
+
+        ``D_dot = (n.u + D n.(w x wire_dir)) / (n.wire_dir)``.
+
+    Equivalently (REFERENCE.md, e_z = -wire_dir): ``D_dot = -[n.u - D n.(w x e_z)]/(n.e_z)``, i.e. the
+    relative velocity of the deck point below the tip, ``v(p_d) = u + D w x wire_dir``, projected on
+    the deck normal and divided by ``n.wire_dir``. Only the part of w perpendicular to n matters
+    (w = lambda n gives n.(n x wire_dir) = 0). Invariant to the sign of the plane.
+    ``D_m``: distance along the wire; computed from the plane when None. NaN if n.wire_dir == 0.
+    """
+    plane = np.asarray(deck_plane_sensor, dtype=np.float64)
+    nn = np.linalg.norm(plane[:3])
+    n, d = plane[:3] / nn, plane[3] / nn
+    w = np.asarray(wire_dir_sensor, dtype=np.float64)
+    w = w / np.linalg.norm(w)
+    den = float(n @ w)
+    if abs(den) < 1e-12:
+        return float("nan")
+    D = -d / den if D_m is None else float(D_m)
+    u = np.asarray(u_sensor, dtype=np.float64)
+    om = np.asarray(omega_sensor, dtype=np.float64)
+    return float((n @ u + D * (n @ np.cross(om, w))) / den)
+
+
+def deck_angular_velocity(normal_prev: np.ndarray, normal_curr: np.ndarray, dt_s: float) -> np.ndarray:
+    """Observable part of the deck's angular velocity from two deck normals, rad/s (3,).
+
+    For a unit normal ``n_dot = w x n``, so ``n x n_dot = w - n (n.w) = w_perp``: only the component
+    of w perpendicular to n is observable from the normal; the component along n (yaw about the deck
+    normal) is not, and it does not change D_dot (see :func:`d_dot_rotation_aware`).
+    Discretely, the minimal rotation taking ``normal_prev`` to ``normal_curr`` is used:
+    ``w_perp = angle / dt * unit(n_prev x n_curr)`` (exact for a constant w_perp). The normals are
+    normalised and ``normal_curr`` is flipped if needed to match the orientation of ``normal_prev``.
+    Both normals must be expressed in the same NON-ROTATING (levelled) frame, otherwise the frame's own
+    rotation is included. The result is perpendicular to both normals (to the mid-normal).
+    """
+    a = np.asarray(normal_prev, dtype=np.float64)
+    b = np.asarray(normal_curr, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    if a @ b < 0:
+        b = -b
+    axis = np.cross(a, b)
+    s = float(np.linalg.norm(axis))
+    if s < 1e-15:
+        return np.zeros(3)
+    angle = math.atan2(s, float(a @ b))
+    return axis / s * (angle / float(dt_s))

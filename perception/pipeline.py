@@ -1,0 +1,202 @@
+"""The relative-heave pipeline: one frame in, measurements of D and D-dot out.
+
+    LiDAR frame -> deck_lidar (D), reflectors_lidar (D)
+    radar frame -> deck_radar (D), doppler_radar (D-dot, document 000), doppler_radar_rot (D-dot, exact)
+
+The pipeline keeps the only state the methods need across frames: the latest deck plane
+(for the rotation-aware Doppler) and the deck normal's history (for the deck's spin).
+Each stage reports its own time; a row's time_ms is the sum of the stages its method ran.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from data.frames import Frame, MruLog, SourceMeta
+from data.motion import euler_rates_to_omega_world
+from perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck
+from perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
+from perception.geometry import (
+    NormalRate,
+    heave_rate_document,
+    heave_rate_exact,
+    plane_sigma_at,
+    rotation_level_sensor,
+    tip_in_sensor,
+    wire_dir_sensor,
+)
+from perception.preprocess import PreprocessConfig, preprocess
+from perception.reflectors import ReflectorConfig, ReflectorResult, detect_reflectors
+from perception.timing import StageTimes
+
+METHODS = ("deck_lidar", "deck_radar", "reflectors_lidar", "doppler_radar", "doppler_radar_rot")
+QUANTITY = {"deck_lidar": "D", "deck_radar": "D", "reflectors_lidar": "D", "doppler_radar": "D_dot", "doppler_radar_rot": "D_dot"}
+SENSOR_OF = {"deck_lidar": "lidar", "reflectors_lidar": "lidar", "deck_radar": "radar", "doppler_radar": "radar", "doppler_radar_rot": "radar"}
+STAGES = {
+    "deck_lidar": ("attitude", "deck.preprocess", "deck.planes", "deck.intersect"),
+    "reflectors_lidar": ("attitude", "reflectors.threshold", "reflectors.markers", "reflectors.plane"),
+    "deck_radar": ("attitude", "radar_deck.preprocess", "radar_deck.planes", "radar_deck.intersect"),
+    "doppler_radar": ("attitude", "doppler.preprocess", "doppler.fit", "doppler.document"),
+    "doppler_radar_rot": ("attitude", "doppler.preprocess", "doppler.fit", "doppler.rotation"),
+}
+SENSOR_IDS = {"lidar": 1, "radar": 2}
+
+
+class PipelineConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    methods: tuple[str, ...] = METHODS
+    deck_lidar: DeckConfig = LIDAR_DECK
+    deck_radar: DeckConfig = RADAR_DECK
+    reflectors: ReflectorConfig = ReflectorConfig()
+    doppler: DopplerConfig = DopplerConfig(inlier_threshold_mps=0.25)
+    doppler_preprocess: PreprocessConfig = PreprocessConfig(min_range_m=2.0, max_range_m=150.0)
+    normal_window_s: float = Field(1.0, gt=0, description="window of deck normals used for the deck's spin")
+    max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
+    seed: int = 0
+
+
+@dataclass
+class Measurement:
+    t_s: float
+    method: str
+    quantity: str
+    value: float
+    sigma: float
+    time_ms: float
+    status: str
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+@dataclass
+class FrameResult:
+    frame: Frame
+    measurements: list[Measurement]
+    times: StageTimes
+    deck_lidar: DeckResult | None = None
+    deck_radar: DeckResult | None = None
+    reflectors: ReflectorResult | None = None
+    doppler: DopplerFit | None = None
+    extras: dict = field(default_factory=dict)
+
+
+class HeavePipeline:
+    """Composes the stages; `process(frame)` returns that frame's measurements."""
+
+    def __init__(self, meta: SourceMeta, mru: MruLog, cfg: PipelineConfig | None = None) -> None:
+        self.meta, self.mru = meta, mru
+        self.cfg = cfg or PipelineConfig()
+        unknown = set(self.cfg.methods) - set(METHODS)
+        if unknown:
+            raise ValueError(f"unknown method(s) {sorted(unknown)}; expected some of {', '.join(METHODS)}")
+        self.p_tip = {s: tip_in_sensor(meta.T_boomtip_sensor[s]) for s in ("lidar", "radar")}
+        self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
+        self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
+
+    def _wants(self, sensor: str) -> list[str]:
+        return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor]
+
+    def _rows(self, frame: Frame, results: dict[str, tuple[float, float, str]], times: StageTimes) -> list[Measurement]:
+        return [
+            Measurement(frame.t_s, m, QUANTITY[m], v, s, times.total(*STAGES[m]), status)
+            for m, (v, s, status) in results.items()
+        ]
+
+    def process(self, frame: Frame) -> FrameResult:
+        times = StageTimes()
+        wanted = self._wants(frame.sensor)
+        if frame.error is not None:
+            return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, f"unreadable frame: {frame.error}") for m in wanted}, times), times)
+        with times.stage("attitude"):
+            att = self.mru.attitude(frame.t_s)
+            if att is not None:
+                rpy, rpy_rate = att
+                R_ls = rotation_level_sensor(rpy, self.meta.T_crane_boomtip, self.meta.T_boomtip_sensor[frame.sensor])
+                wire = wire_dir_sensor(R_ls)
+        if att is None:
+            status = f"no MRU attitude at t={frame.t_s:.3f} s (outside the log or in a gap)"
+            return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, status) for m in wanted}, times), times)
+        if len(frame) == 0:
+            return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, "empty frame") for m in wanted}, times), times)
+        rng = np.random.default_rng([self.cfg.seed, SENSOR_IDS[frame.sensor], frame.index])
+        out = FrameResult(frame, [], times)
+        results: dict[str, tuple[float, float, str]] = {}
+        p_tip = self.p_tip[frame.sensor]
+        if frame.sensor == "lidar":
+            if "deck_lidar" in wanted:
+                out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_lidar, rng, times, "deck")
+                results["deck_lidar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "lidar", R_ls)
+            if "reflectors_lidar" in wanted:
+                intensity = frame.fields.get("intensity")
+                if intensity is None:
+                    results["reflectors_lidar"] = (np.nan, np.nan, "frame has no intensity field")
+                else:
+                    out.reflectors = ref = detect_reflectors(frame.points_sensor, intensity, wire, p_tip, self.cfg.reflectors, rng, times)
+                    sigma = np.nan
+                    if ref.status == "ok":
+                        on = ref.bright_points[np.abs(ref.bright_points @ ref.plane_sensor[:3] + ref.plane_sensor[3]) < self.cfg.reflectors.ransac.distance_threshold_m]
+                        sigma = plane_sigma_at(on, ref.plane_sensor, p_tip + ref.D_m * wire)
+                    results["reflectors_lidar"] = (ref.D_m, sigma, ref.status)
+        else:
+            if "deck_radar" in wanted:
+                out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck")
+                results["deck_radar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "radar", R_ls)
+            if {"doppler_radar", "doppler_radar_rot"} & set(wanted):
+                results.update(self._doppler(frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out))
+        out.measurements = self._rows(frame, results, times)
+        return out
+
+    def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:
+        if deck.status != "ok":
+            return (np.nan, np.nan, deck.status)
+        on_plane = deck.points_used[deck.fit.inlier_mask]
+        sigma = plane_sigma_at(on_plane, deck.plane_sensor, p_tip + deck.D_m * wire)
+        self.normals[sensor].add(t_s, R_ls @ deck.plane_sensor[:3])
+        self.last_deck[sensor] = (t_s, deck.D_m)
+        return (deck.D_m, sigma, "ok")
+
+    def _doppler(self, frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out) -> dict:
+        res: dict[str, tuple[float, float, str]] = {}
+        with times.stage("doppler.preprocess"):
+            rr = frame.fields.get("range_rate")
+            if rr is None:
+                return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
+            pts, attrs, _ = preprocess(frame.points_sensor, {"range_rate": rr}, self.cfg.doppler_preprocess, rng)
+            beams = pts / np.linalg.norm(pts, axis=1, keepdims=True) if len(pts) else pts
+        with times.stage("doppler.fit"):
+            fit = doppler_velocity(beams, attrs["range_rate"].astype(float), self.cfg.doppler, rng) if len(pts) >= 3 else None
+        out.doppler = fit
+        if fit is None:
+            return {m: (np.nan, np.nan, f"no Doppler velocity ({len(pts)} detections or degenerate beams)") for m in wanted if m.startswith("doppler")}
+        u_level = R_ls @ fit.velocity_sensor
+        cov_level = R_ls @ fit.covariance @ R_ls.T
+        if "doppler_radar" in wanted:
+            with times.stage("doppler.document"):
+                res["doppler_radar"] = (heave_rate_document(u_level), float(np.sqrt(cov_level[2, 2])), "ok")
+        if "doppler_radar_rot" in wanted:
+            with times.stage("doppler.rotation"):
+                res["doppler_radar_rot"] = self._doppler_rot(frame.t_s, u_level, cov_level, R_ls, rpy, rpy_rate, p_tip)
+        return res
+
+    def _doppler_rot(self, t_s, u_level, cov_level, R_ls, rpy, rpy_rate, p_tip) -> tuple[float, float, str]:
+        # Deck normal, spin and D from the LiDAR when it has a recent deck, else from the radar.
+        for sensor in ("lidar", "radar"):
+            last = self.last_deck.get(sensor)
+            if last is None or t_s - last[0] > self.cfg.max_deck_age_s:
+                continue
+            omega_f = self.normals[sensor].omega(t_s)
+            if omega_f is None:
+                continue
+            n = self.normals[sensor].normal(t_s)
+            omega_c = euler_rates_to_omega_world(rpy[None], rpy_rate[None])[0]
+            r_tip = R_ls @ p_tip
+            value = heave_rate_exact(u_level, n, omega_f, omega_c, r_tip, last[1])
+            sigma = float(np.sqrt(n @ cov_level @ n) / abs(n[2]))
+            return (value, sigma, "ok")
+        return (np.nan, np.nan, "no recent deck plane for the deck's normal and spin")
