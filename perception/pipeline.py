@@ -125,7 +125,7 @@ class HeavePipeline:
         if len(frame) == 0:
             return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, "empty frame") for m in wanted}, times), times)
         rng = np.random.default_rng([self.cfg.seed, SENSOR_IDS[frame.sensor], frame.index])
-        out = FrameResult(frame, [], times)
+        out = FrameResult(frame, [], times, extras={"R_level_sensor": R_ls, "wire_dir_sensor": wire})
         results: dict[str, tuple[float, float, str]] = {}
         p_tip = self.p_tip[frame.sensor]
         if frame.sensor == "lidar":

@@ -167,26 +167,30 @@ def _plane_from_scatter(centroid: np.ndarray, scatter: np.ndarray) -> np.ndarray
     return orient_plane_towards(plane)
 
 
-def _fit_plane_rows(pts: np.ndarray) -> np.ndarray:
-    """Least-squares plane through (M, 3) float64 points, M >= 3.
+def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
+    """Least-squares plane through points stored COLUMN-wise, (3, M) C-contiguous float64, M >= 3.
 
     The normal is the right singular vector of the centred points with the smallest singular value,
     computed as the smallest-eigenvalue eigenvector of the 3x3 scatter matrix of the centred points
     (mathematically identical to the SVD, and 10-20x faster than an SVD of an (M, 3) matrix).
-    The scatter is ``sum p p^T - S S^T / M`` from two BLAS products (no centred copy of the points).
-    Rounding: the entries carry an absolute error of about M |p|^2 eps; relative to the eigen-gap
+    The scatter comes from six dot products of contiguous rows minus the centroid term.
+    Rounding: entries carry an absolute error of about M |p|^2 eps; relative to the eigen-gap
     M * extent^2 that tilts the normal by |p|^2 eps / extent^2, i.e. 2e-11 rad for a 1 m patch at
     300 m range: negligible.
     """
-    m = len(pts)
-    s = np.ones(m) @ pts  # sum of p
-    scatter = pts.T @ pts - np.outer(s, s) / m
+    m = cols.shape[1]
+    s = cols.sum(axis=1)
+    x, y, z = cols
+    sxx, sxy, sxz = np.vdot(x, x), np.vdot(x, y), np.vdot(x, z)
+    syy, syz, szz = np.vdot(y, y), np.vdot(y, z), np.vdot(z, z)
+    raw = np.array([[sxx, sxy, sxz], [sxy, syy, syz], [sxz, syz, szz]])
+    scatter = raw - np.outer(s, s) / m
     return _plane_from_scatter(s / m, scatter)
 
 
-def _select_inliers(pts: np.ndarray, plane: np.ndarray, thr: float) -> np.ndarray:
-    """Indices of the (N, 3) points with |n . p + d| < thr (one pass, in-place temporaries)."""
-    r = pts @ plane[:3]
+def _select_inliers(cols: np.ndarray, plane: np.ndarray, thr: float) -> np.ndarray:
+    """Indices of the points (columns of (3, N) ``cols``) with |n . p + d| < thr."""
+    r = plane[:3] @ cols
     r += plane[3]
     np.abs(r, out=r)
     return np.flatnonzero(r < thr)
@@ -203,7 +207,7 @@ def fit_plane_lsq(points: np.ndarray) -> np.ndarray:
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(pts) < 3:
         raise ValueError("fit_plane_lsq needs at least 3 points")
-    return _fit_plane_rows(pts)
+    return _fit_plane_cols(np.ascontiguousarray(pts.T))
 
 
 def plane_tilt_deg(plane: np.ndarray, up: np.ndarray) -> float:
@@ -303,7 +307,7 @@ def ransac_plane(
         return None
     thr = float(cfg.distance_threshold_m)
 
-    # --- score set (subsample), centred and in float32 -----------------------------------------
+    # --- score set (subsample), centred, float32, homogeneous (4, S) ----------------------------
     s = min(n_pts, cfg.subsample_size)
     if s < n_pts:
         # with replacement: a few duplicates are harmless and this is 4x cheaper than without
@@ -312,7 +316,8 @@ def ransac_plane(
         sub = pts
     centre = sub.mean(axis=0)
     sub_c = sub - centre
-    sub32 = np.ascontiguousarray(sub_c, dtype=np.float32)
+    sub_h = np.ones((4, s), dtype=np.float32)
+    sub_h[:3] = sub_c.T
     thr32 = np.float32(thr)
 
     cos_max = None
@@ -348,9 +353,12 @@ def ransac_plane(
                 continue
             nrm, p0 = nrm[keep], p0[keep]
         d = -np.einsum("ij,ij->i", nrm, p0)
-        # (B, S) signed distances with one GEMM, then |.| < thr counted per hypothesis
-        dist = nrm.astype(np.float32) @ sub32.T
-        dist += d.astype(np.float32)[:, None]
+        # (B, S) signed distances with ONE GEMM of [n, d] (B, 4) by homogeneous points (4, S),
+        # then |.| < thr counted per hypothesis (uint8 row sums are cheaper than count_nonzero(axis))
+        hyp = np.empty((len(d), 4), dtype=np.float32)
+        hyp[:, :3] = nrm
+        hyp[:, 3] = d
+        dist = hyp @ sub_h
         np.abs(dist, out=dist)
         counts = (dist < thr32).view(np.uint8).sum(axis=1, dtype=np.int32)
         k = int(np.argmax(counts))
@@ -364,29 +372,32 @@ def ransac_plane(
         return None
 
     # --- best hypothesis on all points, then least-squares refits (float64) -------------------
+    # Points are transposed once to (3, N): distances are then one contiguous GEMV and the inlier
+    # gather / moments run on contiguous rows (about 3x faster than on (N, 3) rows).
     # Round k: fit on the inliers of round k-1, re-select. The returned plane is the last fit and
     # the returned mask is exactly the set of points it was fitted to (this saves one full pass
     # over the cloud compared with re-selecting once more).
+    cols = np.ascontiguousarray(pts.T)
     plane = np.concatenate([best_n, [best_d - best_n @ centre]])  # back to the sensor frame
-    idx = _select_inliers(pts, plane, thr)
+    idx = _select_inliers(cols, plane, thr)
     x_in = None
     for k in range(cfg.refit_iterations):
         if k > 0:
-            idx = _select_inliers(pts, plane, thr)
+            idx = _select_inliers(cols, plane, thr)
         if len(idx) < 3:
             break
-        x_in = pts.take(idx, axis=0)
-        plane = _fit_plane_rows(x_in)
+        x_in = cols.take(idx, axis=1)
+        plane = _fit_plane_cols(x_in)
     n_in = len(idx)
     if n_in < max(cfg.min_inliers, 3):
         return None
     plane = orient_plane_towards(plane)
     mask = np.zeros(n_pts, dtype=bool)
     mask[idx] = True
-    if x_in is None or len(x_in) != n_in:
-        x_in = pts.take(idx, axis=0)
-    r_in = x_in @ plane[:3] + plane[3]
-    rms = float(np.sqrt(np.mean(r_in * r_in)))
+    if x_in is None or x_in.shape[1] != n_in:
+        x_in = cols.take(idx, axis=1)
+    r_in = plane[:3] @ x_in + plane[3]
+    rms = float(np.sqrt(np.vdot(r_in, r_in) / n_in))
     return PlaneFit(plane=plane, inlier_mask=mask, inlier_ratio=n_in / n_pts, rms_m=rms, iterations=drawn)
 
 

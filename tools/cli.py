@@ -99,6 +99,76 @@ def simulate(
     )
 
 
+def _print_kpis(kpis: dict) -> None:
+    from tools.report import kpi_table, measurement_table
+
+    print(f"\n{kpis['scenario']} (seed {kpis['seed']}, {kpis['duration_s']:.0f} s)\n")
+    print("Raw measurements (before any filter):")
+    print(measurement_table(kpis))
+    if "solutions" in kpis:
+        print("\nSolutions after the Kalman filter (" + kpis["solutions_note"] + "), document 000's Table 5.4 beside ours:")
+        print(kpi_table(kpis))
+
+
+def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> None:
+    from tools.runner import run_heave
+
+    with progress_bar(len(source), "processing") as advance:
+        result = run_heave(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance)
+    _print_kpis(result.kpis)
+    console.print(f"\nwrote {out}: measurements.csv, estimates.csv" + (", kpis.json, report.md, plots" if "solutions" in result.kpis else "")
+                  + (", boomtip.rrd" if rerun else ""))
+
+
+@app.command()
+def run(
+    scenario: str = ScenarioOpt,
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Seconds to simulate (overrides duration_s)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (overrides seed)."),
+    set_: Optional[list[str]] = SetOpt,
+    rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+) -> None:
+    """Simulate a scenario in memory and run perception + fusion on it (no recording on disk)."""
+    from data.simulator import Simulation
+
+    with user_errors():
+        s = resolve_scenario(scenario, set_, duration, seed)
+        _run_and_report(Simulation(s), out, force, rerun)
+
+
+@app.command()
+def process(
+    recording: Path = typer.Argument(..., help="Recording folder written by `boomtip simulate` (or the same layout)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
+    rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+) -> None:
+    """Run perception + fusion on a recording."""
+    from data.recording import Recording
+
+    with user_errors():
+        _run_and_report(Recording(recording), out, force, rerun, inputs=(recording,))
+
+
+@app.command()
+def view(
+    out: Path = typer.Argument(..., help="An output folder of `boomtip run --rerun` or `boomtip process --rerun`."),
+    spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer on it (needs a display)."),
+) -> None:
+    """Show where a run's rerun recording is, or open it in the rerun viewer."""
+    rrd = out / "boomtip.rrd"
+    if not rrd.is_file():
+        console.print(f"[bold red]error:[/] {rrd} not found; run `boomtip run ... --rerun` or `boomtip process ... --rerun` first")
+        raise typer.Exit(2)
+    if spawn:
+        import subprocess
+
+        raise typer.Exit(subprocess.call([sys.executable, "-m", "rerun", str(rrd)]))
+    print(f"{rrd} ({rrd.stat().st_size / 1e6:.1f} MB): open it with `rerun {rrd}` or `boomtip view {out} --spawn`")
+
+
 def write_bench_json(path: Optional[Path], result: dict, force: bool) -> None:
     if path is None:
         return

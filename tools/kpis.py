@@ -1,0 +1,65 @@
+"""KPIs of document 000 (5.1.2): MAE, max absolute error, RMSE and APT, against the truth."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from data.frames import Truth
+from fusion.solutions import Estimates
+from perception.pipeline import METHODS, Measurement
+
+WARMUP_S = 5.0  # solutions: the first seconds are filter convergence and are not scored
+
+
+def error_stats(err: np.ndarray) -> dict[str, float]:
+    err = err[np.isfinite(err)]
+    if len(err) == 0:
+        return {"mae": float("nan"), "max": float("nan"), "rmse": float("nan"), "n": 0}
+    a = np.abs(err)
+    return {"mae": float(a.mean()), "max": float(a.max()), "rmse": float(np.sqrt(np.mean(err**2))), "n": int(len(err))}
+
+
+def measurement_kpis(rows: list[Measurement], truth: Truth | None) -> dict[str, dict]:
+    out: dict[str, dict] = {}
+    for m in METHODS:
+        mine = [r for r in rows if r.method == m]
+        if not mine:
+            continue
+        ok = [r for r in mine if r.ok]
+        entry = {
+            "quantity": mine[0].quantity,
+            "apt_ms": float(np.mean([r.time_ms for r in mine])),
+            "valid_fraction": len(ok) / len(mine),
+            "frames": len(mine),
+        }
+        if truth is not None:
+            t = np.array([r.t_s for r in ok])
+            v = np.array([r.value for r in ok])
+            stats = error_stats(v - truth.at(mine[0].quantity, t)) if len(ok) else error_stats(np.zeros(0))
+            entry.update({"mae": stats["mae"], "max": stats["max"], "rmse": stats["rmse"]})
+        out[m] = entry
+    return out
+
+
+def solution_kpis(est: Estimates, truth: Truth, rows: list[Measurement], methods: tuple[str, ...]) -> dict:
+    keep = est.t_s >= WARMUP_S
+    t = est.t_s[keep]
+    d = error_stats(est.x[keep, 0] - truth.at("D", t))
+    v = error_stats(est.x[keep, 1] - truth.at("D_dot", t))
+    used = [r for r in rows if r.method in methods]
+    cycles = len({(r.t_s, r.method.split("_")[-1]) for r in used}) or 1
+    perception_ms = sum(r.time_ms for r in used)
+    return {
+        "mae_D_m": d["mae"], "max_D_m": d["max"], "rmse_D_m": d["rmse"],
+        "mae_D_dot_mps": v["mae"], "max_D_dot_mps": v["max"], "rmse_D_dot_mps": v["rmse"],
+        "apt_ms": (perception_ms + est.filter_ms) / cycles,
+        "filter_ms_per_cycle": est.filter_ms / cycles,
+        "measurements": est.inputs,
+        "filter_status": est.statuses,
+    }
+
+
+def truth_amplitudes(truth: Truth) -> dict[str, float]:
+    """Maximum amplitude of the truth about its mean (document 000's % reference)."""
+    D, V = truth.columns["D"], truth.columns["D_dot"]
+    return {"D_m": float(np.max(np.abs(D - D.mean()))), "D_dot_mps": float(np.max(np.abs(V - V.mean())))}

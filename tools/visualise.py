@@ -1,0 +1,116 @@
+"""rerun-sdk recordings (.rrd, no viewer needed): clouds, detections and time series.
+
+Everything 3-D is logged in the boom tip's gravity-levelled frame (origin at the tip, z up),
+so the deck appears below at z = -D whatever the crane vessel's attitude.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from data.frames import FrameSource, Truth
+from fusion.solutions import Estimates
+from perception.geometry import tip_in_sensor
+from perception.pipeline import FrameResult
+from tools.report import COLORS
+
+TIMELINE = "sensor_time"
+
+
+def _colormap(values: np.ndarray, lo: float, hi: float, name: str) -> np.ndarray:
+    import matplotlib
+
+    cmap = matplotlib.colormaps[name]
+    x = np.clip((values - lo) / max(hi - lo, 1e-9), 0, 1)
+    return (cmap(x)[:, :3] * 255).astype(np.uint8)
+
+
+def _hex(c: str) -> list[int]:
+    return [int(c[i : i + 2], 16) for i in (1, 3, 5)]
+
+
+class RerunLogger:
+    def __init__(self, path: Path, source: FrameSource) -> None:
+        import rerun as rr
+        import rerun.blueprint as rrb
+
+        self.rr = rr
+        self.meta = source.meta
+        self.rec = rr.RecordingStream("boomtip")
+        blueprint = rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin="tip", name="boom tip (levelled, z up)"),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="heave/D", name="D [m]"),
+                    rrb.TimeSeriesView(origin="heave/D_dot", name="D-dot [m/s]"),
+                    rrb.TimeSeriesView(origin="heave/error_D_mm", name="D error [mm]"),
+                ),
+                column_shares=[3, 2],
+            ),
+            collapse_panels=True,
+        )
+        self.rec.save(str(path), default_blueprint=blueprint)
+        self.rec.log("tip", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self.rec.log("tip/boom_tip", rr.Points3D([[0, 0, 0]], radii=0.4, colors=[[255, 255, 255]], labels=["boom tip"]), static=True)
+
+    def _to_tip(self, res: FrameResult, p_sensor: np.ndarray) -> np.ndarray:
+        R = res.extras["R_level_sensor"]
+        p_tip = tip_in_sensor(self.meta.T_boomtip_sensor[res.frame.sensor])
+        return (p_sensor - p_tip) @ R.T
+
+    def log_frame(self, res: FrameResult) -> None:
+        rr, rec, f = self.rr, self.rec, res.frame
+        rec.set_time(TIMELINE, duration=f.t_s)
+        if "R_level_sensor" not in res.extras or len(f) == 0:
+            return
+        pts = self._to_tip(res, f.points_sensor)
+        if f.sensor == "lidar":
+            inten = np.log10(np.maximum(f.fields.get("intensity", np.ones(len(f))), 1e-3))
+            rec.log("tip/lidar", rr.Points3D(pts, colors=_colormap(inten, -1.5, 1.5, "viridis"), radii=0.06))
+            deck = res.deck_lidar
+            if deck is not None and deck.status == "ok":
+                self._log_plane("tip/deck_plane", res, deck.plane_sensor, deck.D_m, [80, 160, 255, 90])
+            ref = res.reflectors
+            if ref is not None and len(ref.marker_centroids):
+                rec.log("tip/reflectors", rr.Points3D(self._to_tip(res, ref.marker_centroids), radii=0.5, colors=[[255, 60, 200]]))
+        else:
+            rr_mps = f.fields.get("range_rate", np.zeros(len(f)))
+            rec.log("tip/radar", rr.Points3D(pts, colors=_colormap(rr_mps, -1.5, 1.5, "coolwarm"), radii=0.25))
+
+    def _log_plane(self, path: str, res: FrameResult, plane_sensor: np.ndarray, D: float, rgba: list[int]) -> None:
+        rr = self.rr
+        R = res.extras["R_level_sensor"]
+        n = R @ plane_sensor[:3]
+        n = n / np.linalg.norm(n)
+        p_d = np.array([0.0, 0.0, -D])
+        u = np.cross(n, [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        half_u, half_v = 45.0, 12.0
+        quad = np.array([p_d + a * half_u * u + b * half_v * v for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        self.rec.log(path, rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]], vertex_colors=[rgba] * 4))
+        self.rec.log("tip/wire", rr.LineStrips3D([[[0, 0, 0], p_d]], colors=[[255, 200, 0]], radii=0.08))
+        self.rec.log("tip/p_d", rr.Points3D([p_d], radii=0.35, colors=[[255, 200, 0]], labels=[f"D = {D:.3f} m"]))
+
+    def log_estimates(self, estimates: dict[str, Estimates], truth: Truth | None) -> None:
+        rr, rec = self.rr, self.rec
+        series = []
+        if truth is not None:
+            series.append(("truth", truth.t_s, truth.columns["D"], truth.columns["D_dot"], None, [0, 0, 0]))
+        for name, e in estimates.items():
+            ok = np.isfinite(e.x[:, 0])
+            err = (e.x[ok, 0] - truth.at("D", e.t_s[ok])) * 1e3 if truth is not None else None
+            series.append((name, e.t_s[ok], e.x[ok, 0], e.x[ok, 1], err, _hex(COLORS.get(name, "#777777"))))
+        for name, t, D, V, err, color in series:
+            for q, values in (("D", D), ("D_dot", V), ("error_D_mm", err)):
+                if values is None or (q == "error_D_mm" and name == "doppler_radar"):
+                    continue
+                path = f"heave/{q}/{name}"
+                rec.log(path, rr.SeriesLines(colors=[color], names=name, widths=2.5 if name == "truth" else 1.2), static=True)
+                rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t)], columns=rr.Scalars.columns(scalars=values))
+
+    def close(self) -> None:
+        self.rec.flush()
+        self.rec.disconnect()
