@@ -9,7 +9,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from perception.geometry import heave_distance
-from perception.plane import MultiPlaneConfig, PlaneFit, RansacConfig, multi_plane_deck
+from typing import Literal
+
+from perception.plane import MultiPlaneConfig, PlaneFit, RansacConfig, multi_plane_deck, ransac_plane
 from perception.preprocess import PreprocessConfig, preprocess
 from perception.timing import StageTimes
 
@@ -20,12 +22,19 @@ class DeckConfig(BaseModel):
     preprocess: PreprocessConfig = PreprocessConfig(min_range_m=2.0)
     multi_plane: MultiPlaneConfig = MultiPlaneConfig()
     min_points: int = Field(50, ge=3, description="fewer points after preprocessing: no measurement")
+    search: Literal["below", "all"] = Field(
+        "below",
+        description="'all': document 000's Algorithm 3 (fit max_planes planes in turn, keep the deck); "
+        "'below': after each plane, search only the points below it, since under the deck metric "
+        "(the lowest large horizontal plane) a plane above the current best can never win",
+    )
+    below_margin_m: float = Field(0.3, ge=0, description="'below' search: points this far beyond the plane")
 
 
-# LiDAR: dense and precise (cm noise). A 0.3 m voxel grid keeps ~1 point per beam footprint
-# near the nadir and thins the far field, where the deck is already seen obliquely.
+# LiDAR: dense and precise (cm noise). No voxel grid: RANSAC scores hypotheses on a random
+# subsample anyway, and the final least-squares refit is better with every deck point.
 LIDAR_DECK = DeckConfig(
-    preprocess=PreprocessConfig(min_range_m=2.0, voxel_size_m=0.3),
+    preprocess=PreprocessConfig(min_range_m=2.0),
     multi_plane=MultiPlaneConfig(ransac=RansacConfig(distance_threshold_m=0.08, subsample_size=1500, refit_iterations=2)),
 )
 # Radar: sparse (hundreds of points) and noisy (0.1-0.2 m): a wider inlier band, no voxels.
@@ -62,11 +71,38 @@ def detect_deck(
     if len(pts) < cfg.min_points:
         return DeckResult(float("nan"), None, None, pts, f"too few points ({len(pts)} < {cfg.min_points})")
     with times.stage(f"{prefix}.planes"):
-        result = multi_plane_deck(pts, -wire_dir_sensor, cfg.multi_plane, rng)
-    if result is None:
+        if cfg.search == "all":
+            result = multi_plane_deck(pts, -wire_dir_sensor, cfg.multi_plane, rng)
+            deck = result.deck if result is not None else None
+        else:
+            deck = lowest_large_plane(pts, -wire_dir_sensor, cfg, rng)
+    if deck is None:
         return DeckResult(float("nan"), None, None, pts, "no deck plane")
     with times.stage(f"{prefix}.intersect"):
-        D = heave_distance(result.deck.plane, wire_dir_sensor, p_tip_sensor)
+        D = heave_distance(deck.plane, wire_dir_sensor, p_tip_sensor)
     if not np.isfinite(D) or D <= 0:
-        return DeckResult(float("nan"), result.deck.plane, result.deck, pts, "wire does not meet the deck plane")
-    return DeckResult(D, result.deck.plane, result.deck, pts, "ok")
+        return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
+    return DeckResult(D, deck.plane, deck, pts, "ok")
+
+
+def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> PlaneFit | None:
+    """The feeder deck: the lowest near-horizontal plane holding at least min_area_fraction of
+    the first (largest) plane's points. Same metric as Algorithm 3 with the improved
+    selection, but each search runs only on the points below the current best plane."""
+    mp = cfg.multi_plane
+    best = ransac_plane(pts, mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
+    if best is None:
+        return None
+    need = max(mp.min_inliers, int(mp.min_area_fraction * best.n_inliers))
+    for _ in range(mp.max_planes - 1):
+        # Normals point towards the sensor, so points below the plane have negative distance.
+        below = np.flatnonzero(pts @ best.plane[:3] + best.plane[3] < -cfg.below_margin_m)
+        if len(below) < need:
+            break
+        cand = ransac_plane(pts[below], mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
+        if cand is None or cand.n_inliers < need:
+            break
+        mask = np.zeros(len(pts), dtype=bool)
+        mask[below[cand.inlier_mask]] = True
+        best = PlaneFit(cand.plane, mask, cand.inlier_ratio, cand.rms_m, cand.iterations)
+    return best

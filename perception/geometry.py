@@ -8,15 +8,24 @@ axes with R_level_sensor = R_world_crane(MRU) R_crane_boomtip R_boomtip_sensor.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 E_Z = np.array([0.0, 0.0, 1.0])
 
 
+def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) for one attitude. Written out because building a scipy
+    Rotation costs ~50x more than the nine products, once per frame."""
+    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy_rad), np.sin(rpy_rad)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
 def rotation_level_sensor(rpy_crane_rad: np.ndarray, T_crane_boomtip: np.ndarray, T_boomtip_sensor: np.ndarray) -> np.ndarray:
     """Sensor axes -> gravity-aligned axes, from the MRU attitude and the mount (eq. 4.3)."""
-    R_wc = Rotation.from_euler("xyz", rpy_crane_rad).as_matrix()
-    return R_wc @ T_crane_boomtip[:3, :3] @ T_boomtip_sensor[:3, :3]
+    return rpy_matrix(rpy_crane_rad) @ (T_crane_boomtip[:3, :3] @ T_boomtip_sensor[:3, :3])
 
 
 def wire_dir_sensor(R_level_sensor: np.ndarray) -> np.ndarray:
@@ -102,10 +111,10 @@ class NormalRate:
         tt = np.asarray(self.t) - t_s
         N = np.asarray(self.n)
         deg = 2 if len(tt) >= 6 else 1
-        coef = np.polynomial.polynomial.polyfit(tt, N, deg)  # (deg+1, 3)
+        V = np.vander(tt, deg + 1, increasing=True)  # columns 1, t, t^2
+        coef = np.linalg.lstsq(V, N, rcond=None)[0]  # (deg+1, 3)
         n0 = coef[0] / np.linalg.norm(coef[0])
-        n_dot = coef[1]
-        return np.cross(n0, n_dot)
+        return np.cross(n0, coef[1])
 
     def normal(self, t_s: float) -> np.ndarray | None:
         if not self.n:

@@ -88,3 +88,104 @@ def bench_raycast(scenario: Scenario, frames: int = 20, simulate_s: float = 60.0
         result["simulate_wall_s"] = wall
         result["simulate_realtime_factor"] = simulate_s / wall
     return result
+
+
+def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2, sor_nb: int = 20, sor_std: float = 2.0) -> dict:
+    """Deck detection and its stages vs a baseline of Open3D's own calls, on the same frames.
+
+    Stages: preprocessing with the same operations (non-finite removal, voxel grid,
+    statistical outliers); the plane search (ours vs `segment_plane` repeated as in
+    Algorithm 3, same selection metric); and deck detection end to end as each would run
+    (ours as configured in the pipeline; baseline: Open3D preprocessing + repeated
+    segment_plane), with D's error against the truth for both.
+    """
+    from data.simulator import Simulation
+    from perception.deck import LIDAR_DECK, detect_deck, lowest_large_plane
+    from perception.geometry import heave_distance, rotation_level_sensor, tip_in_sensor, wire_dir_sensor
+    from perception.pipeline import HeavePipeline
+    from perception.preprocess import PreprocessConfig, open3d_baseline_multi_plane, open3d_baseline_preprocess, preprocess
+    from perception.timing import StageTimes
+
+    sim = Simulation(scenario)
+    meta = sim.meta
+    p_tip = tip_in_sensor(meta.T_boomtip_sensor["lidar"])
+    pre_cfg = PreprocessConfig(min_range_m=0.0, voxel_size_m=voxel_m, outlier_nb_neighbors=sor_nb, outlier_std_ratio=sor_std)
+    thr = LIDAR_DECK.multi_plane.ransac.distance_threshold_m
+    t_pre = {"boomtip": 0.0, "open3d": 0.0}
+    t_plane = {"boomtip": 0.0, "open3d": 0.0}
+    t_deck = {"boomtip": 0.0, "open3d": 0.0}
+    err = {"boomtip": [], "open3d": []}
+    for i in range(frames):
+        t = i / scenario.lidar.rate_hz
+        f = sim.lidar_frame(i, t)
+        rpy, _ = sim.mru.attitude(t)
+        wire = wire_dir_sensor(rotation_level_sensor(rpy, meta.T_crane_boomtip, meta.T_boomtip_sensor["lidar"]))
+        truth_D = float(sim.truth.at("D", np.array([t]))[0])
+        rng = np.random.default_rng([scenario.seed, i])
+        # Stage 1: preprocessing, same operations.
+        t0 = time.perf_counter()
+        pts_ours, _, _ = preprocess(f.points_sensor, None, pre_cfg, rng)
+        t1 = time.perf_counter()
+        pts_o3d = open3d_baseline_preprocess(f.points_sensor, voxel_m, sor_nb, sor_std)
+        t2 = time.perf_counter()
+        t_pre["boomtip"] += t1 - t0
+        t_pre["open3d"] += t2 - t1
+        # Stage 2: plane search on the same (Open3D-preprocessed) points.
+        t0 = time.perf_counter()
+        lowest_large_plane(pts_o3d, -wire, LIDAR_DECK, rng)
+        t1 = time.perf_counter()
+        open3d_baseline_multi_plane(pts_o3d, -wire, n_planes=LIDAR_DECK.multi_plane.max_planes, threshold=thr, seed=i)
+        t2 = time.perf_counter()
+        t_plane["boomtip"] += t1 - t0
+        t_plane["open3d"] += t2 - t1
+        # End to end: deck detection as each route would run it.
+        times = StageTimes()
+        t0 = time.perf_counter()
+        ours = detect_deck(f.points_sensor, wire, p_tip, LIDAR_DECK, rng, times)
+        t1 = time.perf_counter()
+        res = open3d_baseline_multi_plane(open3d_baseline_preprocess(f.points_sensor, voxel_m, sor_nb, sor_std), -wire,
+                                          n_planes=LIDAR_DECK.multi_plane.max_planes, threshold=thr, seed=i)
+        D_o3d = heave_distance(res.deck.plane, wire, p_tip) if res is not None else np.nan
+        t2 = time.perf_counter()
+        t_deck["boomtip"] += t1 - t0
+        t_deck["open3d"] += t2 - t1
+        err["boomtip"].append(ours.D_m - truth_D)
+        err["open3d"].append(D_o3d - truth_D)
+    ms = lambda x: 1e3 * x / frames  # noqa: E731
+    mae = {k: float(np.nanmean(np.abs(v))) for k, v in err.items()}
+    mx = {k: float(np.nanmax(np.abs(v))) for k, v in err.items()}
+    # The other methods' figures from the pipeline itself (its own stage timing), same scenario.
+    pipe = HeavePipeline(meta, sim.mru)
+    per_method: dict[str, dict] = {}
+    n_radar = int(frames * scenario.radar.rate_hz / scenario.lidar.rate_hz)
+    for sensor, n in (("lidar", frames), ("radar", n_radar)):
+        for i in range(n):
+            t = i / (scenario.lidar.rate_hz if sensor == "lidar" else scenario.radar.rate_hz)
+            fr = sim.lidar_frame(i, t) if sensor == "lidar" else sim.radar_frame(i, t)
+            for m in pipe.process(fr).measurements:
+                d = per_method.setdefault(m.method, {"apt_ms": [], "err": [], "valid": 0, "frames": 0})
+                d["apt_ms"].append(m.time_ms)
+                d["frames"] += 1
+                if m.ok:
+                    d["valid"] += 1
+                    d["err"].append(m.value - float(sim.truth.at(m.quantity, np.array([t]))[0]))
+    methods = {
+        m: {"apt_ms": float(np.mean(d["apt_ms"])), "mae": float(np.mean(np.abs(d["err"]))) if d["err"] else float("nan"),
+            "valid_fraction": d["valid"] / d["frames"]}
+        for m, d in per_method.items()
+    }
+    return {
+        "frames": frames,
+        "points_per_frame": float(np.mean([len(sim.lidar_frame(0, 0.0))])),
+        "preprocess_ms": {k: ms(v) for k, v in t_pre.items()},
+        "preprocess_ratio": t_pre["open3d"] / t_pre["boomtip"],
+        "plane_search_ms": {k: ms(v) for k, v in t_plane.items()},
+        "plane_search_ratio": t_plane["open3d"] / t_plane["boomtip"],
+        "deck_detection_ms": {k: ms(v) for k, v in t_deck.items()},
+        "deck_mae_m": mae,
+        "deck_max_m": mx,
+        "ratio": t_deck["open3d"] / t_deck["boomtip"],
+        "methods": methods,
+        "baseline": f"Open3D remove_non_finite_points + voxel_down_sample({voxel_m}) + remove_statistical_outlier({sor_nb}, {sor_std}) "
+                    f"+ segment_plane x{LIDAR_DECK.multi_plane.max_planes} (Algorithm 3)",
+    }

@@ -209,6 +209,37 @@ def bench_raycast_cmd(
               f"{r['simulate_realtime_factor']:.1f}x real time")
 
 
+@bench_app.command("perception")
+def bench_perception_cmd(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    frames: int = typer.Option(30, "--frames", min=1),
+    set_: Optional[list[str]] = SetOpt,
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """Deck detection and its stages vs Open3D's own calls on the same frames; every method's APT and MAE."""
+    from tools.bench import bench_perception
+
+    with user_errors():
+        s = resolve_scenario(scenario, set_)
+        r = bench_perception(s, frames=frames)
+        write_bench_json(json_path, r, force)
+    print(f"perception  {s.name}, {frames} LiDAR frames, {r['points_per_frame']:.0f} points/frame")
+    print(f"  baseline: {r['baseline']}")
+    print(f"  {'stage':28s} {'boomtip ms':>11s} {'Open3D ms':>10s} {'ratio':>7s}")
+    for label, key in (("preprocess (same operations)", "preprocess"), ("plane search (same points)", "plane_search"),
+                       ("deck detection end to end", "deck_detection")):
+        ms = r[f"{key}_ms"]
+        print(f"  {label:28s} {ms['boomtip']:11.2f} {ms['open3d']:10.2f} {ms['open3d'] / ms['boomtip']:6.1f}x")
+    print(f"  deck D MAE: boomtip {1e3 * r['deck_mae_m']['boomtip']:.2f} mm (max {1e3 * r['deck_max_m']['boomtip']:.2f}), "
+          f"Open3D {1e3 * r['deck_mae_m']['open3d']:.2f} mm (max {1e3 * r['deck_max_m']['open3d']:.2f})")
+    print(f"  ratio {r['ratio']:.1f}x")
+    print("  every method, as the pipeline times it:")
+    for m, k in r["methods"].items():
+        unit = "mm/s" if m.startswith("doppler") else "mm"
+        print(f"    {m:20s} APT {k['apt_ms']:6.2f} ms   MAE {1e3 * k['mae']:6.2f} {unit}   valid {100 * k['valid_fraction']:.0f} %")
+
+
 def main() -> None:  # pragma: no cover - console entry point
     app()
 
