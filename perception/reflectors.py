@@ -25,10 +25,14 @@ class ReflectorConfig(BaseModel):
     intensity_threshold: float | None = Field(
         None, gt=0, description="fixed threshold on range-compensated intensity; None: derive from the frame"
     )
-    threshold_mad_k: float = Field(
-        10.0, gt=0, description="derived threshold: median + k * MAD of log intensity (diffuse returns dominate)"
+    diffuse_max: float = Field(
+        1.15, gt=0, description="derived threshold floor: a white diffuse target at normal incidence reads 1.0 "
+        "(range-compensated), so brighter returns are retro-reflective; 15 % margin for intensity noise",
     )
-    min_threshold: float = Field(3.0, gt=0, description="never threshold below this (a white diffuse target is 1.0)")
+    tail_factor: float = Field(
+        1.5, gt=1, description="derived threshold: at least this times the frame's 99th percentile "
+        "(a sensor whose diffuse returns read high raises the threshold with them)",
+    )
     range_compensate: bool = Field(True, description="scale intensity by (r / 50 m)^2 before thresholding")
     cluster_radius_m: float = Field(1.2, gt=0, description="bright points closer than this belong to one marker")
     min_markers: int = Field(3, ge=3)
@@ -47,12 +51,11 @@ class ReflectorResult:
 
 
 def intensity_threshold(intensity_comp: np.ndarray, cfg: ReflectorConfig) -> float:
+    """Threshold on range-compensated intensity: fixed, or just above the brightest diffuse
+    return (markers are ~1 % of a frame, so the 99th percentile is still diffuse)."""
     if cfg.intensity_threshold is not None:
         return cfg.intensity_threshold
-    logi = np.log(np.maximum(intensity_comp, 1e-9))
-    med = np.median(logi)
-    mad = 1.4826 * np.median(np.abs(logi - med))
-    return float(max(np.exp(med + cfg.threshold_mad_k * mad), cfg.min_threshold))
+    return float(max(cfg.diffuse_max, cfg.tail_factor * np.percentile(intensity_comp, 99)))
 
 
 def group_markers(points: np.ndarray, radius_m: float) -> tuple[np.ndarray, int]:

@@ -1,0 +1,216 @@
+"""Perception stages on synthetic clouds with known answers, and the pipeline on bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from data.frames import Frame, MruLog
+from data.scenario import load_scenario
+from data.simulator import Simulation
+from perception.deck import LIDAR_DECK, RADAR_DECK, detect_deck
+from perception.doppler import doppler_velocity
+from perception.geometry import (
+    NormalRate,
+    heave_distance,
+    heave_rate_document,
+    heave_rate_exact,
+    plane_sigma_at,
+    rotation_level_sensor,
+    rpy_matrix,
+    tip_in_sensor,
+    wire_dir_sensor,
+)
+from perception.pipeline import HeavePipeline
+from perception.reflectors import ReflectorConfig, detect_reflectors
+from perception.timing import StageTimes
+
+
+def _deck_scene(rng, tilt_deg=3.0, depth=40.0, cargo=True, n=20000):
+    """Sensor at the origin looking down -z; a tilted deck `depth` below, cargo boxes on it,
+    a higher crane-vessel deck to one side, and a few sea points below."""
+    ax = np.deg2rad(tilt_deg)
+    n_up = np.array([np.sin(ax), 0.0, np.cos(ax)])  # deck normal, towards the sensor
+    xy = rng.uniform([-40, -10], [40, 10], size=(n, 2))
+    z = -depth - (n_up[0] * xy[:, 0]) / n_up[2]
+    deck = np.column_stack([xy, z])
+    parts = [deck]
+    if cargo:
+        # Boxes 3-8 m tall covering ~40 % of the deck: their tops replace deck points.
+        covered = (np.abs(xy[:, 0] - 10) < 12) | (np.abs(xy[:, 0] + 20) < 5)
+        tops = deck[covered].copy()
+        tops[:, 2] += np.where(tops[:, 0] > 0, 5.0, 3.0)
+        parts = [deck[~covered], tops]
+    crane = np.column_stack([rng.uniform(-30, 30, 3000), rng.uniform(12, 20, 3000), np.full(3000, -depth + 6)])
+    sea = np.column_stack([rng.uniform(-40, 40, 40), rng.uniform(-10, 10, 40), np.full(40, -depth - 5)])
+    pts = np.vstack(parts + [crane, sea]) + rng.normal(0, 0.01, (sum(len(p) for p in parts) + 3040, 3))
+    return pts, n_up, depth
+
+
+def test_deck_under_cargo_is_found_not_a_cargo_top():
+    rng = np.random.default_rng(1)
+    pts, n_up, depth = _deck_scene(rng)
+    res = detect_deck(pts, np.array([0, 0, -1.0]), np.zeros(3), LIDAR_DECK, rng, StageTimes())
+    assert res.status == "ok"
+    assert res.D_m == pytest.approx(depth, abs=0.005)
+    assert np.degrees(np.arccos(abs(res.plane_sensor[:3] @ n_up))) < 0.1
+
+
+def test_deck_with_too_few_points_reports_why():
+    res = detect_deck(np.zeros((5, 3)) + [0, 0, -40], np.array([0, 0, -1.0]), np.zeros(3), LIDAR_DECK,
+                      np.random.default_rng(0), StageTimes())
+    assert np.isnan(res.D_m) and "too few points" in res.status
+
+
+def test_radar_deck_on_noisy_sparse_cloud():
+    rng = np.random.default_rng(2)
+    pts, _, depth = _deck_scene(rng, n=500, cargo=False)
+    pts += rng.normal(0, 0.15, pts.shape)
+    res = detect_deck(pts, np.array([0, 0, -1.0]), np.zeros(3), RADAR_DECK, rng, StageTimes())
+    assert res.D_m == pytest.approx(depth, abs=0.05)
+
+
+def _marker_cloud(rng, with_false=True, occlude=()):
+    """Deck 45 m below with 1 m markers along both edges, diffuse background."""
+    deck = np.column_stack([rng.uniform(-40, 40, 8000), rng.uniform(-11, 11, 8000), np.full(8000, -45.0)])
+    inten = rng.uniform(0.1, 0.6, len(deck))
+    markers = []
+    for i, x in enumerate(np.arange(-36, 37, 8.0)):
+        for y in (-9.0, 9.0):
+            if (i, y) in occlude:
+                continue
+            g = np.column_stack([x + rng.uniform(-0.5, 0.5, 6), y + rng.uniform(-0.5, 0.5, 6), np.full(6, -45.0)])
+            markers.append(g)
+    markers = np.vstack(markers)
+    pts = [deck, markers]
+    ints = [inten, rng.uniform(15, 25, len(markers))]
+    if with_false:
+        false = np.column_stack([rng.uniform(-30, 30, 12), np.full(12, 10.8), np.full(12, -43.8)])  # bulwark tops
+        pts.append(false)
+        ints.append(rng.uniform(15, 25, 12))
+    p = np.vstack(pts) + rng.normal(0, 0.01, (sum(len(q) for q in pts), 3))
+    return p, np.concatenate(ints)
+
+
+def test_reflectors_with_occlusion_and_false_bright_points():
+    rng = np.random.default_rng(3)
+    pts, inten = _marker_cloud(rng, with_false=True, occlude={(2, 9.0), (3, 9.0), (4, -9.0)})
+    res = detect_reflectors(pts, inten, np.array([0, 0, -1.0]), np.zeros(3), ReflectorConfig(), rng, StageTimes())
+    assert res.status == "ok"
+    assert res.D_m == pytest.approx(45.0, abs=0.01)
+    # the false bright points on the bulwark are not markers on the plane
+    assert np.all(np.abs(res.marker_centroids[:, 2] + 45.0) < 0.1)
+
+
+def test_reflectors_on_one_edge_only_are_rejected_as_collinear():
+    rng = np.random.default_rng(4)
+    pts, inten = _marker_cloud(rng, with_false=False, occlude={(i, 9.0) for i in range(20)})
+    res = detect_reflectors(pts, inten, np.array([0, 0, -1.0]), np.zeros(3), ReflectorConfig(), rng, StageTimes())
+    assert np.isnan(res.D_m) and "collinear" in res.status
+
+
+def test_no_bright_points_means_no_reflectors():
+    rng = np.random.default_rng(5)
+    pts = np.column_stack([rng.uniform(-40, 40, 3000), rng.uniform(-11, 11, 3000), np.full(3000, -45.0)])
+    res = detect_reflectors(pts, rng.uniform(0.1, 0.6, 3000), np.array([0, 0, -1.0]), np.zeros(3), ReflectorConfig(), rng, StageTimes())
+    assert "no reflectors" in res.status
+
+
+def test_plane_sigma_grows_away_from_the_points():
+    rng = np.random.default_rng(6)
+    p = np.column_stack([rng.uniform(-1, 1, 400), rng.uniform(-1, 1, 400), rng.normal(0, 0.01, 400)])
+    plane = np.array([0, 0, 1.0, 0])
+    near, far = plane_sigma_at(p, plane, np.zeros(3)), plane_sigma_at(p, plane, np.array([20.0, 0, 0]))
+    assert near == pytest.approx(0.01 / 20, rel=0.3)
+    assert far > 10 * near
+
+
+def test_rpy_matrix_matches_scipy():
+    from scipy.spatial.transform import Rotation
+
+    for rpy in np.random.default_rng(7).uniform(-1, 1, (20, 3)):
+        assert np.allclose(rpy_matrix(rpy), Rotation.from_euler("xyz", rpy).as_matrix(), atol=1e-14)
+
+
+def test_rotation_aware_doppler_is_exact_where_the_document_is_not():
+    """A radar scan of the ideal scenario: with the deck's true normal and spin, the
+    rotation-aware D-dot equals the truth; document 000's formula misses by cm/s."""
+    s = load_scenario("sts-empty", ["duration_s=12"])
+    sim = Simulation(s)
+    w = sim.world
+    errs_exact, errs_doc = [], []
+    for i, t in enumerate(np.arange(0.0, 10.0, 0.5)):
+        f = sim.radar_frame(i, float(t))
+        beams = f.points_sensor / np.linalg.norm(f.points_sensor, axis=1, keepdims=True)
+        fit = doppler_velocity(beams, f.fields["range_rate"].astype(float), None, np.random.default_rng(0))
+        crane, feeder = w.crane_motion.states(np.array([t])), w.feeder_motion.states(np.array([t]))
+        R_ls = rotation_level_sensor(crane.rpy_rad[0], sim.meta.T_crane_boomtip, sim.meta.T_boomtip_sensor["radar"])
+        u = R_ls @ fit.velocity_sensor
+        n = feeder.rotation.apply(sim.meta.feeder_deck_plane_body[:3])[0]
+        truth_D = float(sim.truth.at("D", np.array([t]))[0])
+        truth_V = float(sim.truth.at("D_dot", np.array([t]))[0])
+        r_tip = R_ls @ tip_in_sensor(sim.meta.T_boomtip_sensor["radar"])
+        exact = heave_rate_exact(u, n, feeder.omega_radps[0], crane.omega_radps[0], r_tip, truth_D)
+        errs_exact.append(exact - truth_V)
+        errs_doc.append(heave_rate_document(u) - truth_V)
+    assert np.max(np.abs(errs_exact)) < 2e-3  # float32 range rates
+    assert np.max(np.abs(errs_doc)) > 0.02
+
+
+def test_normal_rate_recovers_spin_perpendicular_to_the_normal():
+    w = np.array([0.02, -0.03, 0.05])
+    nr = NormalRate(window_s=1.0)
+    from scipy.spatial.transform import Rotation
+
+    for t in np.arange(0, 1.01, 0.1):
+        nr.add(t, Rotation.from_rotvec(w * t).apply([0.05, 0.0, 1.0]))
+    n = nr.normal(1.0)
+    got = nr.omega(1.0)
+    w_perp = w - (w @ n) * n
+    assert np.allclose(got, w_perp, atol=2e-3)
+
+
+# --- the pipeline on bad input ----------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def short_sim():
+    return Simulation(load_scenario("sts-empty", ["duration_s=2"]))
+
+
+def test_pipeline_on_ideal_scenario_is_accurate(short_sim):
+    pipe = HeavePipeline(short_sim.meta, short_sim.mru)
+    errs: dict[str, list[float]] = {}
+    for f in short_sim:
+        for m in pipe.process(f).measurements:
+            if m.ok:
+                errs.setdefault(m.method, []).append(m.value - float(short_sim.truth.at(m.quantity, np.array([m.t_s]))[0]))
+    assert np.mean(np.abs(errs["deck_lidar"])) < 2e-3
+    assert np.mean(np.abs(errs["reflectors_lidar"])) < 5e-3
+    assert np.mean(np.abs(errs["deck_radar"])) < 5e-3
+    assert np.mean(np.abs(errs["doppler_radar_rot"])) < 0.01
+
+
+@pytest.mark.parametrize("points", [np.zeros((0, 3)), np.full((100, 3), np.nan)])
+def test_empty_and_all_nan_frames_give_reasons_not_exceptions(short_sim, points):
+    pipe = HeavePipeline(short_sim.meta, short_sim.mru)
+    fields = {"intensity": np.ones(len(points), np.float32), "t": np.zeros(len(points), np.float32), "label": np.zeros(len(points), np.int32)}
+    res = pipe.process(Frame("lidar", 0, 0.5, points, fields))
+    assert {m.method for m in res.measurements} == {"deck_lidar", "reflectors_lidar"}
+    assert all(not m.ok and m.status for m in res.measurements)
+
+
+def test_mru_gap_is_reported(short_sim):
+    m = short_sim.mru
+    keep = (m.t_s < 0.4) | (m.t_s > 0.9)
+    gappy = MruLog(m.t_s[keep], m.rpy_rad[keep], m.rpy_rate_radps[keep], max_gap_s=0.1)
+    pipe = HeavePipeline(short_sim.meta, gappy)
+    res = pipe.process(short_sim.lidar_frame(6, 0.6))
+    assert all("MRU" in r.status for r in res.measurements)
+
+
+def test_unknown_method_is_refused(short_sim):
+    from perception.pipeline import PipelineConfig
+
+    with pytest.raises(ValueError, match="unknown method"):
+        HeavePipeline(short_sim.meta, short_sim.mru, PipelineConfig(methods=("deck_lidar", "decklidar")))
