@@ -169,6 +169,38 @@ def view(
     print(f"{rrd} ({rrd.stat().st_size / 1e6:.1f} MB): open it with `rerun {rrd}` or `boomtip view {out} --spawn`")
 
 
+@app.command()
+def sweep(
+    param: str = typer.Argument(..., help="delay | mru_noise | rate | density | false_reflectors"),
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    values: Optional[str] = typer.Option(None, "--values", help="Comma-separated grid (default: the parameter's own grid)."),
+    duration: float = typer.Option(30.0, "--duration", help="Seconds per run."),
+    jobs: int = typer.Option(2, "--jobs", "-j", help="Parallel processes."),
+    set_: Optional[list[str]] = SetOpt,
+    out: Path = typer.Option(..., "--out", "-o"),
+    force: bool = typer.Option(False, "--force"),
+) -> None:
+    """Sensitivity study: KPIs over a grid of one parameter (document 000, 5.3.2)."""
+    from tools.sweep import PARAMS, run_sweep
+
+    with user_errors():
+        if param not in PARAMS:
+            raise ScenarioError(f"unknown sweep parameter '{param}'; expected one of {', '.join(PARAMS)}")
+        try:
+            grid = [float(v) for v in values.split(",")] if values else None
+        except ValueError:
+            raise ScenarioError(f"--values '{values}': expected comma-separated numbers") from None
+        load_scenario(scenario, list(set_ or []))  # refuse a bad scenario or key before spawning
+        n = len(grid or PARAMS[param][1])
+        with progress_bar(n, f"sweep {param}") as advance:
+            summary = run_sweep(scenario, param, grid, duration, out, jobs, force, list(set_ or []), advance)
+    print(f"{'value':>8s} " + " ".join(f"{n + ' D/Ddot':>26s}" for n in summary["runs"][0]["kpis"]["solutions"]))
+    for r in summary["runs"]:
+        cells = [f"{1e3 * k['mae_D_m']:9.2f} mm {1e3 * k['mae_D_dot_mps']:7.2f} mm/s" for k in r["kpis"]["solutions"].values()]
+        print(f"{r['value']:8g} " + " ".join(f"{c:>26s}" for c in cells))
+    console.print(f"wrote {out}/sweep.json and {out}/sweep_{param}.png")
+
+
 def write_bench_json(path: Optional[Path], result: dict, force: bool) -> None:
     if path is None:
         return

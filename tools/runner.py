@@ -69,7 +69,7 @@ def run_heave(
 ) -> RunResult:
     staging = prepare_output(out, force, inputs)
     try:
-        result = _run(source, staging, pipeline_cfg, fusion_cfg or FusionConfig(), rerun, report, progress)
+        result = run_into(source, staging, pipeline_cfg, fusion_cfg or FusionConfig(), rerun, report, progress)
     except BaseException:
         import shutil
 
@@ -79,7 +79,7 @@ def run_heave(
     return result
 
 
-def _run(source, staging: Path, pipeline_cfg, fusion_cfg: FusionConfig, rerun: bool, report: bool, progress) -> RunResult:
+def run_into(source, staging: Path, pipeline_cfg, fusion_cfg: FusionConfig, rerun: bool, report: bool, progress) -> RunResult:
     s = source.meta.scenario
     pipeline = HeavePipeline(source.meta, source.mru, pipeline_cfg)
     logger = None
