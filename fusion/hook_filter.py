@@ -63,6 +63,7 @@ __all__ = [
     "run_hook_filter",
     "truth_state_matrix",
     "rmse_per_axis",
+    "world_hook_from_states",
 ]
 
 DEG = math.pi / 180.0
@@ -99,6 +100,21 @@ class ProcessNoiseConfig(BaseModel):
     gamma_vessel: float = 1.0
     nominal_dt_s: float = 0.005  # Ts in sigma_j = 0.5 a_max / Ts
     full_blocks: bool = False  # True: correlated DWNA/DWNJ blocks; False: diagonal as in 002
+    # Manoeuvre-adaptive joint jerk noise (ours, not in 002).  The drives' accelerations are
+    # piecewise constant: between acceleration steps the document's sigma_j makes the joint
+    # acceleration estimates (encoders: 0.1 deg noise) needlessly noisy, which feeds the
+    # boom-tip acceleration into the pendulum.  With ``adaptive`` the joint jerk sigmas are
+    # multiplied by ``adaptive_quiescent_factor`` until the LiDAR or encoder innovations
+    # reveal an acceleration change; then the document's values are used for
+    # ``adaptive_hold_s`` seconds.
+    adaptive: bool = True
+    adaptive_quiescent_factor: float = 0.05
+    adaptive_lidar_nis_threshold: float = 7.0  # EMA of the 3-dof LiDAR NIS
+    adaptive_lidar_ema_alpha: float = 0.3
+    adaptive_encoder_nis_threshold: float = 3.0  # EMA of each joint's 1-dof NIS
+    adaptive_encoder_ema_alpha: float = 0.05
+    adaptive_hold_s: float = 2.0
+    adaptive_acc_inflation: float = 1.0  # on a trigger, P[acc] += (inflation * a_max)^2
 
 
 class MeasurementNoiseConfig(BaseModel):
@@ -300,7 +316,11 @@ class HookFilter:
         self._R_mru = np.array([m.sigma_mru_angle_rad, m.sigma_mru_angle_rad,
                                 m.sigma_mru_rate_rad_s, m.sigma_mru_rate_rad_s]) ** 2
         self._gate = float(chi2.ppf(self.cfg.lidar_gate_probability, 3))
-        self._q_cache: dict[float, np.ndarray] = {}
+        self._q_cache: dict[tuple, np.ndarray] = {}
+        self._boost_until = -math.inf
+        self._lidar_nis_ema = 3.0
+        self._enc_nis_ema = np.ones(3)
+        self.n_manoeuvre_triggers = 0
         if kind == "ekf":
             self._kf = _HookEKF(self.n, self)
         else:
@@ -334,6 +354,7 @@ class HookFilter:
         self._kf.x = x0
         self._kf.P = self._default_P0() if P0 is None else np.array(P0, float)
         self.t = float(t0)
+        self._boost_until = self.t + self.cfg.process.adaptive_hold_s  # start converging
         self.initialized = True
 
     def _default_P0(self) -> np.ndarray:
@@ -420,26 +441,47 @@ class HookFilter:
             raise ValueError(method)
         return A
 
-    def process_noise(self, dt: float) -> np.ndarray:
-        key = round(dt, 12)
+    def process_noise(self, dt: float, manoeuvre: bool | None = None) -> np.ndarray:
+        """Discrete Q for a step dt (joint blocks at the manoeuvre or quiescent level)."""
+        p = self.cfg.process
+        if manoeuvre is None:
+            manoeuvre = (not p.adaptive) or self.t < self._boost_until
+        key = (round(dt, 12), bool(manoeuvre))
         Q = self._q_cache.get(key)
         if Q is not None:
             return Q
-        p = self.cfg.process
         full = p.full_blocks
         Q = np.zeros((21, 21))
         for i in (IA, IB):
             Q[i:i + 2, i:i + 2] = _dwna(p.sigma_sway_acc_rad_s2, dt, full)
         Q[IF:IF + 2, IF:IF + 2] = _dwna(p.sigma_deflection_acc_rad_s2, dt, full)
         Ts = p.nominal_dt_s
+        scale = p.joint_jerk_scale * (1.0 if manoeuvre else p.adaptive_quiescent_factor)
         for i, amax in ((INU, p.slew_acc_max_rad_s2), (IMU, p.luff_acc_max_rad_s2), (IL, p.hoist_acc_max_m_s2)):
-            Q[i:i + 3, i:i + 3] = _dwnj(p.joint_jerk_scale * amax / Ts, dt, p.gamma_joint, full)
+            Q[i:i + 3, i:i + 3] = _dwnj(scale * amax / Ts, dt, p.gamma_joint, full)
         for i in (IROLL, IPITCH):
             Q[i:i + 3, i:i + 3] = _dwnj(p.sigma_vessel_jerk_rad_s3, dt, p.gamma_vessel, full)
         Q = Q[: self.n, : self.n]
         if len(self._q_cache) < 64:
             self._q_cache[key] = Q
         return Q
+
+    @property
+    def manoeuvre_mode(self) -> bool:
+        """True while the joint jerk noise is at the manoeuvre (document) level."""
+        return (not self.cfg.process.adaptive) or self.t < self._boost_until
+
+    def _trigger_manoeuvre(self) -> None:
+        p = self.cfg.process
+        if not self.manoeuvre_mode:
+            # a new acceleration step: open up the joint-acceleration covariance at once
+            P = self._kf.P.copy()
+            for i, amax in ((INU + 2, p.slew_acc_max_rad_s2), (IMU + 2, p.luff_acc_max_rad_s2),
+                            (IL + 2, p.hoist_acc_max_m_s2)):
+                P[i, i] += (p.adaptive_acc_inflation * amax) ** 2
+            self._kf.P = P
+            self.n_manoeuvre_triggers += 1
+        self._boost_until = self.t + p.adaptive_hold_s
 
     # ------------------------------------------------------------------ predict
     def predict(self, dt: float | None = None) -> None:
@@ -481,9 +523,20 @@ class HookFilter:
         if t is not None:
             self.advance_to(t)
         if hoist_m is None or not np.isfinite(hoist_m):
-            self._linear_update([INU, IMU], np.array([slew_rad, luff_rad]), self._R_enc[:2])
+            idx, z, r = [INU, IMU], np.array([slew_rad, luff_rad]), self._R_enc[:2]
         else:
-            self._linear_update([INU, IMU, IL], np.array([slew_rad, luff_rad, hoist_m]), self._R_enc)
+            idx, z, r = [INU, IMU, IL], np.array([slew_rad, luff_rad, hoist_m]), self._R_enc
+        p = self.cfg.process
+        if p.adaptive:
+            P = self._kf.P
+            y = z - self._kf.x[idx]
+            nis = y * y / (P[idx, idx] + r)
+            k = len(idx)
+            self._enc_nis_ema[:k] += p.adaptive_encoder_ema_alpha * (nis - self._enc_nis_ema[:k])
+            if np.any(self._enc_nis_ema[:k] > p.adaptive_encoder_nis_threshold):
+                self._trigger_manoeuvre()
+                self._enc_nis_ema[:k] = 1.0
+        self._linear_update(idx, z, r)
 
     def update_mru(self, roll_rad: float, pitch_rad: float, roll_rate_rad_s: float, pitch_rate_rad_s: float,
                    t: float | None = None) -> None:
@@ -520,14 +573,22 @@ class HookFilter:
         y, S = self.lidar_innovation(z)
         nis = float(y @ np.linalg.solve(S, y))
         self.last_nis = nis
+        p = self.cfg.process
         if nis > self._gate:
             self._consecutive_rejections += 1
+            if p.adaptive and self._consecutive_rejections >= 2:
+                self._trigger_manoeuvre()
             if self._consecutive_rejections < self.cfg.reacquire_after_rejections:
                 self.n_lidar_rejected += 1
                 return False
             self._reacquire(z)
         else:
             self.nis_history.append(nis)
+            if p.adaptive:
+                self._lidar_nis_ema += p.adaptive_lidar_ema_alpha * (nis - self._lidar_nis_ema)
+                if self._lidar_nis_ema > p.adaptive_lidar_nis_threshold:
+                    self._trigger_manoeuvre()
+                    self._lidar_nis_ema = 3.0
         self._consecutive_rejections = 0
         kf = self._kf
         if self.kind == "ekf":
@@ -640,6 +701,7 @@ class HookFilterRun:
     lidar_accepted: np.ndarray  # (K,) bool per LiDAR sample
     kind: str
     model: str
+    n_manoeuvre_triggers: int = 0
     nis: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
@@ -726,6 +788,7 @@ def run_hook_filter(
         runtime_s=runtime, realtime_fraction=runtime / max(t_end - t0, 1e-9),
         n_lidar_accepted=filt.n_lidar_accepted, n_lidar_rejected=filt.n_lidar_rejected,
         n_reacquired=filt.n_reacquired, lidar_accepted=lidar_ok, kind=kind, model=model,
+        n_manoeuvre_triggers=filt.n_manoeuvre_triggers,
         nis=np.array(filt.nis_history),
     )
 
@@ -744,3 +807,21 @@ def truth_state_matrix(truth: CraneTruth, n: int = 21) -> np.ndarray:
 
 def rmse_per_axis(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean((np.asarray(est) - np.asarray(ref)) ** 2, axis=0))
+
+
+def world_hook_from_states(params: CraneParams, X: np.ndarray):
+    """Boom-tip and hook position/velocity in the world frame from filter states X (N, n).
+
+    Returns (p_tip, v_tip, p_hook, v_hook), each (N, 3).
+    """
+    from data.crane import JointStates, VesselState, hook_relative_kinematics, tip_kinematics
+
+    X = np.atleast_2d(X)
+    n = X.shape[1]
+    J = JointStates(*(X[:, i] for i in range(INU, IL + 3)))
+    V = VesselState(*(X[:, i] for i in range(IROLL, IPITCH + 3)))
+    f = X[:, IF] if n > IF else 0.0
+    fd = X[:, IFD] if n > IFD else 0.0
+    p_tip, v_tip, _ = tip_kinematics(params, J, V, f, fd, 0.0)
+    r, rd = hook_relative_kinematics(X[:, IL], X[:, IL + 1], X[:, IA], X[:, IAD], X[:, IB], X[:, IBD])
+    return p_tip, v_tip, p_tip + r, v_tip + rd

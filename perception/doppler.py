@@ -145,7 +145,13 @@ def doppler_velocity(
         if not np.any(ok):
             continue
         u = np.linalg.solve(a[ok], y[ok][..., None])[..., 0]  # (k', 3)
-        res = b @ u.T  # (n, k')
+        # (n, k') residuals; GEMMs in column chunks small enough for OpenBLAS to stay
+        # single-threaded (m*n*k < 65536*4): on a loaded 2-core machine a threaded GEMM can wait
+        # tens of ms for its helper thread (measured in perception.plane)
+        res = np.empty((n, len(u)))
+        chunk = max(1, 262143 // (3 * n))
+        for c0 in range(0, len(u), chunk):
+            np.matmul(b, u[c0 : c0 + chunk].T, out=res[:, c0 : c0 + chunk])
         res -= r[:, None]
         np.abs(res, out=res)
         counts = np.count_nonzero(res < thr, axis=0)

@@ -24,16 +24,16 @@ PARAMS: dict[str, tuple] = {
 
 def _one(args: tuple) -> dict:
     scenario, overrides, duration, value = args
+    import tempfile
+
     from data.scenario import load_scenario
     from data.simulator import Simulation
+    from fusion.solutions import FusionConfig
     from tools.runner import run_into
-
-    import tempfile
 
     s = load_scenario(scenario, overrides + [f"duration_s={duration}"])
     with tempfile.TemporaryDirectory() as tmp:
-        res = run_into(Simulation(s), Path(tmp), None, __import__("fusion.solutions", fromlist=["FusionConfig"]).FusionConfig(),
-                   rerun=False, report=False, progress=None)
+        res = run_into(Simulation(s), Path(tmp), None, FusionConfig(), rerun=False, report=False, progress=None)
     return {"value": value, "overrides": overrides, "kpis": res.kpis}
 
 
