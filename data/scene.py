@@ -144,21 +144,31 @@ def lofted_hull(
     verts = np.stack([np.repeat(x[:, None], n_p, axis=1), y_sec, z_sec], axis=-1).reshape(-1, 3)
     vid = np.arange(n_s * n_p).reshape(n_s, n_p)
     a, b, c, d = vid[:-1, :-1], vid[1:, :-1], vid[1:, 1:], vid[:-1, 1:]
-    shell = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    # Wound so that normals point out of the hull (positive volume), deck normals up.
+    shell = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
     # Deck: strips between consecutive stations' deck edges.
     pl, sb = vid[:, 0], vid[:, -1]
-    deck = np.concatenate([np.stack([pl[:-1], sb[1:], pl[1:]], -1), np.stack([pl[:-1], sb[:-1], sb[1:]], -1)])
+    deck = np.concatenate([np.stack([pl[:-1], pl[1:], sb[1:]], -1), np.stack([pl[:-1], sb[1:], sb[:-1]], -1)])
     # Transom and stem: fans from each end section's centroid.
     ends = []
     for i in (0, n_s - 1):
         centre = len(verts)
         verts = np.vstack([verts, [x[i], 0.0, (z_sec[i].min() + z_deck) / 2]])
         ring = np.append(vid[i], vid[i, 0])
-        ends.append(np.stack([np.full(n_p, centre), ring[:-1], ring[1:]], -1))
+        fan = np.stack([np.full(n_p, centre), ring[:-1], ring[1:]], -1)
+        ends.append(fan[:, ::-1] if i == 0 else fan)  # transom faces aft, stem faces forward
     faces = np.concatenate([shell, deck, *ends])
     is_deck = np.zeros(len(faces), dtype=bool)
     is_deck[len(shell):len(shell) + len(deck)] = True
     return trimesh.Trimesh(verts, faces, process=False), is_deck
+
+
+def patch(center, size_x: float, size_y: float) -> trimesh.Trimesh:
+    """A flat, upward-facing rectangle (tape on a deck): no side walls for grazing rays to hit."""
+    cx, cy, cz = center
+    hx, hy = size_x / 2, size_y / 2
+    v = np.array([[cx - hx, cy - hy, cz], [cx + hx, cy - hy, cz], [cx + hx, cy + hy, cz], [cx - hx, cy + hy, cz]])
+    return trimesh.Trimesh(v, np.array([[0, 1, 2], [0, 2, 3]]), process=False)
 
 
 def cylinder(radius: float, height: float, center, axis=(0, 0, 1), sections: int = 96) -> trimesh.Trimesh:
@@ -311,9 +321,9 @@ def feeder_vessel(s: Scenario) -> Body:
             parts.append(Part(cylinder(0.3, 0.8, [x, sy * (g.beam_m / 2 - 0.9), z + 0.4], sections=24), Label.FEEDER_BULWARK, 0.4))
     r = s.feeder.reflectors
     if r.enabled:
-        # Retro-reflective tape patches, 2 mm proud of the deck.
+        # Retro-reflective tape, 2 mm proud of the deck.
         for cx, cy in _marker_centers(s):
-            parts.append(Part(box([cx, cy, z + 0.001], [r.size_m, r.size_m, 0.002]), Label.REFLECTOR, 0.9, retro=True,
+            parts.append(Part(patch([cx, cy, z + 0.002], r.size_m, r.size_m), Label.REFLECTOR, 0.9, retro=True,
                               rcs=RcsClass.CORNER))
     if s.feeder.cargo:
         parts += _cargo_parts(s)
@@ -323,7 +333,7 @@ def feeder_vessel(s: Scenario) -> Body:
         xs = rng.uniform(x0 + 1, x1 - 1, r.false_bright_points)
         for x in xs:
             side = rng.choice([-1, 1])
-            parts.append(Part(box([x, side * (g.beam_m / 2 - t / 2), z + bh + 0.001], [0.6, t, 0.002]),
+            parts.append(Part(patch([x, side * (g.beam_m / 2 - t / 2), z + bh + 0.002], 0.6, t),
                               Label.FALSE_BRIGHT, 0.9, retro=True))
     body = Body.from_parts("feeder", parts)
     body.meta["marker_centers_body"] = _marker_centers(s) if r.enabled else np.zeros((0, 2))

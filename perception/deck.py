@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from perception.geometry import heave_distance
+from perception.geometry import heave_distance, plane_sigma_at
 from typing import Literal
 
 from perception.plane import MultiPlaneConfig, PlaneFit, RansacConfig, multi_plane_deck, ransac_plane
@@ -55,6 +55,7 @@ class DeckResult:
     fit: PlaneFit | None
     points_used: np.ndarray
     status: str  # "ok" or why there is no measurement
+    sigma_m: float = float("nan")  # 1-sigma of D from the fit (plane prediction error at the wire)
 
 
 def detect_deck(
@@ -80,9 +81,10 @@ def detect_deck(
         return DeckResult(float("nan"), None, None, pts, "no deck plane")
     with times.stage(f"{prefix}.intersect"):
         D = heave_distance(deck.plane, wire_dir_sensor, p_tip_sensor)
-    if not np.isfinite(D) or D <= 0:
-        return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
-    return DeckResult(D, deck.plane, deck, pts, "ok")
+        if not np.isfinite(D) or D <= 0:
+            return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
+        sigma = plane_sigma_at(pts[deck.inlier_mask], deck.plane, p_tip_sensor + D * wire_dir_sensor)
+    return DeckResult(D, deck.plane, deck, pts, "ok", sigma)
 
 
 def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> PlaneFit | None:

@@ -30,8 +30,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
+
 from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = [
@@ -60,6 +62,13 @@ class DopplerConfig(BaseModel):
     )
     huber_iterations: int = Field(5, ge=1)
     max_condition: float = Field(1e3, gt=1, description="cond(B_inliers) above this -> degenerate, None")
+    start: Literal["ransac", "trimmed"] = Field(
+        "ransac",
+        description="'trimmed': least squares on all detections, then re-fit on those within the band "
+        "until stable (radar false alarms are rare, gross outliers: 3-4 passes of 3x3 normal equations); "
+        "falls back to RANSAC when fewer than trimmed_min_fraction stay in the band",
+    )
+    trimmed_min_fraction: float = Field(0.7, gt=0, le=1)
     min_triplet_det: float = Field(1e-6, gt=0, description="|det| of a minimal 3x3 beam set below this is skipped")
 
 
@@ -101,6 +110,34 @@ def _lsq(b: np.ndarray, r: np.ndarray, w: np.ndarray | None = None) -> np.ndarra
     return np.linalg.solve(a, y)
 
 
+def _cond(b: np.ndarray) -> float:
+    """cond(B) from the 3x3 B^T B (sqrt of its eigenvalue ratio): no SVD of the N x 3 matrix."""
+    ev = np.linalg.eigvalsh(b.T @ b)
+    return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
+
+
+def _trimmed_start(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig) -> np.ndarray | None:
+    """Least squares on everything, then on what lies within the band, until the set is stable.
+    None (use RANSAC) when too few detections stay in the band or the geometry is degenerate."""
+    mask = np.ones(len(r), dtype=bool)
+    u = None
+    for _ in range(6):
+        if np.count_nonzero(mask) < 3 or _cond(b[mask]) > cfg.max_condition:
+            return None
+        u = _lsq(b[mask], r[mask])
+        res = np.abs(b @ u - r)
+        # A wide first band (3 robust sigmas, at least the configured band) so that a biased
+        # all-detection start cannot throw away good detections, then the configured band.
+        scale = 1.4826 * float(np.median(res))
+        new = res < max(cfg.inlier_threshold_mps, 3 * scale)
+        if np.array_equal(new, mask):
+            break
+        mask = new
+    if np.count_nonzero(mask) < cfg.trimmed_min_fraction * len(r):
+        return None
+    return u
+
+
 def doppler_velocity(
     beam_dirs: np.ndarray,
     range_rate_mps: np.ndarray,
@@ -133,7 +170,8 @@ def doppler_velocity(
     n = len(r)
     thr = cfg.inlier_threshold_mps
 
-    best_count, best_u, drawn = -1, None, 0
+    best_u = _trimmed_start(b, r, cfg) if cfg.start == "trimmed" else None
+    best_count, drawn = (-1, 0) if best_u is None else (n, cfg.max_iterations)
     needed = float(cfg.max_iterations)
     while drawn < min(needed, cfg.max_iterations):
         k = min(cfg.batch_size, cfg.max_iterations - drawn)
@@ -171,7 +209,7 @@ def doppler_velocity(
         if np.count_nonzero(mask) < 3:
             return None
         bi = b[mask]
-        if np.linalg.cond(bi) > cfg.max_condition:
+        if _cond(bi) > cfg.max_condition:
             return None
         u = _lsq(bi, r[mask])
         mask = np.abs(b @ u - r) < thr
@@ -179,7 +217,7 @@ def doppler_velocity(
     if n_in < max(cfg.min_inliers, 3):
         return None
     bi, ri = b[mask], r[mask]
-    cond = float(np.linalg.cond(bi))
+    cond = _cond(bi)
     if cond > cfg.max_condition:
         return None
     weights = None

@@ -23,7 +23,6 @@ from perception.geometry import (
     NormalRate,
     heave_rate_document,
     heave_rate_exact,
-    plane_sigma_at,
     rotation_level_sensor,
     tip_in_sensor,
     wire_dir_sensor,
@@ -52,7 +51,7 @@ class PipelineConfig(BaseModel):
     deck_lidar: DeckConfig = LIDAR_DECK
     deck_radar: DeckConfig = RADAR_DECK
     reflectors: ReflectorConfig = ReflectorConfig()
-    doppler: DopplerConfig = DopplerConfig(inlier_threshold_mps=0.25)
+    doppler: DopplerConfig = DopplerConfig(inlier_threshold_mps=0.25, start="trimmed")
     doppler_preprocess: PreprocessConfig = PreprocessConfig(min_range_m=2.0, max_range_m=150.0)
     normal_window_s: float = Field(1.0, gt=0, description="window of deck normals used for the deck's spin")
     max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
@@ -138,11 +137,7 @@ class HeavePipeline:
                     results["reflectors_lidar"] = (np.nan, np.nan, "frame has no intensity field")
                 else:
                     out.reflectors = ref = detect_reflectors(frame.points_sensor, intensity, wire, p_tip, self.cfg.reflectors, rng, times)
-                    sigma = np.nan
-                    if ref.status == "ok":
-                        on = ref.bright_points[np.abs(ref.bright_points @ ref.plane_sensor[:3] + ref.plane_sensor[3]) < self.cfg.reflectors.ransac.distance_threshold_m]
-                        sigma = plane_sigma_at(on, ref.plane_sensor, p_tip + ref.D_m * wire)
-                    results["reflectors_lidar"] = (ref.D_m, sigma, ref.status)
+                    results["reflectors_lidar"] = (ref.D_m, ref.sigma_m, ref.status)
         else:
             if "deck_radar" in wanted:
                 out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck")
@@ -155,11 +150,9 @@ class HeavePipeline:
     def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:
         if deck.status != "ok":
             return (np.nan, np.nan, deck.status)
-        on_plane = deck.points_used[deck.fit.inlier_mask]
-        sigma = plane_sigma_at(on_plane, deck.plane_sensor, p_tip + deck.D_m * wire)
         self.normals[sensor].add(t_s, R_ls @ deck.plane_sensor[:3])
         self.last_deck[sensor] = (t_s, deck.D_m)
-        return (deck.D_m, sigma, "ok")
+        return (deck.D_m, deck.sigma_m, "ok")
 
     def _doppler(self, frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out) -> dict:
         res: dict[str, tuple[float, float, str]] = {}
