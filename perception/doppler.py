@@ -116,26 +116,55 @@ def _cond(b: np.ndarray) -> float:
     return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
 
 
-def _trimmed_start(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig) -> np.ndarray | None:
+def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndarray, n_all: int) -> "DopplerFit | None":
     """Least squares on everything, then on what lies within the band, until the set is stable.
-    None (use RANSAC) when too few detections stay in the band or the geometry is degenerate."""
-    mask = np.ones(len(r), dtype=bool)
-    u = None
-    for _ in range(6):
-        if np.count_nonzero(mask) < 3 or _cond(b[mask]) > cfg.max_condition:
-            return None
-        u = _lsq(b[mask], r[mask])
+
+    Radar false alarms are rare, gross outliers, so this settles in 2-4 passes of 3x3 normal
+    equations, and the final system gives the covariance and condition directly. None (use
+    RANSAC) when too few detections stay in the band or the geometry is degenerate.
+    """
+    from perception.geometry import inv3
+
+    a = b.T @ b
+    inv = inv3(a)
+    if inv is None:
+        return None
+    u = inv @ (b.T @ r)
+    mask = None
+    for it in range(6):
         res = np.abs(b @ u - r)
-        # A wide first band (3 robust sigmas, at least the configured band) so that a biased
-        # all-detection start cannot throw away good detections, then the configured band.
-        scale = 1.4826 * float(np.median(res))
-        new = res < max(cfg.inlier_threshold_mps, 3 * scale)
-        if np.array_equal(new, mask):
+        if it == 0:
+            # A wide first band (3 robust sigmas from the median, at least the configured one) so a
+            # start biased by the outliers cannot throw good detections away; then the configured band.
+            k = len(res) // 2
+            band = max(cfg.inlier_threshold_mps, 4.45 * float(np.partition(res, k)[k]))
+        else:
+            band = cfg.inlier_threshold_mps
+        new = res < band
+        if mask is not None and np.array_equal(new, mask):
             break
         mask = new
-    if np.count_nonzero(mask) < cfg.trimmed_min_fraction * len(r):
+        if np.count_nonzero(mask) < max(3, cfg.trimmed_min_fraction * len(r)):
+            return None
+        bi = b[mask]
+        a = bi.T @ bi
+        inv = inv3(a)
+        if inv is None:
+            return None
+        u = inv @ (bi.T @ r[mask])
+    n_in = int(np.count_nonzero(mask))
+    if n_in < max(3, cfg.min_inliers, cfg.trimmed_min_fraction * len(r)):
         return None
-    return u
+    # cond(B) = sqrt(cond(B^T B)); the Frobenius-norm bound ||A|| ||A^-1|| is enough to refuse
+    # degenerate beam geometry without an eigendecomposition.
+    cond = float(math.sqrt(np.linalg.norm(a) * np.linalg.norm(inv)))
+    if cond > cfg.max_condition:
+        return None
+    e = (b @ u - r)[mask]
+    sigma2 = float(e @ e) / max(n_in - 3, 1)
+    full = np.zeros(n_all, dtype=bool)
+    full[vidx[mask]] = True
+    return DopplerFit(u, full, float(math.sqrt(float(e @ e) / n_in)), sigma2 * inv, cond, 0)
 
 
 def doppler_velocity(
@@ -170,8 +199,11 @@ def doppler_velocity(
     n = len(r)
     thr = cfg.inlier_threshold_mps
 
-    best_u = _trimmed_start(b, r, cfg) if cfg.start == "trimmed" else None
-    best_count, drawn = (-1, 0) if best_u is None else (n, cfg.max_iterations)
+    if cfg.start == "trimmed" and cfg.huber_delta_mps is None:
+        fit = _trimmed_fit(b, r, cfg, vidx, n_all)
+        if fit is not None:
+            return fit
+    best_count, best_u, drawn = -1, None, 0
     needed = float(cfg.max_iterations)
     while drawn < min(needed, cfg.max_iterations):
         k = min(cfg.batch_size, cfg.max_iterations - drawn)

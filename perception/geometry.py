@@ -7,6 +7,8 @@ axes with R_level_sensor = R_world_crane(MRU) R_crane_boomtip R_boomtip_sensor.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 E_Z = np.array([0.0, 0.0, 1.0])
@@ -15,7 +17,8 @@ E_Z = np.array([0.0, 0.0, 1.0])
 def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll) for one attitude. Written out because building a scipy
     Rotation costs ~50x more than the nine products, once per frame."""
-    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy_rad), np.sin(rpy_rad)
+    r, p, y = (float(v) for v in rpy_rad)
+    cr, cp, cy, sr, sp, sy = math.cos(r), math.cos(p), math.cos(y), math.sin(r), math.sin(p), math.sin(y)
     return np.array([
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
@@ -73,21 +76,20 @@ def heave_rate_exact(
                   = n.(-u + w_c x r - w_f x (r - D e_z)) / (n.e_z)
     Only w_f's components perpendicular to n matter (n.(w x a) = a.(n x w)).
     """
-    n = normal_level / np.linalg.norm(normal_level)
-    if n[2] < 0:
-        n = -n
-    rel = -u_level + np.cross(omega_crane_level, r_tip_from_sensor_level) - np.cross(
+    n = normal_level if normal_level[2] > 0 else -normal_level
+    rel = -u_level + cross3(omega_crane_level, r_tip_from_sensor_level) - cross3(
         omega_feeder_level, r_tip_from_sensor_level - D_m * E_Z
     )
-    return float(n @ rel / n[2])
+    return float(n @ rel / n[2])  # n need not be unit: the ratio is scale-free
 
 
 class NormalRate:
     """The deck's angular velocity (perpendicular to its normal) from the normal over time.
 
-    n_dot = w x n gives w_perp = n x n_dot. n_dot is the slope of a local quadratic fit
-    over the recent window, evaluated at the newest sample: causal, and far less noisy than
-    a two-frame difference (noise on n_dot falls as window^-1.5).
+    n_dot = w x n gives w_perp = n x n_dot. n_dot is the slope of a local quadratic fit over
+    the recent window, evaluated at the query time: causal, and far less noisy than a
+    two-frame difference (noise on n_dot falls as window^-1.5). The fit is redone only when
+    a new normal arrives; radar frames in between evaluate the cached polynomial.
     """
 
     def __init__(self, window_s: float = 1.0, min_samples: int = 4) -> None:
@@ -95,6 +97,7 @@ class NormalRate:
         self.min_samples = min_samples
         self.t: list[float] = []
         self.n: list[np.ndarray] = []
+        self._coef: np.ndarray | None = None  # fit about self.t[-1], invalidated by add()
 
     def add(self, t_s: float, normal_level: np.ndarray) -> None:
         n = normal_level / np.linalg.norm(normal_level)
@@ -103,23 +106,40 @@ class NormalRate:
         while self.t and self.t[0] < t_s - self.window_s:
             self.t.pop(0)
             self.n.pop(0)
+        self._coef = None
 
     def omega(self, t_s: float) -> np.ndarray | None:
         """w_perp at time t (extrapolated from the fit), or None with too few samples."""
         if len(self.t) < self.min_samples:
             return None
-        tt = np.asarray(self.t) - t_s
-        N = np.asarray(self.n)
-        deg = 2 if len(tt) >= 6 else 1
-        V = np.vander(tt, deg + 1, increasing=True)  # columns 1, t, t^2
-        coef = np.linalg.lstsq(V, N, rcond=None)[0]  # (deg+1, 3)
-        n0 = coef[0] / np.linalg.norm(coef[0])
-        return np.cross(n0, coef[1])
+        if self._coef is None:
+            tt = np.asarray(self.t) - self.t[-1]
+            deg = 2 if len(tt) >= 6 else 1
+            V = np.vander(tt, deg + 1, increasing=True)  # columns 1, t, t^2
+            self._coef = np.linalg.lstsq(V, np.asarray(self.n), rcond=None)[0]  # (deg+1, 3)
+        c, dt = self._coef, t_s - self.t[-1]
+        n_t = c[0] + c[1] * dt + (c[2] * dt * dt if len(c) > 2 else 0.0)
+        n_dot = c[1] + (2 * c[2] * dt if len(c) > 2 else 0.0)
+        return cross3(n_t / np.linalg.norm(n_t), n_dot)
 
     def normal(self, t_s: float) -> np.ndarray | None:
         if not self.n:
             return None
         return self.n[-1]
+
+
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross's broadcasting costs ~10x more for one pair)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def omega_from_euler_rates(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:
+    """Angular velocity (world axes) of R = Rz(yaw) Ry(pitch) Rx(roll) from Euler rates;
+    one-sample form of data.motion.euler_rates_to_omega_world."""
+    _, p, y = rpy
+    rd, pd, yd = rpy_dot
+    cy, sy, cp, sp = math.cos(y), math.sin(y), math.cos(p), math.sin(p)
+    return np.array([-sy * pd + cy * cp * rd, cy * pd + sy * cp * rd, yd - sp * rd])
 
 
 def plane_sigma_at(points_on_plane: np.ndarray, plane: np.ndarray, query: np.ndarray) -> float:
@@ -128,20 +148,55 @@ def plane_sigma_at(points_on_plane: np.ndarray, plane: np.ndarray, query: np.nda
     Regression prediction variance: s^2 (1/N + q^T (X^T X)^-1 q), with X the inliers'
     in-plane coordinates about their centroid, q the query's, s the residual RMS.
     """
-    n = plane[:3]
     N = len(points_on_plane)
     if N < 4:
         return float("nan")
-    resid = points_on_plane @ n + plane[3]
-    s2 = float(resid @ resid) / (N - 3)
-    u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
     c = points_on_plane.mean(axis=0)
-    X = (points_on_plane - c) @ np.stack([u, v], axis=1)
-    q = (query - c) @ np.stack([u, v], axis=1)
-    try:
-        var = s2 * (1.0 / N + q @ np.linalg.solve(X.T @ X, q))
-    except np.linalg.LinAlgError:
-        return float("nan")
-    return float(np.sqrt(max(var, 0.0)))
+    X = points_on_plane - c
+    evals, evecs = np.linalg.eigh(X.T @ X)
+    return _prediction_sigma(points_on_plane, plane, c, evals, evecs, query)
+
+
+def _prediction_sigma(pts, plane, c, evals, evecs, query) -> float:
+    N = len(pts)
+    resid = pts @ plane[:3] + plane[3]
+    s2 = float(resid @ resid) / (N - 3)
+    q = (query - c) @ evecs[:, 1:]  # in-plane axes: the two largest scatter directions
+    var = s2 * (1.0 / N + q[0] ** 2 / evals[1] + q[1] ** 2 / evals[2])
+    return float(math.sqrt(max(var, 0.0)))
+
+
+def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Least-squares plane (normal towards the sensor), D along the wire from the tip, and D's
+    1-sigma, all from one eigendecomposition of the scatter: the smallest eigenvector is the
+    normal, the other two are the in-plane axes the prediction variance needs."""
+    c = points.mean(axis=0)
+    X = points - c
+    evals, evecs = np.linalg.eigh(X.T @ X)
+    n = evecs[:, 0]
+    d = -float(n @ c)
+    plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
+    D = heave_distance(plane, wire_dir, p_tip)
+    if not np.isfinite(D) or len(points) < 4:
+        return plane, D, float("nan")
+    return plane, D, _prediction_sigma(points, plane, c, evals, evecs, p_tip + D * wire_dir)
+
+
+def solve3(a: np.ndarray, y: np.ndarray) -> np.ndarray | None:
+    """x = a^-1 y for a 3x3 system by the adjugate: ~10x cheaper than np.linalg.solve's
+    per-call overhead for one tiny system. None when singular."""
+    inv = inv3(a)
+    return None if inv is None else inv @ y
+
+
+def inv3(a: np.ndarray) -> np.ndarray | None:
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = a.tolist()
+    adj = np.array([
+        [b1 * c2 - b2 * c1, a2 * c1 - a1 * c2, a1 * b2 - a2 * b1],
+        [b2 * c0 - b0 * c2, a0 * c2 - a2 * c0, a2 * b0 - a0 * b2],
+        [b0 * c1 - b1 * c0, a1 * c0 - a0 * c1, a0 * b1 - a1 * b0],
+    ])
+    det = a0 * adj[0, 0] + a1 * adj[1, 0] + a2 * adj[2, 0]
+    if abs(det) < 1e-300:
+        return None
+    return adj / det

@@ -16,13 +16,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from data.frames import Frame, MruLog, SourceMeta
-from data.motion import euler_rates_to_omega_world
 from perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck
 from perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
 from perception.geometry import (
     NormalRate,
     heave_rate_document,
     heave_rate_exact,
+    omega_from_euler_rates,
     rotation_level_sensor,
     tip_in_sensor,
     wire_dir_sensor,
@@ -160,8 +160,13 @@ class HeavePipeline:
             rr = frame.fields.get("range_rate")
             if rr is None:
                 return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
-            pts, attrs, _ = preprocess(frame.points_sensor, {"range_rate": rr}, self.cfg.doppler_preprocess, rng)
-            beams = pts / np.linalg.norm(pts, axis=1, keepdims=True) if len(pts) else pts
+            # Only finite detections within the range window: the full preprocess is not needed.
+            rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor))
+            pc = self.cfg.doppler_preprocess
+            keep = (rng_m >= max(pc.min_range_m, 1e-6)) & (rng_m <= pc.max_range_m) & np.isfinite(rr)  # NaN compares False
+            pts = frame.points_sensor[keep]
+            beams = pts / rng_m[keep, None]
+            attrs = {"range_rate": rr[keep]}
         with times.stage("doppler.fit"):
             fit = doppler_velocity(beams, attrs["range_rate"].astype(float), self.cfg.doppler, rng) if len(pts) >= 3 else None
         out.doppler = fit
@@ -187,7 +192,7 @@ class HeavePipeline:
             if omega_f is None:
                 continue
             n = self.normals[sensor].normal(t_s)
-            omega_c = euler_rates_to_omega_world(rpy[None], rpy_rate[None])[0]
+            omega_c = omega_from_euler_rates(rpy, rpy_rate)
             r_tip = R_ls @ p_tip
             value = heave_rate_exact(u_level, n, omega_f, omega_c, r_tip, last[1])
             sigma = float(np.sqrt(n @ cov_level @ n) / abs(n[2]))

@@ -12,13 +12,13 @@ scored at once.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from perception.geometry import heave_distance, plane_sigma_at
-from perception.plane import fit_plane_lsq, orient_plane_towards
+from perception.geometry import fit_plane_heave
 from perception.timing import StageTimes
 
 INTENSITY_REFERENCE_RANGE_M = 50.0  # the simulator's (and a calibrated sensor's) 1.0 = white diffuse here
@@ -65,7 +65,8 @@ def intensity_threshold(intensity_comp: np.ndarray, cfg: ReflectorConfig) -> flo
         return cfg.intensity_threshold
     sample = intensity_comp[:: max(1, len(intensity_comp) // 2000)]  # a percentile needs no 10k points
     sample = sample[np.isfinite(sample)]
-    p99 = float(np.percentile(sample, 99)) if len(sample) else 0.0
+    k = int(0.99 * (len(sample) - 1))
+    p99 = float(np.partition(sample, k)[k]) if len(sample) else 0.0
     return float(max(cfg.diffuse_max, cfg.tail_factor * p99))
 
 
@@ -75,8 +76,8 @@ def group_markers(points: np.ndarray, radius_m: float) -> tuple[np.ndarray, int]
     n = len(points)
     if n == 0:
         return np.zeros(0, dtype=int), 0
-    d2 = np.einsum("ijk,ijk->ij", points[:, None] - points[None], points[:, None] - points[None])
-    adj = d2 < radius_m**2
+    sq = np.einsum("ij,ij->i", points, points)
+    adj = (sq[:, None] + sq[None, :] - 2 * points @ points.T) < radius_m**2
     labels = np.arange(n)
     while True:
         new = np.where(adj, labels[None, :], n).min(axis=1)
@@ -87,18 +88,28 @@ def group_markers(points: np.ndarray, radius_m: float) -> tuple[np.ndarray, int]
     return labels, int(labels.max()) + 1
 
 
+@lru_cache(maxsize=64)
+def _triplets(m: int, at_most: int = 128) -> np.ndarray:
+    """Triplets of m markers, spread evenly over all C(m,3) when there are more than
+    `at_most`: with at least half the markers on the deck a triplet is all-inlier with
+    probability >= 1/8, so 128 of them miss with probability ~1e-7."""
+    tri = np.array(list(combinations(range(m), 3)), dtype=np.intp).reshape(-1, 3)
+    if len(tri) > at_most:
+        tri = tri[np.linspace(0, len(tri) - 1, at_most).astype(np.intp)]
+    return tri
+
+
 def plane_through_markers(centroids: np.ndarray, threshold_m: float) -> np.ndarray:
-    """RANSAC over marker centroids, every triplet at once: the inlier mask of the best plane."""
+    """RANSAC over marker centroids, the triplets scored at once: the inlier mask of the best plane."""
     m = len(centroids)
-    tri = np.array(list(combinations(range(m), 3)))
-    a, b, c = centroids[tri[:, 0]], centroids[tri[:, 1]], centroids[tri[:, 2]]
-    n = np.cross(b - a, c - a)
-    norm = np.linalg.norm(n, axis=1)
-    ok = norm > 1e-6
-    n = n[ok] / norm[ok, None]
-    d = -np.einsum("ij,ij->i", n, a[ok])
-    inl = np.abs(centroids @ n.T + d[None, :]) < threshold_m  # (m, T)
-    return inl[:, int(np.argmax(inl.sum(axis=0)))] if len(n) else np.zeros(m, dtype=bool)
+    tri = _triplets(m)
+    a = centroids[tri[:, 0]]
+    n = np.cross(centroids[tri[:, 1]] - a, centroids[tri[:, 2]] - a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n /= np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]  # a degenerate triplet gives NaN: no inliers
+    d = -np.einsum("ij,ij->i", n, a)
+    inl = np.abs(centroids @ n.T + d) < threshold_m  # (m, T)
+    return inl[:, int(np.argmax(inl.sum(axis=0)))]
 
 
 def detect_reflectors(
@@ -139,8 +150,5 @@ def detect_reflectors(
     if spread < cfg.min_spread_m:
         return ReflectorResult(float("nan"), None, good, bright, thr, f"markers collinear (spread {spread:.2f} m)")
     with times.stage("reflectors.plane"):
-        pts = bright[on_plane[labels]]
-        plane = orient_plane_towards(fit_plane_lsq(pts))
-        D = heave_distance(plane, wire_dir_sensor, p_tip_sensor)
-        sigma = plane_sigma_at(pts, plane, p_tip_sensor + D * wire_dir_sensor) if np.isfinite(D) else float("nan")
+        plane, D, sigma = fit_plane_heave(bright[on_plane[labels]], wire_dir_sensor, p_tip_sensor)
     return ReflectorResult(D, plane, good, bright, thr, "ok" if np.isfinite(D) else "wire parallel to the plane", sigma)
