@@ -166,7 +166,7 @@ class _Checkpoint:
     x: np.ndarray  # (3, 1); never mutated in place, so entries can share arrays
     P: np.ndarray  # (3, 3)
     known: tuple[bool, bool]  # D, D_dot measured at least once
-    rejections: tuple[int, int]  # consecutive gated D, D_dot
+    rejected: tuple[tuple, tuple]  # recent consecutive gated (t, value, sigma) of D, D_dot
 
 
 @dataclass(slots=True)
@@ -175,6 +175,18 @@ class _Entry:
     m: Measurement
     status: Status
     after: _Checkpoint
+
+
+def _consistent(rejected: tuple, m: "Measurement") -> bool:
+    """Do the recent rejected measurements and m lie on one straight line within 3 sigma?"""
+    t = np.array([r[0] for r in rejected] + [m.t_acq_s])
+    v = np.array([r[1] for r in rejected] + [m.value])
+    sig = np.array([r[2] for r in rejected] + [m.sigma])
+    if np.ptp(t) <= 0:
+        return bool(np.ptp(v) <= 3 * sig.max())
+    coef = np.polyfit(t - t[-1], v, 1)
+    resid = v - np.polyval(coef, t - t[-1])
+    return bool(np.sqrt(np.mean(resid**2)) <= 3 * np.sqrt(np.mean(sig**2)))
 
 
 def _inv_1x1(S: np.ndarray) -> np.ndarray:
@@ -315,10 +327,10 @@ class HeaveFilter:
         kf = self._kf
         if prev is None:  # first measurement ever: start from the prior at its time
             kf.x, kf.P = self._x0, self._P0
-            known, rejections = [False, False], [0, 0]
+            known, rejected = [False, False], [(), ()]
         else:
             kf.x, kf.P = prev.x, prev.P
-            known, rejections = list(prev.known), list(prev.rejections)
+            known, rejected = list(prev.known), list(prev.rejected)
             dt_s = m.t_acq_s - prev.t_s
             if dt_s > 0.0:
                 kf.F = transition_matrix(dt_s)
@@ -332,7 +344,7 @@ class HeaveFilter:
             status = "accepted"  # the first measurement of a quantity sets that component
             self._set_component(i, m.value, var)
             known[i] = True
-            rejections[i] = 0
+            rejected[i] = ()
         else:
             y = m.value - kf.x[i, 0]
             nis = y * y / (kf.P[i, i] + var)
@@ -340,16 +352,20 @@ class HeaveFilter:
                 # (1,1) arrays: a column z, as filterpy needs with H, and R not scalar (skips eye()).
                 kf.update(np.array([[m.value]]), R=np.array([[var]]), H=_H[m.quantity])  # Joseph
                 kf.P = _sym(kf.P)
-                status, rejections[i] = "accepted", 0
-            elif rejections[i] >= self.config.max_consecutive_rejections:
-                # The quantity has really moved (or the filter diverged): restart from the data.
+                status, rejected[i] = "accepted", ()
+            elif len(rejected[i]) >= self.config.max_consecutive_rejections and _consistent(rejected[i], m):
+                # The rejected measurements agree with each other (a straight line through them
+                # within 3 sigma): the quantity has really moved, or the filter diverged. Restart
+                # from the data. Garbage (a bad plane, a bad spin estimate) does not agree with
+                # itself and stays gated.
                 self._set_component(i, m.value, var)
-                status, rejections[i] = "reinitialised", 0
+                status, rejected[i] = "reinitialised", ()
             else:
                 status = "gated"  # not applied; the state stays predicted to t_acq
-                rejections[i] += 1
+                keep = self.config.max_consecutive_rejections
+                rejected[i] = (rejected[i] + ((m.t_acq_s, m.value, m.sigma),))[-keep:] if keep else ()
         return status, _Checkpoint(m.t_acq_s, kf.x, kf.P, (known[0], known[1]),
-                                   (rejections[0], rejections[1]))
+                                   (rejected[0], rejected[1]))
 
     def _set_component(self, i: int, value: float, var: float) -> None:
         """Replace component i by a measurement: old correlations with it no longer hold."""

@@ -29,6 +29,10 @@ class DeckConfig(BaseModel):
         "(the lowest large horizontal plane) a plane above the current best can never win",
     )
     below_margin_m: float = Field(0.3, ge=0, description="'below' search: points this far beyond the plane")
+    min_extent_m: float = Field(
+        4.0, gt=0, description="a deck spans at least this much in both in-plane directions "
+        "(2 sigma of its inliers): a strip of hull side or a bulwark top does not",
+    )
 
 
 # LiDAR: dense and precise (cm noise). No voxel grid: RANSAC scores hypotheses on a random
@@ -87,18 +91,40 @@ def detect_deck(
     return DeckResult(D, deck.plane, deck, pts, "ok", sigma)
 
 
+def deck_like(inliers: np.ndarray, plane: np.ndarray, wire_dir: np.ndarray, min_extent_m: float) -> bool:
+    """A deck, not a strip: the inliers span min_extent_m in both in-plane directions, and the
+    wire from the sensor meets the plane within their extent (cargo may hide the point below
+    the tip, but the deck around it is seen)."""
+    c = inliers.mean(axis=0)
+    X = inliers - c
+    evals, evecs = np.linalg.eigh(X.T @ X / len(inliers))
+    extent = 4 * np.sqrt(np.maximum(evals[1:], 0))  # +-2 sigma along the two in-plane axes
+    if extent[0] < min_extent_m:
+        return False
+    denom = float(plane[:3] @ wire_dir)
+    if abs(denom) < 1e-6:
+        return False
+    p_d = wire_dir * (-plane[3] / denom)
+    q = (p_d - c) @ evecs[:, 1:]
+    return bool(np.all(np.abs(q) <= extent))
+
+
 def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> PlaneFit | None:
     """The feeder deck: the lowest near-horizontal plane holding at least min_area_fraction of
     the first (largest) plane's points. Same metric as Algorithm 3 with the improved
     selection, but each search runs only on the points below the current best plane."""
     mp = cfg.multi_plane
-    best = ransac_plane(pts, mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
-    if best is None:
+    wire = -up_sensor
+    current = ransac_plane(pts, mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
+    if current is None:
         return None
-    need = max(mp.min_inliers, int(mp.min_area_fraction * best.n_inliers))
+    # Planes that are not deck-like (a patch of the crane's own deck off to the side, a strip
+    # of hull) still bound the search: only what lies below them can be the feeder deck.
+    best = current if deck_like(pts[current.inlier_mask], current.plane, wire, cfg.min_extent_m) else None
+    need = max(mp.min_inliers, int(mp.min_area_fraction * current.n_inliers))
     for _ in range(mp.max_planes - 1):
         # Normals point towards the sensor, so points below the plane have negative distance.
-        below = np.flatnonzero(pts @ best.plane[:3] + best.plane[3] < -cfg.below_margin_m)
+        below = np.flatnonzero(pts @ current.plane[:3] + current.plane[3] < -cfg.below_margin_m)
         if len(below) < need:
             break
         cand = ransac_plane(pts[below], mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
@@ -106,5 +132,7 @@ def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, 
             break
         mask = np.zeros(len(pts), dtype=bool)
         mask[below[cand.inlier_mask]] = True
-        best = PlaneFit(cand.plane, mask, cand.inlier_ratio, cand.rms_m, cand.iterations)
+        current = PlaneFit(cand.plane, mask, cand.inlier_ratio, cand.rms_m, cand.iterations)
+        if deck_like(pts[mask], current.plane, wire, cfg.min_extent_m):
+            best = current
     return best

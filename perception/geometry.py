@@ -92,35 +92,61 @@ class NormalRate:
     a new normal arrives; radar frames in between evaluate the cached polynomial.
     """
 
-    def __init__(self, window_s: float = 1.0, min_samples: int = 4) -> None:
+    def __init__(self, window_s: float = 1.0, min_samples: int = 4, max_jump_deg: float = 1.0) -> None:
         self.window_s = window_s
         self.min_samples = min_samples
+        self.max_jump_rad = np.deg2rad(max_jump_deg)
         self.t: list[float] = []
         self.n: list[np.ndarray] = []
         self._coef: np.ndarray | None = None  # fit about self.t[-1], invalidated by add()
+        self._refused = 0
 
-    def add(self, t_s: float, normal_level: np.ndarray) -> None:
+    def add(self, t_s: float, normal_level: np.ndarray) -> bool:
+        """Add a deck normal; refused (False) when it is further than max_jump_deg from what
+        the recent normals predict: a wrong plane must not corrupt the spin for a window."""
         n = normal_level / np.linalg.norm(normal_level)
+        n = n if n[2] > 0 else -n
+        if len(self.t) >= self.min_samples and t_s - self.t[-1] <= self.window_s:
+            pred = self._predict_normal(t_s)
+            if float(np.arccos(np.clip(pred @ n, -1.0, 1.0))) > self.max_jump_rad:
+                self._refused += 1
+                if self._refused < 3:
+                    return False
+                # Three in a row: it is the history that is wrong (a bad start); begin again.
+                self.t.clear()
+                self.n.clear()
+        elif self.t and t_s - self.t[-1] > self.window_s:
+            self.t.clear()  # a long gap: the old normals say nothing about now
+            self.n.clear()
+        self._refused = 0
         self.t.append(t_s)
-        self.n.append(n if n[2] > 0 else -n)
+        self.n.append(n)
         while self.t and self.t[0] < t_s - self.window_s:
             self.t.pop(0)
             self.n.pop(0)
         self._coef = None
+        return True
 
-    def omega(self, t_s: float) -> np.ndarray | None:
-        """w_perp at time t (extrapolated from the fit), or None with too few samples."""
-        if len(self.t) < self.min_samples:
-            return None
+    def _fit(self) -> np.ndarray:
         if self._coef is None:
             tt = np.asarray(self.t) - self.t[-1]
             deg = 2 if len(tt) >= 6 else 1
             V = np.vander(tt, deg + 1, increasing=True)  # columns 1, t, t^2
             self._coef = np.linalg.lstsq(V, np.asarray(self.n), rcond=None)[0]  # (deg+1, 3)
-        c, dt = self._coef, t_s - self.t[-1]
+        return self._coef
+
+    def _predict_normal(self, t_s: float) -> np.ndarray:
+        c, dt = self._fit(), t_s - self.t[-1]
         n_t = c[0] + c[1] * dt + (c[2] * dt * dt if len(c) > 2 else 0.0)
+        return n_t / np.linalg.norm(n_t)
+
+    def omega(self, t_s: float) -> np.ndarray | None:
+        """w_perp at time t (extrapolated from the fit), or None with too few samples."""
+        if len(self.t) < self.min_samples:
+            return None
+        c, dt = self._fit(), t_s - self.t[-1]
         n_dot = c[1] + (2 * c[2] * dt if len(c) > 2 else 0.0)
-        return cross3(n_t / np.linalg.norm(n_t), n_dot)
+        return cross3(self._predict_normal(t_s), n_dot)
 
     def normal(self, t_s: float) -> np.ndarray | None:
         if not self.n:

@@ -349,3 +349,23 @@ def test_sixty_seconds_run_well_under_a_second():
     run(filt, ms, eval_t, check_spd=False)
     elapsed_s = time.perf_counter() - start
     assert elapsed_s < 1.0, f"{elapsed_s:.3f} s"
+
+
+def test_inconsistent_garbage_does_not_reinitialise_but_a_real_jump_does():
+    from fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement
+
+    rng = np.random.default_rng(42)
+    f = HeaveFilter(HeaveFilterConfig(jerk_psd=0.2))
+    t = 0.0
+    for _ in range(50):
+        f.add(Measurement(t, t, "D", 40.0 + rng.normal(0, 0.005), 0.005, "deck"))
+        t += 0.1
+    statuses = []
+    for _ in range(30):  # wild values that disagree with each other
+        statuses.append(f.add(Measurement(t, t, "D", 40.0 + rng.uniform(-50, 50), 0.005, "deck")))
+        t += 0.1
+    assert "reinitialised" not in statuses
+    x, _ = f.estimate(t)
+    assert abs(x[0] - 40.0) < 0.5
+    statuses = [f.add(Measurement(t + 0.1 * k, t + 0.1 * k, "D", 45.0 + rng.normal(0, 0.005), 0.005, "deck")) for k in range(15)]
+    assert "reinitialised" in statuses

@@ -214,3 +214,25 @@ def test_unknown_method_is_refused(short_sim):
 
     with pytest.raises(ValueError, match="unknown method"):
         HeavePipeline(short_sim.meta, short_sim.mru, PipelineConfig(methods=("deck_lidar", "decklidar")))
+
+
+def test_a_strip_of_hull_below_the_deck_is_not_a_deck():
+    """A narrow near-horizontal strip below the deck (a hull side seen at a grazing angle)
+    must not win the 'lowest large plane' search."""
+    rng = np.random.default_rng(8)
+    pts, _, depth = _deck_scene(rng, cargo=False, n=6000)
+    strip = np.column_stack([rng.uniform(-60, 60, 3000), rng.uniform(30, 30.6, 3000), np.zeros(3000)])
+    strip[:, 2] = -depth - 8 - 0.25 * (strip[:, 1] - 30)  # tilted 14 deg across, 0.6 m wide
+    res = detect_deck(np.vstack([pts, strip]), np.array([0, 0, -1.0]), np.zeros(3), LIDAR_DECK, rng, StageTimes())
+    assert res.D_m == pytest.approx(depth, abs=0.01)
+
+
+def test_normal_rate_refuses_a_jump_and_recovers_from_a_bad_start():
+    nr = NormalRate(window_s=1.0)
+    for t in np.arange(0, 0.6, 0.1):
+        assert nr.add(t, np.array([0.01 * t, 0.0, 1.0]))
+    assert not nr.add(0.6, np.array([0.3, 0.0, 1.0]))  # 17 deg off: a wrong plane
+    assert np.abs(nr.omega(0.6)).max() < 0.05
+    # three refusals in a row: the history was the problem, start again
+    assert not nr.add(0.7, np.array([0.3, 0.0, 1.0]))
+    assert nr.add(0.8, np.array([0.3, 0.0, 1.0]))
