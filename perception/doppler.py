@@ -116,7 +116,8 @@ def _cond(b: np.ndarray) -> float:
     return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
 
 
-def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndarray, n_all: int) -> "DopplerFit | None":
+def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndarray, n_all: int,
+                 u_prior: np.ndarray | None = None) -> "DopplerFit | None":
     """Least squares on everything, then on what lies within the band, until the set is stable.
 
     Radar false alarms are rare, gross outliers, so this settles in 2-4 passes of 3x3 normal
@@ -125,15 +126,20 @@ def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndar
     """
     from perception.geometry import inv3
 
-    a = b.T @ b
-    inv = inv3(a)
-    if inv is None:
-        return None
-    u = inv @ (b.T @ r)
+    if u_prior is not None:
+        # Tracking: last frame's velocity is within the band of this one's (the deck's
+        # acceleration times one radar period is a few cm/s), so the wide first pass is skipped.
+        u, a, inv = np.asarray(u_prior, dtype=float), None, None
+    else:
+        a = b.T @ b
+        inv = inv3(a)
+        if inv is None:
+            return None
+        u = inv @ (b.T @ r)
     mask = None
     for it in range(6):
         res = np.abs(b @ u - r)
-        if it == 0:
+        if it == 0 and u_prior is None:
             # A wide first band (3 robust sigmas from the median, at least the configured one) so a
             # start biased by the outliers cannot throw good detections away; then the configured band.
             k = len(res) // 2
@@ -153,7 +159,7 @@ def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndar
             return None
         u = inv @ (bi.T @ r[mask])
     n_in = int(np.count_nonzero(mask))
-    if n_in < max(3, cfg.min_inliers, cfg.trimmed_min_fraction * len(r)):
+    if a is None or n_in < max(3, cfg.min_inliers, cfg.trimmed_min_fraction * len(r)):
         return None
     # cond(B) = sqrt(cond(B^T B)); the Frobenius-norm bound ||A|| ||A^-1|| is enough to refuse
     # degenerate beam geometry without an eigendecomposition.
@@ -172,10 +178,12 @@ def doppler_velocity(
     range_rate_mps: np.ndarray,
     cfg: DopplerConfig | None = None,
     rng: np.random.Generator | None = None,
+    u_prior: np.ndarray | None = None,
 ) -> DopplerFit | None:
     """Fit u with ``range_rate_i = b_i . u`` (sensor frame, m/s), robust to outliers.
 
     ``beam_dirs`` (N, 3) are normalised here; ``range_rate_mps`` (N,) positive when receding.
+    ``u_prior`` (e.g. the previous scan's velocity) lets the trimmed start skip its first pass.
     Steps: vectorised RANSAC over minimal 3-detection sets (batched 3x3 solves, one (N x batch)
     residual matrix per batch, adaptive stop from the best inlier ratio), least-squares refits on the
     inliers with re-selection, optional Huber IRLS, covariance ``sigma^2 (B^T B)^-1``.
@@ -200,7 +208,9 @@ def doppler_velocity(
     thr = cfg.inlier_threshold_mps
 
     if cfg.start == "trimmed" and cfg.huber_delta_mps is None:
-        fit = _trimmed_fit(b, r, cfg, vidx, n_all)
+        fit = _trimmed_fit(b, r, cfg, vidx, n_all, u_prior) if u_prior is not None else None
+        if fit is None:  # no prior, or the prior did not hold: the full trimmed fit
+            fit = _trimmed_fit(b, r, cfg, vidx, n_all)
         if fit is not None:
             return fit
     best_count, best_u, drawn = -1, None, 0

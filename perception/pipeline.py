@@ -97,6 +97,7 @@ class HeavePipeline:
         self.p_tip = {s: tip_in_sensor(meta.T_boomtip_sensor[s]) for s in ("lidar", "radar")}
         self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
+        self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
 
     def _wants(self, sensor: str) -> list[str]:
         return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor]
@@ -168,8 +169,10 @@ class HeavePipeline:
             beams = pts / rng_m[keep, None]
             attrs = {"range_rate": rr[keep]}
         with times.stage("doppler.fit"):
-            fit = doppler_velocity(beams, attrs["range_rate"].astype(float), self.cfg.doppler, rng) if len(pts) >= 3 else None
+            prior = self.last_doppler[1] if self.last_doppler and frame.t_s - self.last_doppler[0] <= 0.2 else None
+            fit = doppler_velocity(beams, attrs["range_rate"].astype(float), self.cfg.doppler, rng, prior) if len(pts) >= 3 else None
         out.doppler = fit
+        self.last_doppler = (frame.t_s, fit.velocity_sensor) if fit is not None else None
         if fit is None:
             return {m: (np.nan, np.nan, f"no Doppler velocity ({len(pts)} detections or degenerate beams)") for m in wanted if m.startswith("doppler")}
         u_level = R_ls @ fit.velocity_sensor

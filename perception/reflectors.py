@@ -4,8 +4,8 @@ that share one plane, fit the deck plane through their points, then D by the sam
 intersection.
 
 Written for speed (it is the cheap method): a frame has ~10k points but only ~100 bright
-ones, so after the threshold everything works on markers, not points: label propagation
-on the bright points' distance matrix, and RANSAC over marker centroids with every triplet
+ones, so after the threshold everything works on markers, not points: a grid groups
+the bright points into markers, and RANSAC runs over marker centroids with the triplets
 scored at once.
 """
 
@@ -39,7 +39,7 @@ class ReflectorConfig(BaseModel):
         "(a sensor whose diffuse returns read high raises the threshold with them)",
     )
     range_compensate: bool = Field(True, description="scale intensity by (r / 50 m)^2 before thresholding")
-    cluster_radius_m: float = Field(1.2, gt=0, description="bright points closer than this belong to one marker")
+    cluster_cell_m: float = Field(2.0, gt=0, description="grid cell grouping bright points into markers")
     max_bright_points: int = Field(2000, ge=3, description="more bright points than this: the threshold is wrong")
     plane_threshold_m: float = Field(0.15, gt=0, description="marker centroids within this of the plane agree")
     min_markers: int = Field(3, ge=3)
@@ -70,21 +70,18 @@ def intensity_threshold(intensity_comp: np.ndarray, cfg: ReflectorConfig) -> flo
     return float(max(cfg.diffuse_max, cfg.tail_factor * p99))
 
 
-def group_markers(points: np.ndarray, radius_m: float) -> tuple[np.ndarray, int]:
-    """Connected components of the radius graph by label propagation on the (B x B) distance
-    matrix: B is ~100, and a marker is a few points across, so it settles in a few passes."""
+def group_markers(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, int]:
+    """Group bright points into markers by a coarse grid: markers are ~1 m patches metres
+    apart, so points sharing a cell belong to one marker. A marker cut by a cell boundary
+    becomes two centroids, both still on the deck plane, which the plane search tolerates."""
     n = len(points)
     if n == 0:
         return np.zeros(0, dtype=int), 0
-    sq = np.einsum("ij,ij->i", points, points)
-    adj = (sq[:, None] + sq[None, :] - 2 * points @ points.T) < radius_m**2
-    labels = np.arange(n)
-    while True:
-        new = np.where(adj, labels[None, :], n).min(axis=1)
-        if np.array_equal(new, labels):
-            break
-        labels = new[new]  # pointer jumping halves the passes
-    _, labels = np.unique(labels, return_inverse=True)
+    cells = np.floor(points / cell_m).astype(np.int64)
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    _, labels = np.unique(key, return_inverse=True)
     return labels, int(labels.max()) + 1
 
 
@@ -126,14 +123,14 @@ def detect_reflectors(
         r2 = np.einsum("ij,ij->i", points_sensor, points_sensor)
         comp = intensity * (r2 / INTENSITY_REFERENCE_RANGE_M**2) if cfg.range_compensate else intensity
         thr = intensity_threshold(comp, cfg)
-        bright = points_sensor[(comp > thr) & np.isfinite(r2) & (r2 > 0)]  # NaN compares False
+        bright = points_sensor[comp > thr]  # NaN compares False; a zero-range point has comp 0
     if len(bright) < 3:
         return ReflectorResult(float("nan"), None, empty, bright, thr, f"no reflectors ({len(bright)} bright points)")
     if len(bright) > cfg.max_bright_points:
         return ReflectorResult(float("nan"), None, empty, bright[:0], thr,
                                f"{len(bright)} bright points: intensity threshold {thr:.3g} lets diffuse returns through")
     with times.stage("reflectors.markers"):
-        labels, n_markers = group_markers(bright, cfg.cluster_radius_m)
+        labels, n_markers = group_markers(bright, cfg.cluster_cell_m)
         counts = np.bincount(labels, minlength=n_markers)
         centroids = np.stack([np.bincount(labels, weights=bright[:, k], minlength=n_markers) for k in range(3)], 1) / counts[:, None]
         if n_markers < cfg.min_markers:

@@ -1,0 +1,525 @@
+"""Hook (lower block) segmentation and reference point from a boom-tip LiDAR frame (document 002).
+
+Frames and units
+----------------
+Input points are (N, 3) float, metres, in a GRAVITY-LEVELLED frame with its origin at the boom
+tip (the rope's suspension point), z up: the caller rotates the sensor points with the MRU
+attitude and the mount and adds the sensor's offset from the tip. The prior ``p_prior`` and the
+output ``position_m`` are in the same frame. The block model (``data.hook_block``) lives in the
+BLOCK frame: origin = the reference point (rope attachment, top centre), z up along the rope,
+x along the block's long axis.
+
+Chain (``detect_hook``), every step vectorised over points
+------------------------------------------------------------
+1. ``hook.gate``: points within ``prior_radius_m`` of the prior and below the tip.
+2. ``hook.planes``: large near-horizontal planes (deck, big cargo tops) and the rope are removed.
+   A plane only counts when one 2-D connected patch of its inliers is wider than the block can be
+   (``plane_min_extent_m``), so the block's own flat top never qualifies; points in its band and
+   below it are removed only in grid cells the patch covers, so the block, which stands in the
+   plane's shadow (no plane points under it), is never eaten.
+   Rope: points near the line tip -> prior, clearly above the block's top.
+3. ``hook.cluster``: Euclidean clustering (radius graph + connected components; the radius
+   follows the LiDAR's beam spacing at the prior's range), then the cluster with a block-sized
+   extent that is nearest to the prior.
+4. ``hook.fit``: the known block model is fitted (4-DOF point-to-point ICP: rotation about the
+   rope direction + translation, the block hanging along the rope from the tip) and its origin is
+   the reference point. NOT the centroid of the visible points: from above one sees the sheave
+   crowns and the body top, 0.05-0.8 m below the rope attachment, and under occlusion or sway the
+   visible centroid also slides sideways.
+
+Speed: a full OS1-128 frame (131k rays, ~50-70k returns) runs in a few milliseconds, most of it
+the gate over all points (see the report in tests/test_hook_segmentation.py).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from data.hook_block import BODY_TOP_Z_M, SHEAVE_CROWN_Z_M, lower_block_mesh, visible_model_points
+from data.scene import Label
+from perception.plane import RansacConfig, ransac_plane
+from perception.timing import StageTimes
+
+__all__ = [
+    "HookConfig",
+    "HookDetection",
+    "detect_hook",
+    "segmentation_scores",
+    "block_model",
+    "rotation_hanging",
+]
+
+
+class HookConfig(BaseModel):
+    """Thresholds of :func:`detect_hook` (metres, radians unless the name says otherwise)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # --- 1. gate ---------------------------------------------------------------------------
+    prior_radius_m: float = Field(6.0, gt=0, description="gate radius around the prior (3 sigma + block size)")
+    below_tip_m: float = Field(1.0, ge=0, description="keep only points at least this far below the tip")
+    min_gate_points: int = Field(3, ge=1, description="fewer gated points: 'no points near the prediction'")
+
+    # --- 2. planes and rope --------------------------------------------------------------------
+    plane_ransac: RansacConfig = Field(
+        default_factory=lambda: RansacConfig(distance_threshold_m=0.08, subsample_size=1500, min_inliers=20,
+                                             max_iterations=300),
+    )
+    plane_max_tilt_deg: float = Field(10.0, ge=0, le=45, description="deck/cargo-top normals within this of up")
+    max_planes: int = Field(3, ge=0, description="large planes removed at most")
+    plane_min_extent_m: float = Field(
+        6.0, gt=0, description="a plane patch must be wider than this (the block is at most ~2.8 m) to be removed"
+    )
+    plane_min_inliers: int = Field(20, ge=3)
+    plane_band_m: float = Field(0.25, gt=0, description="points closer than this above a removed plane go too")
+    plane_cell_min_m: float = Field(0.5, gt=0, description="grid cell of the plane patches (at least)")
+    plane_cell_steps: float = Field(1.6, gt=0, description="grid cell >= this many beam spacings at the range")
+
+    rope_radius_m: float = Field(0.25, gt=0, description="points this close to the line tip -> prior are rope")
+    rope_top_margin_m: float = Field(
+        0.9, ge=0,
+        description="rope points must lie this far above the highest non-rope point near the line: the model's "
+        "relief (sheave crown to body top, 0.75 m) + noise, so a lone crown point of a far, sparse block is kept; "
+        "rope points closer to the block are excluded by the robust fit",
+    )
+    rope_near_radius_m: float = Field(1.6, gt=0, description="'near the line' for the block-top search")
+
+    # --- 3. clustering ---------------------------------------------------------------------------
+    cluster_method: Literal["kdtree", "dbscan"] = Field(
+        "kdtree", description="kdtree: scipy radius graph + connected components; dbscan: Open3D cluster_dbscan"
+    )
+    lidar_angular_step_rad: float = Field(
+        math.radians(360.0 / 1024), gt=0, description="beam spacing of the LiDAR (OS1-128: 0.35 deg both ways)"
+    )
+    cluster_eps_steps: float = Field(2.5, gt=0, description="cluster radius in beam spacings at the prior's range")
+    cluster_eps_min_m: float = Field(0.25, gt=0)
+    cluster_eps_max_m: float = Field(2.5, gt=0)
+    min_cluster_points: int = Field(3, ge=1, description="smaller clusters are ignored")
+    min_extent_m: float = Field(0.5, ge=0, description="block-consistent cluster extent, lower bound")
+    max_extent_m: float = Field(6.0, gt=0, description="block-consistent cluster extent, upper bound")
+
+    # --- 4. model fit ------------------------------------------------------------------------------
+    block_height_m: float = Field(4.0, gt=0, description="height of the known block model (data.hook_block)")
+    model_points: int = Field(5000, ge=100, description="samples of the model's visible surface")
+    top_band_m: float = Field(0.3, gt=0, description="'highest points': within this of the top")
+    fit_max_points: int = Field(400, ge=10, description="random subsample of the cluster for the ICP")
+    icp_max_correspondence_m: float = Field(0.5, gt=0, description="coarse ICP stage correspondence cut")
+    icp_final_correspondence_m: float = Field(0.2, gt=0, description="fine ICP stage cut = inlier threshold")
+    icp_coarse_iterations: int = Field(8, ge=0)
+    icp_iterations: int = Field(30, ge=1, description="total ICP iterations at most")
+    icp_tolerance_m: float = Field(1e-4, gt=0, description="stop when the reference point moves less")
+    isotropic_ratio: float = Field(1.4, ge=1, description="below this horizontal eigen-ratio, also try yaw +-90 deg")
+    min_fit_points: int = Field(4, ge=3, description="fewer model inliers: no fix")
+    max_fit_rms_m: float = Field(0.10, gt=0, description="worse fit RMS: not the block")
+    min_inlier_fraction: float = Field(0.8, gt=0, le=1, description="fewer cluster points explained: not the block")
+    length_tolerance_m: float = Field(2.0, ge=0, description="|reference - tip| must match the hoist length within "
+                                      "max(this, length_tolerance_fraction * l)")
+    length_tolerance_fraction: float = Field(0.03, ge=0)
+
+
+@dataclass
+class HookDetection:
+    """Result of :func:`detect_hook` (levelled frame, origin at the boom tip, metres)."""
+
+    position_m: np.ndarray  # (3,) reference point (rope attachment), NaN when not found
+    points_mask: np.ndarray  # (N,) bool over the input points: the block's points (model inliers)
+    n_points: int  # points in the mask
+    fit_rms_m: float  # RMS of the model inliers' point-to-model distances, NaN when no fit
+    status: str  # "ok" or the reason for no fix
+    cluster_extent_m: float  # extent of the chosen cluster (NaN if none)
+    yaw_rad: float = float("nan")  # block yaw about the rope direction (mod pi: the visible top is symmetric)
+    R_level_block: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))  # block orientation
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+# --------------------------------------------------------------------------------------
+# Model
+# --------------------------------------------------------------------------------------
+class BlockModel:
+    """The visible model points of the known block (block frame) with two nearest-point indices.
+
+    ``nearest`` is an exact KD-tree query; ``nearest_grid`` looks the nearest model point up in a
+    precomputed voxel grid (cell ``grid_cell_m``, out to ``margin_m`` around the model): O(1) per
+    point, about 20x faster than the tree for a few hundred points, which is what makes tens of
+    ICP iterations affordable per frame. The grid answer is the model point nearest to the cell
+    centre: at most one cell diagonal worse than the true nearest (used inside the ICP; residuals
+    and inlier tests use the exact tree).
+    """
+
+    def __init__(self, height_m: float = 4.0, n: int = 6000, grid_cell_m: float = 0.03, margin_m: float = 0.55):
+        self.points = visible_model_points(lower_block_mesh(height_m), n)
+        self.tree = cKDTree(self.points)
+        self.cell = grid_cell_m
+        self.lo = self.points.min(axis=0) - margin_m
+        self.shape = np.ceil((self.points.max(axis=0) + margin_m - self.lo) / grid_cell_m).astype(np.int64) + 1
+        axes = [self.lo[i] + (np.arange(self.shape[i]) + 0.5) * grid_cell_m for i in range(3)]
+        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        d, idx = self.tree.query(centres, distance_upper_bound=margin_m + grid_cell_m, workers=-1)
+        self.grid = np.where(np.isfinite(d), idx, -1).astype(np.int32).reshape(tuple(self.shape))
+
+    def nearest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Exact: (distance, index) of the nearest model point for each row of q (block frame)."""
+        return self.tree.query(q)
+
+    def nearest_grid(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Grid lookup: (distance, index); distance inf and index -1 outside the grid's reach."""
+        c = np.floor((q - self.lo) / self.cell).astype(np.int64)
+        inside = np.all((c >= 0) & (c < self.shape), axis=1)
+        idx = np.full(len(q), -1, dtype=np.int64)
+        ci = c[inside]
+        idx[inside] = self.grid[ci[:, 0], ci[:, 1], ci[:, 2]]
+        d = np.full(len(q), np.inf)
+        ok = idx >= 0
+        diff = q[ok] - self.points[idx[ok]]
+        d[ok] = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        return d, idx
+
+
+@functools.lru_cache(maxsize=8)
+def block_model(height_m: float = 4.0, n: int = 6000) -> BlockModel:
+    """The known block's visible-surface model and indices (cached: ~0.5 s to build once)."""
+    return BlockModel(height_m, n)
+
+
+def rotation_hanging(u: np.ndarray) -> np.ndarray:
+    """The minimal rotation taking the block's +z to -u (u: unit vector tip -> block, downward).
+
+    Continuous for any sway below 90 deg; the block's yaw is a further rotation about its z.
+    """
+    u = np.asarray(u, float)
+    b = -u / math.sqrt(float(u @ u))
+    # a = (0, 0, 1): v = a x b = (-b_y, b_x, 0), c = a . b = b_z
+    vx = np.array([[0.0, 0.0, b[0]], [0.0, 0.0, b[1]], [-b[0], -b[1], 0.0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + b[2])
+
+
+def _rot_z(psi: float) -> np.ndarray:
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+# --------------------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------------------
+def _extent_xy(xy: np.ndarray, lo: float = 1.0, hi: float = 99.0) -> float:
+    """Length of a 2-D point set along its principal axis (percentile range, robust to strays)."""
+    if len(xy) < 2:
+        return 0.0
+    c = xy - xy.mean(axis=0)
+    _, vecs = np.linalg.eigh(c.T @ c)
+    s = c @ vecs[:, -1]
+    a, b = np.percentile(s, [lo, hi])
+    return float(b - a)
+
+
+def _cluster_extent(p: np.ndarray) -> float:
+    """Diagonal of the cluster's box in its horizontal principal axes and z (metres)."""
+    if len(p) < 2:
+        return 0.0
+    c = p[:, :2] - p[:, :2].mean(axis=0)
+    _, vecs = np.linalg.eigh(c.T @ c)
+    s = c @ vecs
+    ext = np.ptp(s, axis=0)
+    return float(math.sqrt(ext[0] ** 2 + ext[1] ** 2 + np.ptp(p[:, 2]) ** 2))
+
+
+def _remove_planes(p: np.ndarray, cfg: HookConfig, cell_m: float, rng: np.random.Generator) -> np.ndarray:
+    """Mask (over p) of deck / big cargo-top points: band + below of large horizontal planes.
+
+    Sequential RANSAC constrained to near-horizontal normals. A plane is 'large' when one
+    8-connected patch of its inliers on a horizontal grid (cell ~1.6 beam spacings, so a sparse far
+    deck stays connected) is wider than the block can be; only such patches count, so block points
+    that happen to lie at a cargo top's height form their own small patch and stay. Removal is
+    restricted to the grid cells of the large patches: the block hangs in the plane's shadow, where
+    the plane has no points, so neither band nor 'below' can reach it.
+    """
+    removed = np.zeros(len(p), dtype=bool)
+    up = np.array([0.0, 0.0, 1.0])
+    for _ in range(cfg.max_planes):
+        rem = np.flatnonzero(~removed)
+        if len(rem) < cfg.plane_min_inliers:
+            break
+        q = p[rem]
+        fit = ransac_plane(q, cfg.plane_ransac, rng, axis=up, max_axis_angle_deg=cfg.plane_max_tilt_deg)
+        if fit is None or fit.n_inliers < cfg.plane_min_inliers:
+            break
+        inl = q[fit.inlier_mask]
+        # Patches of the inliers on a grid over the remaining points' footprint.
+        origin = q[:, :2].min(axis=0)
+        cells = np.floor((q[:, :2] - origin) / cell_m).astype(np.int64)
+        shape = cells.max(axis=0) + 1
+        grid = np.zeros(shape, dtype=bool)
+        ci = cells[fit.inlier_mask]
+        grid[ci[:, 0], ci[:, 1]] = True
+        lab, n_lab = ndimage.label(grid, structure=np.ones((3, 3), dtype=int))
+        inl_lab = lab[ci[:, 0], ci[:, 1]]
+        large = np.zeros(n_lab + 1, dtype=bool)
+        # A handful of patches per plane: loop over patches, not points.
+        for k in np.unique(inl_lab):
+            sel = inl_lab == k
+            large[k] = sel.sum() >= cfg.plane_min_inliers and _extent_xy(inl[sel, :2]) > cfg.plane_min_extent_m
+        if not large.any():
+            break  # the largest horizontal plane left is no bigger than the block: keep everything
+        # Signed height above the plane (ransac_plane orients the normal towards the tip, i.e. up).
+        s = q @ fit.plane[:3] + fit.plane[3]
+        in_large = large[lab[cells[:, 0], cells[:, 1]]]
+        removed[rem[(s < cfg.plane_band_m) & in_large]] = True
+    return removed
+
+
+def _rope_mask(p: np.ndarray, u: np.ndarray, cfg: HookConfig) -> np.ndarray:
+    """Mask (over p) of rope points: within rope_radius of the line from the tip along u, and
+    more than rope_top_margin above the highest non-rope point near that line (the block top)."""
+    t = p @ u  # distance along the line from the tip
+    perp = np.linalg.norm(p - t[:, None] * u[None], axis=1)
+    cand = perp < cfg.rope_radius_m
+    near = ~cand & (perp < cfg.rope_near_radius_m)
+    if np.count_nonzero(near) >= 2:
+        t_top = float(np.partition(t[near], 1)[1])  # 2nd highest: one noisy point does not decide
+    else:
+        t_top = np.inf  # no block beside the line: everything on the line is rope
+    return cand & (t < t_top - cfg.rope_top_margin_m)
+
+
+def _clusters(p: np.ndarray, eps: float, method: str) -> np.ndarray:
+    """Cluster labels (single linkage at eps), -1 for none."""
+    if len(p) == 0:
+        return np.zeros(0, dtype=np.int64)
+    if method == "dbscan":
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
+        # min_points=1: DBSCAN degenerates to single linkage, the same partition as the kdtree route
+        return np.asarray(pc.cluster_dbscan(eps=eps, min_points=1, print_progress=False), dtype=np.int64)
+    pairs = cKDTree(p).query_pairs(eps, output_type="ndarray")
+    n = len(p)
+    g = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, lab = connected_components(g, directed=False)
+    return lab.astype(np.int64)
+
+
+@dataclass
+class _Fit:
+    t: np.ndarray  # reference point, levelled frame
+    yaw: float
+    R: np.ndarray  # block orientation, levelled <- block
+    rms: float  # RMS of the inliers' distances to the model
+    inliers: np.ndarray  # bool over the points scored
+
+
+def _pose(t: np.ndarray, yaw: float) -> np.ndarray:
+    return rotation_hanging(t) @ _rot_z(yaw)
+
+
+def _icp_4dof(p: np.ndarray, t0: np.ndarray, yaw0: float, model: BlockModel, cfg: HookConfig,
+              coarse_iterations: int) -> tuple[np.ndarray, float]:
+    """Point-to-point ICP with the block hanging along the rope: unknowns yaw + translation.
+
+    Pose: x_level = R_u(t) Rz(yaw) m + t, with R_u the hanging rotation for u = t / |t| (the block
+    hangs along the line from the tip to its reference point, the pendulum model). With R_u fixed
+    per iteration the best yaw and translation have a closed form: a 2-D Procrustes in the rope
+    frame's xy plane plus the mean offset along the rope. Two stages: a coarse correspondence cut
+    (pulls in from a rough start), then the final inlier cut (drops stray rope / clutter points).
+    Correspondences from the model's voxel grid. Returns (t, yaw).
+    """
+    t = t0.copy()
+    yaw = yaw0
+    for it in range(cfg.icp_iterations):
+        coarse = it < coarse_iterations
+        thr = cfg.icp_max_correspondence_m if coarse else cfg.icp_final_correspondence_m
+        Ru = rotation_hanging(t)
+        pr = p @ Ru  # points in the rope frame (absolute)
+        q = (pr - Ru.T @ t) @ _rot_z(yaw)  # model frame: Rz^T (pr - tr)
+        d, idx = model.nearest_grid(q)
+        ok = d < thr
+        if np.count_nonzero(ok) < 3:
+            break
+        m, x = model.points[idx[ok]], pr[ok]
+        mc, xc = m.mean(axis=0), x.mean(axis=0)
+        m0, x0 = m[:, :2] - mc[:2], x[:, :2] - xc[:2]
+        yaw_new = math.atan2(float(np.sum(m0[:, 0] * x0[:, 1] - m0[:, 1] * x0[:, 0])),
+                             float(np.sum(m0[:, 0] * x0[:, 0] + m0[:, 1] * x0[:, 1])))
+        t_new = Ru @ (xc - _rot_z(yaw_new) @ mc)
+        step = float(np.linalg.norm(t_new - t))
+        t, yaw = t_new, yaw_new
+        if step < cfg.icp_tolerance_m and not coarse:
+            break
+    return t, yaw
+
+
+def _score(p: np.ndarray, t: np.ndarray, yaw: float, model: BlockModel, cfg: HookConfig) -> _Fit:
+    """Exact residuals of p against the posed model; inliers within the final correspondence cut."""
+    R = _pose(t, yaw)
+    d, _ = model.nearest((p - t) @ R)
+    inl = d < cfg.icp_final_correspondence_m
+    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
+    return _Fit(t, yaw, R, rms, inl)
+
+
+def _initial_guesses(p: np.ndarray, cfg: HookConfig) -> list[tuple[np.ndarray, float]]:
+    """Starting poses (t, yaw) from the cluster: its highest points and its long axis."""
+    # Hanging direction: tip -> cluster centroid (off the rope by at most the block's size / range).
+    u0 = p.mean(axis=0)
+    u0 = u0 / np.linalg.norm(u0)
+    h = -(p @ u0)  # height along the rope (up = -u0)
+    Ru0 = rotation_hanging(u0)
+    # Yaw: the principal axis in the plane normal to the rope = the block's long axis. The visible
+    # top is symmetric under a 180 deg yaw (the asymmetric hook is hidden under the body), so one
+    # yaw suffices; a near-isotropic cluster (a few far points) also tries the perpendicular one.
+    xy = (p @ Ru0)[:, :2]
+    xy = xy - xy.mean(axis=0)
+    w, vecs = np.linalg.eigh(xy.T @ xy)
+    yaw_pca = math.atan2(vecs[1, -1], vecs[0, -1])
+    yaws = [yaw_pca]
+    if w[0] <= 0 or w[1] / max(w[0], 1e-12) < cfg.isotropic_ratio**2:
+        yaws.append(yaw_pca + math.pi / 2)
+    # Reference point: the centre of the highest points (the sheave crowns), raised by the crown's
+    # depth below the rope attachment. If the highest point stands alone well above the next one
+    # (a stray rope point, or a lone crown point of a far block), also start from the 2nd highest.
+    hs = np.sort(h)[::-1]
+    tops = [hs[0]] + ([hs[1]] if len(hs) > 1 and hs[0] - hs[1] > 0.15 else [])
+    out = []
+    for h_top in tops:
+        sel = (h >= h_top - cfg.top_band_m) & (h <= h_top + 1e-9)
+        c = p[sel].mean(axis=0)
+        t0 = c + (h_top - SHEAVE_CROWN_Z_M - float(-(c @ u0))) * (-u0)
+        out += [(t0, y) for y in yaws]
+    return out
+
+
+def _fit_block(p: np.ndarray, cfg: HookConfig, rng: np.random.Generator) -> _Fit:
+    """Fit the known block model to the cluster points p (levelled frame); the best of a few
+    starts (most inliers, then lowest RMS)."""
+    model = block_model(cfg.block_height_m, cfg.model_points)
+    ps = p if len(p) <= cfg.fit_max_points else p[rng.choice(len(p), cfg.fit_max_points, replace=False)]
+    best: _Fit | None = None
+    for t0, y0 in _initial_guesses(ps, cfg):
+        t, yaw = _icp_4dof(ps, t0, y0, model, cfg, cfg.icp_coarse_iterations)
+        cand = _score(p, t, yaw, model, cfg)
+        if best is None or (cand.inliers.sum(), -cand.rms) > (best.inliers.sum(), -best.rms):
+            best = cand
+    assert best is not None
+    return best
+
+
+# --------------------------------------------------------------------------------------
+# Main entry
+# --------------------------------------------------------------------------------------
+def _fail(n: int, status: str, extent: float = float("nan"), rms: float = float("nan"), n_pts: int = 0) -> HookDetection:
+    return HookDetection(np.full(3, np.nan), np.zeros(n, dtype=bool), n_pts, rms, status, extent)
+
+
+def detect_hook(
+    points_level: np.ndarray,
+    p_prior: np.ndarray,
+    hoist_length_m: float,
+    cfg: HookConfig | None = None,
+    rng: np.random.Generator | None = None,
+    times: StageTimes | None = None,
+) -> HookDetection:
+    """Segment the lower block in one LiDAR frame and estimate its reference point.
+
+    points_level: (N, 3) levelled frame, origin at the boom tip, z up (metres).
+    p_prior: (3,) predicted reference point, same frame (filter prediction, or (0, 0, -l) before
+        the filter has converged).
+    hoist_length_m: rope length l from the hoist encoder: sets the expected range (cluster radius)
+        and a plausibility check (|reference| ~ l).
+    Returns a :class:`HookDetection`; on failure position_m is NaN and status gives the reason.
+    """
+    cfg = cfg or HookConfig()
+    rng = rng if rng is not None else np.random.default_rng()
+    times = times if times is not None else StageTimes()
+    pts = np.asarray(points_level, dtype=np.float64).reshape(-1, 3)
+    n_all = len(pts)
+    prior = np.asarray(p_prior, dtype=np.float64).reshape(3)
+    range_m = max(float(np.linalg.norm(prior)), 1.0)
+    step_m = cfg.lidar_angular_step_rad * range_m  # beam spacing at the block
+
+    # 1. Gate: a sphere around the prior (3 sigma of the prediction + the block's size), and below
+    # the tip (nothing of the block can be above it; removes the boom and the sensor's own mount).
+    with times.stage("hook.gate"):
+        d2 = np.einsum("ij,ij->i", pts - prior, pts - prior)
+        gate = np.flatnonzero((d2 < cfg.prior_radius_m**2) & (pts[:, 2] < -cfg.below_tip_m))
+        p = pts[gate]
+    if len(p) < cfg.min_gate_points:
+        return _fail(n_all, "no points near the prediction")
+
+    # 2. Background: large horizontal planes (deck, big cargo tops), then the rope.
+    with times.stage("hook.planes"):
+        cell = max(cfg.plane_cell_min_m, cfg.plane_cell_steps * step_m)
+        bg = _remove_planes(p, cfg, cell, rng) if cfg.max_planes > 0 else np.zeros(len(p), dtype=bool)
+        u_prior = prior / np.linalg.norm(prior)
+        bg |= _rope_mask(p, u_prior, cfg)
+        keep = np.flatnonzero(~bg)
+        p, gate = p[keep], gate[keep]
+    if len(p) < cfg.min_gate_points:
+        return _fail(n_all, "only deck / cargo-top / rope points near the prediction")
+
+    # 3. Clusters: single linkage with a radius of a few beam spacings at the block's range (the
+    # LiDAR's angular grid makes the point spacing grow with range), then the block-sized cluster
+    # nearest to the prior.
+    with times.stage("hook.cluster"):
+        eps = float(np.clip(cfg.cluster_eps_steps * step_m, cfg.cluster_eps_min_m, cfg.cluster_eps_max_m))
+        lab = _clusters(p, eps, cfg.cluster_method)
+        order = np.argsort(lab, kind="stable")
+        bounds = np.flatnonzero(np.diff(lab[order])) + 1
+        groups = [g for g in np.split(order, bounds) if len(g) >= cfg.min_cluster_points and lab[g[0]] >= 0]
+        # A few clusters: loop over clusters, not points.
+        dist = np.array([float(np.sqrt(np.min(np.einsum("ij,ij->i", p[g] - prior, p[g] - prior)))) for g in groups])
+        ext = np.array([_cluster_extent(p[g]) for g in groups])
+    if not groups:
+        return _fail(n_all, f"only stray points near the prediction (clusters < {cfg.min_cluster_points} points)")
+    fits = (ext >= cfg.min_extent_m) & (ext <= cfg.max_extent_m)
+    nearest = int(np.argmin(dist))
+    if not fits.any():
+        why = "too large: probably cargo" if ext[nearest] > cfg.max_extent_m else "too small"
+        return _fail(n_all, f"nearest cluster {why} (extent {ext[nearest]:.1f} m)", extent=float(ext[nearest]))
+    k = int(np.flatnonzero(fits)[np.argmin(dist[fits])])
+    idx = groups[k]
+    pc = p[idx]
+
+    # 4. Model fit -> reference point.
+    with times.stage("hook.fit"):
+        fit = _fit_block(pc, cfg, rng)
+        d, _ = _residuals(pc, fit.t, fit.yaw, block_model(cfg.block_height_m, cfg.model_points)[1])
+        inl = d < cfg.icp_final_correspondence_m
+    mask = np.zeros(n_all, dtype=bool)
+    mask[gate[idx[inl]]] = True
+    n_in = int(np.count_nonzero(inl))
+    tol = max(cfg.length_tolerance_m, cfg.length_tolerance_fraction * hoist_length_m)
+    status = "ok"
+    if n_in < cfg.min_fit_points:
+        status = f"too few block points ({n_in})"
+    elif fit.rms > cfg.max_fit_rms_m or fit.frac_in < cfg.min_inlier_fraction:
+        status = f"cluster does not fit the block model (rms {fit.rms:.2f} m, {100 * fit.frac_in:.0f} % explained)"
+    elif abs(float(np.linalg.norm(fit.t)) - hoist_length_m) > tol:
+        status = f"reference point at {np.linalg.norm(fit.t):.1f} m from the tip, hoist length {hoist_length_m:.1f} m"
+    if status != "ok":
+        return HookDetection(np.full(3, np.nan), np.zeros(n_all, dtype=bool), n_in, fit.rms, status, float(ext[k]))
+    return HookDetection(fit.t, mask, n_in, fit.rms, status, float(ext[k]), float(fit.yaw % math.pi), fit.R)
+
+
+def segmentation_scores(points_mask: np.ndarray, labels: np.ndarray, hook_label: int = int(Label.HOOK)) -> tuple[float, float]:
+    """(precision, recall) of a hook mask against per-point labels of the same frame.
+
+    precision = |mask & hook| / |mask|, recall = |mask & hook| / |hook|, counting only the points
+    of this frame; NaN when the denominator is zero.
+    """
+    m = np.asarray(points_mask, dtype=bool)
+    h = np.asarray(labels) == hook_label
+    tp = int(np.count_nonzero(m & h))
+    n_m, n_h = int(np.count_nonzero(m)), int(np.count_nonzero(h))
+    return (tp / n_m if n_m else float("nan"), tp / n_h if n_h else float("nan"))
