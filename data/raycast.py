@@ -50,12 +50,14 @@ class RayCaster:
         R_world_body: list[np.ndarray],
         p_world_body: list[np.ndarray],
         pose_index: np.ndarray | None = None,
+        scale_body: list[np.ndarray | None] | None = None,
     ) -> Hits:
         """Cast K rays (unit directions) against all bodies. `origins_world` is (K,3) or (3,).
 
         R_world_body[b] is (M,3,3) and p_world_body[b] is (M,3): the pose of body b at M
         instants; `pose_index` (K,) says which instant each ray belongs to (scene motion
-        during a sweep). With M = 1, pose_index may be None.
+        during a sweep). With M = 1, pose_index may be None. `scale_body[b]` (M,3), when
+        given, stretches body b along its own axes before the pose (a rope of varying length).
         """
         k = len(dirs_world)
         origins_world = np.broadcast_to(origins_world, (k, 3)) if origins_world.ndim == 1 else origins_world
@@ -72,8 +74,22 @@ class RayCaster:
             else:
                 rays[:, :3] = np.einsum("kji,kj->ki", R[idx], origins_world - p[idx])  # R^T (o - p)
                 rays[:, 3:] = np.einsum("kji,kj->ki", R[idx], dirs_world)
-            ans = scene.cast_rays(o3d.core.Tensor(rays))
+            scale = None if scale_body is None else scale_body[b]
+            if scale is not None:
+                # A body stretched along its axes (the rope): x_world = R (S x_b) + p. The ray
+                # parameter t is preserved by this affine map, so casting S^-1 R^T (o - p) along
+                # S^-1 R^T d still returns world distances.
+                s_ray = scale[0] if pose_index is None else scale[idx]
+                rays[:, :3] /= s_ray
+                rays[:, 3:] /= s_ray
+            ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
+            if b == 0:  # first body: no comparison needed
+                best_t[:] = t
+                hit0 = np.isfinite(t)
+                best_body[hit0] = 0
+                best_face[hit0] = ans["primitive_ids"].numpy()[hit0]
+                continue
             closer = np.flatnonzero(t < best_t)
             best_t[closer] = t[closer]
             best_body[closer] = b
@@ -85,6 +101,10 @@ class RayCaster:
             if len(m) == 0:
                 continue
             n_b = self.face_normals[b][best_face[m]]
+            if scale_body is not None and scale_body[b] is not None:  # normals: inverse transpose of S
+                sc = scale_body[b][0] if pose_index is None else scale_body[b][idx[m]]
+                n_b = n_b / sc
+                n_b /= np.linalg.norm(n_b, axis=-1, keepdims=True)
             R = R_world_body[b]
             normal_world[m] = n_b @ R[0].T if pose_index is None else np.einsum("kij,kj->ki", R[idx[m]], n_b)
         range_m = np.where(best_body >= 0, best_t.astype(np.float64), np.inf)

@@ -109,12 +109,15 @@ def lidar_measure(
     f = faces.flat(hits, keep)
     r = hits.range_m[idx]
     cos_inc = np.clip(np.abs(np.einsum("ij,ij->i", hits.normal_world[idx], dirs_world[idx])), 1e-3, 1.0)
-    falloff = (INTENSITY_REFERENCE_RANGE_M / r) ** 2
-    diffuse = faces.reflectivity[f] * cos_inc
-    # Retro-reflectors send light back towards the source in a narrow lobe around normal incidence.
-    inc = np.arccos(cos_inc)
-    retro = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
-    intensity = np.where(faces.retro[f], np.maximum(retro, diffuse), diffuse) * falloff
+    intensity = faces.reflectivity[f] * cos_inc  # diffuse (Lambert)
+    # Retro-reflectors send light back towards the source in a narrow lobe around normal
+    # incidence. Only the few retro hits need the transcendental functions.
+    retro_i = np.flatnonzero(faces.retro[f])
+    if len(retro_i):
+        inc = np.arccos(cos_inc[retro_i])
+        lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
+        intensity[retro_i] = np.maximum(lobe, intensity[retro_i])
+    intensity *= (INTENSITY_REFERENCE_RANGE_M / r) ** 2
     if cfg.intensity_noise > 0:
         intensity = intensity * np.maximum(1 + cfg.intensity_noise * rng.standard_normal(len(idx)), 0.05)
     if cfg.range_noise_m > 0:
