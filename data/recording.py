@@ -4,7 +4,9 @@
     lidar/<t_ns>.pcd     x y z intensity t label          (sensor frame)
     radar/<t_ns>.pcd     x y z range azimuth elevation range_rate label (sensor frame)
     mru.csv              t, roll, pitch, yaw, roll_rate, pitch_rate, yaw_rate
-    truth.csv            t, D, D_dot, <body>_{x,y,z,roll,pitch,yaw,vx,vy,vz,wx,wy,wz}
+    encoders.csv         t, slew, luff, hoist (hook scenarios)
+    truth.csv            t, D, D_dot, <body>_{x,y,z,roll,pitch,yaw,vx,vy,vz,wx,wy,wz};
+                         hook scenarios: t, hook_*, hook_rel_*, tip_*, joints, boom_deflection
 
 `<t_ns>` is the acquisition time in ns from the run start, on the clock of `t` (seconds).
 """
@@ -155,6 +157,9 @@ def write_recording(
         for i, a in enumerate(("roll_rate", "pitch_rate", "yaw_rate")):
             mru_cols[a] = m.rpy_rate_radps[:, i]
         write_csv(staging / "mru.csv", mru_cols)
+        encoders = getattr(source, "encoders", None)
+        if encoders is not None:
+            write_csv(staging / "encoders.csv", encoders)
         if source.truth is not None:
             write_csv(staging / "truth.csv", {k: source.truth.columns[k] for k in source.truth.columns})
         meta = meta_to_json(source.meta, counts)
@@ -241,8 +246,14 @@ class Recording(FrameSource):
             np.column_stack([mru["roll_rate"], mru["pitch_rate"], mru["yaw_rate"]]),
             max_gap_s=max(0.1, 5.0 / rate),
         )
+        hook = scenario.hook.enabled
+        if hook:
+            from data.hook_world import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS
+
+            self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS)
         truth_path = self.root / "truth.csv"
-        self.truth = Truth(read_csv(truth_path, TRUTH_COLUMNS)) if truth_path.exists() else None
+        expected = HOOK_TRUTH_COLUMNS if hook else TRUTH_COLUMNS
+        self.truth = Truth(read_csv(truth_path, expected)) if truth_path.exists() else None
         self._files = self._list_frames()
 
     def _list_frames(self) -> list[tuple[int, str, Path]]:

@@ -189,6 +189,39 @@ class Mru(_Model):
     rate_noise_degps: float = Field(0.0, ge=0)
 
 
+class Encoders(_Model):
+    """Crane joint encoders (document 002, 4.5.1): slew, luff, hoist."""
+
+    rate_hz: float = Field(100.0, gt=0, le=10000)
+    latency_s: float = Field(0.0, ge=0)
+    angle_noise_deg: float = Field(0.1, ge=0)
+    hoist_noise_m: float = Field(0.01, ge=0)
+
+
+class Hook(_Model):
+    """Crane, rope and lower block (document 002). Enabled, the scene is the crane vessel
+    with a moving boom, rope and block instead of the ship-to-ship pair; the vessel's waves
+    are `crane.motion.roll` and `crane.motion.pitch` (about the vessel origin)."""
+
+    enabled: bool = False
+    program: Literal["hook-1", "hook-2", "hook-3", "hook-4"] = Field(
+        "hook-1", description="joint motion programme of document 002 section 5.2"
+    )
+    flexible: bool = Field(True, description="flexible boom in the truth simulation")
+    boom_length_m: float = Field(150.0, gt=0, description="L")
+    boom_foot_offset_m: float = Field(10.0, description="b: boom foot from the slewing axis")
+    boom_foot_height_m: float = Field(40.0, description="h: boom foot above the crane base")
+    crane_base_m: tuple[float, float, float] = Field((50.0, -20.0, 10.0), description="c, vessel frame")
+    hook_mass_kg: float = Field(1e6, gt=0)
+    boom_mass_kg: float = Field(2e6, gt=0)
+    boom_stiffness_nm_per_rad: float = Field(2e11, gt=0, description="k_f")
+    boom_damping: float = Field(2e9, ge=0, description="c_f, J s/rad")
+    block_height_m: float = Field(4.0, gt=1, le=8)
+    rope_radius_m: float = Field(0.04, gt=0)
+    deck_cargo: bool = Field(True, description="cargo on the crane vessel's deck below the hook")
+    encoders: Encoders = Encoders()
+
+
 class Scenario(_Model):
     name: str = "custom"
     description: str = ""
@@ -201,6 +234,7 @@ class Scenario(_Model):
     lidar: Lidar = Lidar()
     radar: Radar = Radar()
     mru: Mru = Mru()
+    hook: Hook = Hook()
 
     @field_validator("name")
     @classmethod

@@ -115,7 +115,19 @@ class Simulation(FrameSource):
         return np.random.default_rng([self.scenario.seed, SENSOR_IDS[sensor], index])
 
     # -- sensors -------------------------------------------------------------------------
+    def _scene_poses(self, times: np.ndarray, sensor: str):
+        """Sensor pose (R (M,3,3), p (M,3)) and every body's pose (lists of (M,3,3), (M,3),
+        and per-body axis scales or None) at the given times."""
+        w = self.world
+        states = w.body_states(times)
+        R_ws, p_ws = w.sensor_pose(states[0], sensor)
+        Rs, ps = w.poses(states, len(times))
+        return R_ws, p_ws, Rs, ps, None
+
     def lidar_frame(self, index: int, t_s: float) -> Frame:
+        return self._lidar_frame_from(index, t_s, self._scene_poses)
+
+    def _lidar_frame_from(self, index: int, t_s: float, scene_poses) -> Frame:
         cfg, pat, w = self.scenario.lidar, self.lidar_pattern, self.world
         if cfg.motion_during_sweep:
             times = t_s + pat.column_time_s
@@ -123,16 +135,14 @@ class Simulation(FrameSource):
         else:
             times = np.array([t_s])
             pose_index = None
-        states = w.body_states(times)
-        R_ws, p_ws = w.sensor_pose(states[0], "lidar")
+        R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
         if pose_index is None:
             dirs_w = pat.dirs_sensor @ R_ws[0].T
-            origins_w = np.broadcast_to(p_ws[0], dirs_w.shape)
+            origins_w = p_ws[0]
         else:
             dirs_w = np.einsum("kij,kj->ki", R_ws[pose_index], pat.dirs_sensor)
             origins_w = p_ws[pose_index]
-        Rs, ps = w.poses(states, len(times))
-        hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index)
+        hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index, scales)
         points, fields = lidar_measure(
             cfg, hits, pat, dirs_w, w.faces, w.sea_index, self.scenario.sea.clutter_probability, self._rng("lidar", index)
         )

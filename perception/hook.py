@@ -7,7 +7,7 @@ tip (the rope's suspension point), z up: the caller rotates the sensor points wi
 attitude and the mount and adds the sensor's offset from the tip. The prior ``p_prior`` and the
 output ``position_m`` are in the same frame. The block model (``data.hook_block``) lives in the
 BLOCK frame: origin = the reference point (rope attachment, top centre), z up along the rope,
-x along the block's long axis.
+x along the block's long axis, y along the sheave axle.
 
 Chain (``detect_hook``), every step vectorised over points
 ------------------------------------------------------------
@@ -15,20 +15,27 @@ Chain (``detect_hook``), every step vectorised over points
 2. ``hook.planes``: large near-horizontal planes (deck, big cargo tops) and the rope are removed.
    A plane only counts when one 2-D connected patch of its inliers is wider than the block can be
    (``plane_min_extent_m``), so the block's own flat top never qualifies; points in its band and
-   below it are removed only in grid cells the patch covers, so the block, which stands in the
+   below it are removed only in grid cells the patch covers, so the block, which hangs in the
    plane's shadow (no plane points under it), is never eaten.
    Rope: points near the line tip -> prior, clearly above the block's top.
-3. ``hook.cluster``: Euclidean clustering (radius graph + connected components; the radius
-   follows the LiDAR's beam spacing at the prior's range), then the cluster with a block-sized
-   extent that is nearest to the prior.
-4. ``hook.fit``: the known block model is fitted (4-DOF point-to-point ICP: rotation about the
-   rope direction + translation, the block hanging along the rope from the tip) and its origin is
-   the reference point. NOT the centroid of the visible points: from above one sees the sheave
-   crowns and the body top, 0.05-0.8 m below the rope attachment, and under occlusion or sway the
-   visible centroid also slides sideways.
+3. ``hook.cluster``: single-linkage clustering (radius = a few beam spacings at the prior's
+   range), then the cluster with a block-sized extent nearest to the prior.
+4. ``hook.fit``: the known block model is fitted and its origin is the reference point. NOT the
+   centroid of the visible points: from above one sees the sheave crowns and the body top,
+   0.05-0.8 m below the rope attachment, and under occlusion the centroid slides sideways too.
+   a. 4-DOF point-to-point ICP (yaw about the rope + translation; the block hangs along the line
+      from the tip to its reference point) against the model's visible surface, from the
+      cluster's highest points and its principal axis (more starts if the fit is poor);
+   b. re-association: the block's points are the gated points within ``mask_distance_m`` of the
+      posed full mesh; one more ICP pass on them;
+   c. ray consistency (the rays, not just the points: which beams hit the block, which passed it
+      to the deck): pick between the fit and its copies shifted by one sheave pitch (a partly
+      hidden block fits equally well one pitch off), and, for a sparse block (far away), refine
+      the pose on grids and return the posterior mean.
 
-Speed: a full OS1-128 frame (131k rays, ~50-70k returns) runs in a few milliseconds, most of it
-the gate over all points (see the report in tests/test_hook_segmentation.py).
+Accuracy and speed (simulated OS1-128, 1024 columns, 1.5 cm noise growing for weak returns, sensor
+0.85 m from the rope; 2 shared cores): see the report of tests/test_hook_segmentation.py. About
+10 ms per frame at 20 m (ICP only), 15-25 ms for a sparse far block (ray refinement).
 """
 
 from __future__ import annotations
@@ -39,13 +46,21 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+import open3d as o3d
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from data.hook_block import BODY_TOP_Z_M, SHEAVE_CROWN_Z_M, lower_block_mesh, visible_model_points
+from data.hook_block import (
+    AMBIGUOUS_SHIFTS_M,
+    BODY_TOP_Z_M,
+    BODY_XY_M,
+    SHEAVE_CROWN_Z_M,
+    lower_block_mesh,
+    visible_model_points,
+)
 from data.scene import Label
 from perception.plane import RansacConfig, ransac_plane
 from perception.timing import StageTimes
@@ -95,9 +110,13 @@ class HookConfig(BaseModel):
     rope_near_radius_m: float = Field(1.6, gt=0, description="'near the line' for the block-top search")
 
     # --- 3. clustering ---------------------------------------------------------------------------
-    cluster_method: Literal["kdtree", "dbscan"] = Field(
-        "kdtree", description="kdtree: scipy radius graph + connected components; dbscan: Open3D cluster_dbscan"
+    cluster_method: Literal["auto", "kdtree", "dbscan"] = Field(
+        "auto", description="kdtree: scipy radius graph + connected components; dbscan: Open3D cluster_dbscan "
+        "(min_points=1, the same partition); auto: dbscan below cluster_auto_points points, else kdtree. Measured "
+        "(2 shared cores): 23-170 points dbscan 0.03-0.2 ms vs kdtree 0.4-0.6 ms; 1k/5k/20k points dbscan "
+        "3.2/17/54 ms vs kdtree 2.6/12/36 ms",
     )
+    cluster_auto_points: int = Field(500, ge=0)
     lidar_angular_step_rad: float = Field(
         math.radians(360.0 / 1024), gt=0, description="beam spacing of the LiDAR (OS1-128: 0.35 deg both ways)"
     )
@@ -110,16 +129,47 @@ class HookConfig(BaseModel):
 
     # --- 4. model fit ------------------------------------------------------------------------------
     block_height_m: float = Field(4.0, gt=0, description="height of the known block model (data.hook_block)")
-    model_points: int = Field(5000, ge=100, description="samples of the model's visible surface")
+    model_points: int = Field(6000, ge=100, description="samples of the model's visible surface")
     top_band_m: float = Field(0.3, gt=0, description="'highest points': within this of the top")
     fit_max_points: int = Field(400, ge=10, description="random subsample of the cluster for the ICP")
     icp_max_correspondence_m: float = Field(0.5, gt=0, description="coarse ICP stage correspondence cut")
     icp_final_correspondence_m: float = Field(0.2, gt=0, description="fine ICP stage cut = inlier threshold")
     icp_coarse_iterations: int = Field(8, ge=0)
     icp_iterations: int = Field(30, ge=1, description="total ICP iterations at most")
-    icp_tolerance_m: float = Field(1e-4, gt=0, description="stop when the reference point moves less")
+    icp_tolerance_m: float = Field(5e-4, gt=0, description="stop when the reference point moves less")
+    icp_good_rms_m: float = Field(
+        0.035, gt=0, description="a best fit worse than this + icp_good_rms_per_m * range retries from more yaws"
+    )
+    icp_good_rms_per_m: float = Field(2.5e-4, ge=0, description="weak far returns are noisier (sensor model)")
+    icp_retry_yaw_step_deg: float = Field(30.0, gt=0, description="yaw step of the retry starts (over 180 deg)")
+    icp_retry_shift_m: float = Field(0.4, ge=0, description="shifts of the retry starts along the long axis")
     isotropic_ratio: float = Field(1.4, ge=1, description="below this horizontal eigen-ratio, also try yaw +-90 deg")
-    min_fit_points: int = Field(4, ge=3, description="fewer model inliers: no fix")
+    ray_refine: bool = Field(
+        True, description="refine the ICP pose by ray consistency (uses free space: rays that passed the block)"
+    )
+    ray_refine_max_points: int = Field(
+        100, ge=0, description="refine only sparse blocks (at most this many points): with more, the ICP alone is "
+        "good to ~2-3 cm and the refinement would cost ~20 ms"
+    )
+    ray_cone_margin_m: float = Field(0.4, ge=0, description="evidence rays pass within model radius + this")
+    ray_max_block: int = Field(60, ge=4, description="block rays used at most (random subsample)")
+    ray_max_other: int = Field(60, ge=0, description="other rays (deck beside the block) used at most")
+    ray_window_steps: float = Field(1.2, gt=0, description="first grid half-width in beam spacings at the range")
+    ray_window_min_m: float = Field(0.05, gt=0)
+    ray_window_max_m: float = Field(0.8, gt=0)
+    ray_yaw_min_deg: float = Field(2.0, gt=0, description="first grid yaw half-range, at least")
+    ray_yaw_max_deg: float = Field(10.0, gt=0, description="first grid yaw half-range, at most")
+    ray_grid_points: tuple[int, int, int] = Field((9, 5, 7), description="offsets per axis: coarse, local, final")
+    ray_yaw_points: tuple[int, int, int] = Field((5, 3, 5), description="yaw samples: coarse, local, final")
+    ray_starts: int = Field(4, ge=1, description="best coarse poses refined locally")
+    ray_clip_m: float = Field(0.08, gt=0, description="residual clip: cost of a hit/miss contradiction")
+    ray_occlusion_m: float = Field(0.15, gt=0, description="a non-block point this far in front: occlusion")
+    ray_sigma_m: float = Field(0.03, gt=0, description="range noise for the posterior-mean weights")
+    min_fit_points: int = Field(
+        6, ge=4, description="fewer block points: no fix (4 unknowns; with 3-5 points of a far block the error "
+        "reached 35 cm in simulation)"
+    )
+    mask_distance_m: float = Field(0.15, gt=0, description="segmented block points: within this of the posed mesh")
     max_fit_rms_m: float = Field(0.10, gt=0, description="worse fit RMS: not the block")
     min_inlier_fraction: float = Field(0.8, gt=0, le=1, description="fewer cluster points explained: not the block")
     length_tolerance_m: float = Field(2.0, ge=0, description="|reference - tip| must match the hoist length within "
@@ -139,6 +189,9 @@ class HookDetection:
     cluster_extent_m: float  # extent of the chosen cluster (NaN if none)
     yaw_rad: float = float("nan")  # block yaw about the rope direction (mod pi: the visible top is symmetric)
     R_level_block: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))  # block orientation
+    sigma_across_m: float = float("nan")  # posterior std across the rope from the ray refinement (larger axis)
+    plane_mask: np.ndarray | None = None  # (N,) points removed as deck / large cargo-top planes
+    rope_mask: np.ndarray | None = None  # (N,) points removed as rope
 
     @property
     def ok(self) -> bool:
@@ -162,6 +215,11 @@ class BlockModel:
     def __init__(self, height_m: float = 4.0, n: int = 6000, grid_cell_m: float = 0.03, margin_m: float = 0.55):
         self.points = visible_model_points(lower_block_mesh(height_m), n)
         self.tree = cKDTree(self.points)
+        self.radius_m = float(np.linalg.norm(self.points, axis=1).max())  # reach from the reference point
+        mesh = lower_block_mesh(height_m)
+        self.scene = o3d.t.geometry.RaycastingScene()  # the full mesh, for ray consistency
+        self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+                                 o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
         self.cell = grid_cell_m
         self.lo = self.points.min(axis=0) - margin_m
         self.shape = np.ceil((self.points.max(axis=0) + margin_m - self.lo) / grid_cell_m).astype(np.int64) + 1
@@ -169,6 +227,10 @@ class BlockModel:
         centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         d, idx = self.tree.query(centres, distance_upper_bound=margin_m + grid_cell_m, workers=-1)
         self.grid = np.where(np.isfinite(d), idx, -1).astype(np.int32).reshape(tuple(self.shape))
+
+    def mesh_distance(self, q: np.ndarray) -> np.ndarray:
+        """Distance of each row of q (block frame) to the FULL mesh (any face, seen or not)."""
+        return self.scene.compute_distance(o3d.core.Tensor(q.astype(np.float32))).numpy().astype(np.float64)
 
     def nearest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exact: (distance, index) of the nearest model point for each row of q (block frame)."""
@@ -294,13 +356,11 @@ def _rope_mask(p: np.ndarray, u: np.ndarray, cfg: HookConfig) -> np.ndarray:
     return cand & (t < t_top - cfg.rope_top_margin_m)
 
 
-def _clusters(p: np.ndarray, eps: float, method: str) -> np.ndarray:
+def _clusters(p: np.ndarray, eps: float, method: str, auto_points: int = 500) -> np.ndarray:
     """Cluster labels (single linkage at eps), -1 for none."""
     if len(p) == 0:
         return np.zeros(0, dtype=np.int64)
-    if method == "dbscan":
-        import open3d as o3d
-
+    if method == "dbscan" or (method == "auto" and len(p) < auto_points):
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
         # min_points=1: DBSCAN degenerates to single linkage, the same partition as the kdtree route
         return np.asarray(pc.cluster_dbscan(eps=eps, min_points=1, print_progress=False), dtype=np.int64)
@@ -325,7 +385,7 @@ def _pose(t: np.ndarray, yaw: float) -> np.ndarray:
 
 
 def _icp_4dof(p: np.ndarray, t0: np.ndarray, yaw0: float, model: BlockModel, cfg: HookConfig,
-              coarse_iterations: int) -> tuple[np.ndarray, float]:
+              coarse_iterations: int, max_iterations: int | None = None) -> tuple[np.ndarray, float]:
     """Point-to-point ICP with the block hanging along the rope: unknowns yaw + translation.
 
     Pose: x_level = R_u(t) Rz(yaw) m + t, with R_u the hanging rotation for u = t / |t| (the block
@@ -337,7 +397,7 @@ def _icp_4dof(p: np.ndarray, t0: np.ndarray, yaw0: float, model: BlockModel, cfg
     """
     t = t0.copy()
     yaw = yaw0
-    for it in range(cfg.icp_iterations):
+    for it in range(cfg.icp_iterations if max_iterations is None else max_iterations):
         coarse = it < coarse_iterations
         thr = cfg.icp_max_correspondence_m if coarse else cfg.icp_final_correspondence_m
         Ru = rotation_hanging(t)
@@ -402,24 +462,195 @@ def _initial_guesses(p: np.ndarray, cfg: HookConfig) -> list[tuple[np.ndarray, f
 
 def _fit_block(p: np.ndarray, cfg: HookConfig, rng: np.random.Generator) -> _Fit:
     """Fit the known block model to the cluster points p (levelled frame); the best of a few
-    starts (most inliers, then lowest RMS)."""
+    starts (most inliers, then lowest RMS).
+
+    If none fits well (RMS above icp_good_rms_m + icp_good_rms_per_m * range), e.g. a partly
+    occluded block, whose visible part is nearly square (poor principal axis) and whose top
+    centroid is off-centre, retry from yaws every icp_retry_yaw_step_deg combined with shifts of
+    +-icp_retry_shift_m along the block's long axis: each start runs the coarse ICP stage only, the
+    two best then run to convergence.
+    """
     model = block_model(cfg.block_height_m, cfg.model_points)
     ps = p if len(p) <= cfg.fit_max_points else p[rng.choice(len(p), cfg.fit_max_points, replace=False)]
+
+    def better(a: _Fit | None, b: _Fit) -> bool:
+        return a is None or (b.inliers.sum(), -b.rms) > (a.inliers.sum(), -a.rms)
+
     best: _Fit | None = None
-    for t0, y0 in _initial_guesses(ps, cfg):
+    starts = _initial_guesses(ps, cfg)
+    for t0, y0 in starts:
         t, yaw = _icp_4dof(ps, t0, y0, model, cfg, cfg.icp_coarse_iterations)
         cand = _score(p, t, yaw, model, cfg)
-        if best is None or (cand.inliers.sum(), -cand.rms) > (best.inliers.sum(), -best.rms):
+        if better(best, cand):
             best = cand
     assert best is not None
+    t_top = starts[0][0]
+    if best.rms <= cfg.icp_good_rms_m + cfg.icp_good_rms_per_m * float(np.linalg.norm(t_top)):
+        return best
+    step = math.radians(cfg.icp_retry_yaw_step_deg)
+    Ru = rotation_hanging(t_top)
+    coarse = []
+    for k in range(int(round(math.pi / step))):
+        y = starts[0][1] + k * step
+        ax = Ru @ np.array([math.cos(y), math.sin(y), 0.0])  # the block's long axis
+        for sh in (0.0, -cfg.icp_retry_shift_m, cfg.icp_retry_shift_m):
+            t, yaw = _icp_4dof(ps, t_top + sh * ax, y, model, cfg, cfg.icp_coarse_iterations,
+                               max_iterations=cfg.icp_coarse_iterations)
+            coarse.append(_score(ps, t, yaw, model, cfg))
+    coarse.sort(key=lambda f: (-f.inliers.sum(), f.rms))
+    for c in coarse[:2]:
+        t, yaw = _icp_4dof(ps, c.t, c.yaw, model, cfg, 0)
+        cand = _score(p, t, yaw, model, cfg)
+        if better(best, cand):
+            best = cand
     return best
+
+
+def _ray_costs(model: BlockModel, t_c: np.ndarray, yaw_c: float, offs: np.ndarray, dyaw: np.ndarray,
+               s: np.ndarray, d: np.ndarray, r: np.ndarray, blk: np.ndarray, cfg: HookConfig):
+    """Ray-consistency cost of P x Y poses around (t_c, yaw_c): offsets (P, 2) across the rope,
+    yaw offsets (Y,). Rays: origin s, unit directions d (K, 3), measured ranges r (K,), blk (K,)
+    True for the block's points. One Open3D cast for all poses and rays.
+
+    Per pose the offset along the rays (~ along the rope) is solved in closed form (mean range
+    residual of the block rays that hit). Cost per ray, clipped at c = ray_clip_m:
+      block ray, model hit: min(e^2, c^2), e = measured - model range; block ray, model miss: c^2
+      other ray, model hit: min(e^2, c^2) unless the point is well in front (occlusion: 0), so a
+      ray that went PAST where the model puts the block (a deck point beside it) is a contradiction
+      other ray, model miss: 0.
+    Returns cost (Y*P,), reference points (Y*P, 3), yaws (Y*P,).
+    """
+    Ru = rotation_hanging(t_c)
+    T = t_c[None] + offs @ Ru[:, :2].T  # (P, 3)
+    yaws = yaw_c + dyaw
+    Rys = np.stack([Ru @ _rot_z(y) for y in yaws])  # (Y, 3, 3)
+    o = np.einsum("yji,pj->ypi", Rys, s[None] - T)  # ray origins, block frame
+    db = np.einsum("yji,kj->yki", Rys, d)  # ray directions, block frame
+    Y, P, K = len(yaws), len(T), len(d)
+    rays = np.empty((Y, P, K, 6), dtype=np.float32)
+    rays[..., :3] = o[:, :, None, :]
+    rays[..., 3:] = db[:, None, :, :]
+    th = model.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))["t_hit"].numpy().reshape(Y * P, K)
+    hit = np.isfinite(th)
+    e = np.where(hit, r[None] - np.where(hit, th, 0.0), 0.0)
+    use = hit & blk[None] & (np.abs(e) < 0.3)
+    n_use = use.sum(axis=1)
+    dz = np.where(n_use > 0, (e * use).sum(axis=1) / np.maximum(n_use, 1), 0.0)
+    e = e - dz[:, None]
+    c2 = cfg.ray_clip_m**2
+    sq = np.minimum(e * e, c2)
+    occluded = ~blk[None] & (e < -cfg.ray_occlusion_m)
+    cost = np.where(hit & ~occluded, sq, 0.0).sum(axis=1) + c2 * (~hit & blk[None]).sum(axis=1)
+    dm = d.mean(axis=0)
+    refs = np.tile(T, (Y, 1)) + dz[:, None] * dm[None]
+    return cost, refs, np.repeat(yaws, P)
+
+
+@dataclass
+class _Rays:
+    s: np.ndarray  # (3,) sensor origin
+    d: np.ndarray  # (K, 3) unit directions
+    r: np.ndarray  # (K,) measured ranges
+    blk: np.ndarray  # (K,) True for the block's points
+
+
+def _ray_evidence(pts: np.ndarray, blk_mask: np.ndarray, t0: np.ndarray, yaw0: float, s: np.ndarray,
+                  reach_m: float, model: BlockModel, cfg: HookConfig, rng: np.random.Generator) -> _Rays:
+    """The rays that can tell poses near (t0, yaw0) apart: every input point whose ray (from the
+    sensor) passes within the model's reach of t0 and that is not far in front of it (occluders and
+    rope carry nothing). Non-block rays only if they pass (at mid-height of the visible top, block
+    frame of the given pose) within reach_m of the block's footprint: only those can be hit by a
+    pose in the search. Subsampled to ray_max_block + ray_max_other."""
+    a = t0 - s
+    ra = float(np.linalg.norm(a))
+    v = pts - s
+    r = np.sqrt(np.einsum("ij,ij->i", v, v))
+    cos_lim = math.cos((model.radius_m + cfg.ray_cone_margin_m) / ra)
+    ev = (v @ (a / ra) > cos_lim * r) & (r > ra - 1.0)
+    ib = np.flatnonzero(ev & blk_mask)
+    io = np.flatnonzero(ev & ~blk_mask)
+    R0 = _pose(t0, yaw0)
+    ob = R0.T @ (s - t0)
+    db = (v[io] / r[io, None]) @ R0
+    lam = (0.5 * (SHEAVE_CROWN_Z_M + BODY_TOP_Z_M) - ob[2]) / np.minimum(db[:, 2], -1e-6)
+    xy = ob[None, :2] + lam[:, None] * db[:, :2]
+    out = np.maximum(np.abs(xy) - 0.5 * np.asarray(BODY_XY_M), 0.0)
+    io = io[np.hypot(out[:, 0], out[:, 1]) < reach_m + 0.15]
+    if len(ib) > cfg.ray_max_block:
+        ib = rng.choice(ib, cfg.ray_max_block, replace=False)
+    if len(io) > cfg.ray_max_other:
+        io = rng.choice(io, cfg.ray_max_other, replace=False)
+    idx = np.concatenate([ib, io])
+    blk = np.zeros(len(idx), dtype=bool)
+    blk[: len(ib)] = True
+    return _Rays(s, v[idx] / r[idx, None], r[idx], blk)
+
+
+def _ray_pick(rays: _Rays, t: np.ndarray, yaw: float, model: BlockModel, cfg: HookConfig) -> tuple[np.ndarray, float]:
+    """Of the fitted pose and its near-symmetric copies (AMBIGUOUS_SHIFTS_M, one sheave pitch along
+    the axle: a partly hidden block can be fitted one pitch off, with the same point-to-model RMS),
+    the one the rays agree with best: the wrong copy puts the block on rays that went past it."""
+    R = _pose(t, yaw)
+    cands = [t] + [t + R @ np.asarray(sh) for sh in AMBIGUOUS_SHIFTS_M]
+    costs = [_ray_costs(model, c, yaw, np.zeros((1, 2)), np.zeros(1), rays.s, rays.d, rays.r, rays.blk, cfg)
+             for c in cands]
+    k = int(np.argmin([c[0][0] for c in costs]))
+    return (t, yaw) if k == 0 else (costs[k][1][0], yaw)
+
+
+def _ray_refine(rays: _Rays, t0: np.ndarray, yaw0: float, half1: float, model: BlockModel,
+                cfg: HookConfig) -> tuple[np.ndarray, float, float]:
+    """Refine the pose by ray consistency; returns the posterior mean (reference point, yaw) and
+    the posterior standard deviation across the rope (m, the larger axis).
+
+    The ICP only pulls points onto the model surface; with a few tens of points (far block) many
+    poses fit about equally well, up to a beam spacing apart, and the ICP stops at any of them. The
+    rays hold more: which beams hit the block, which went past it to the deck, and at what range.
+    Search over (offset across the rope, yaw), the offset along the rope solved per pose:
+      1. a coarse grid around the ICP pose, half-width half1 ~ one beam spacing (the ICP's error),
+         yaw +- what that spacing means at the block's ends;
+      2. the cost is rough (hits and misses flip in steps of a few cm and ~1 deg), so the coarse
+         minimum need not hold the best basin: the ray_starts best coarse poses are refined on a
+         local grid, the best kept;
+      3. a fine grid around it: the estimate is its posterior mean, weights exp(-cost / 2 sigma^2),
+         the centre of the poses the rays cannot tell apart rather than an arbitrary one of them.
+    """
+    inv2s2 = 1.0 / (2 * cfg.ray_sigma_m**2)
+
+    def grid(t_c, yaw_c, half, n, yaw_half, n_yaw):
+        g = np.linspace(-half, half, n)
+        offs = np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+        dy = np.linspace(-yaw_half, yaw_half, n_yaw) if n_yaw > 1 else np.zeros(1)
+        return _ray_costs(model, t_c, yaw_c, offs, dy, rays.s, rays.d, rays.r, rays.blk, cfg)
+
+    yaw1 = float(np.clip(0.5 * half1 / (0.5 * BODY_XY_M[0]), math.radians(cfg.ray_yaw_min_deg),
+                         math.radians(cfg.ray_yaw_max_deg)))
+    (n1, n2, n3), (ny1, ny2, ny3) = cfg.ray_grid_points, cfg.ray_yaw_points
+    cost, refs, yaws = grid(t0, yaw0, half1, n1, yaw1, ny1)
+    step1, ystep1 = 2 * half1 / (n1 - 1), 2 * yaw1 / max(ny1 - 1, 1)
+    best = (np.inf, t0, yaw0)
+    for k in np.argsort(cost)[: cfg.ray_starts]:
+        c2, r2, y2 = grid(refs[k], float(yaws[k]), step1, n2, ystep1, ny2)
+        j = int(np.argmin(c2))
+        if c2[j] < best[0]:
+            best = (float(c2[j]), r2[j], float(y2[j]))
+    step2, ystep2 = 2 * step1 / (n2 - 1), 2 * ystep1 / max(ny2 - 1, 1)
+    cost, refs, yaws = grid(best[1], best[2], 1.5 * step2, n3, 1.5 * ystep2, ny3)
+    w = np.exp(-(cost - cost.min()) * inv2s2)
+    w /= w.sum()
+    t_m = w @ refs
+    E = rotation_hanging(t_m)[:, :2]
+    sd = float(np.sqrt(np.max(w @ (((refs - t_m) @ E) ** 2))))
+    return t_m, float(w @ yaws), sd
 
 
 # --------------------------------------------------------------------------------------
 # Main entry
 # --------------------------------------------------------------------------------------
-def _fail(n: int, status: str, extent: float = float("nan"), rms: float = float("nan"), n_pts: int = 0) -> HookDetection:
-    return HookDetection(np.full(3, np.nan), np.zeros(n, dtype=bool), n_pts, rms, status, extent)
+def _fail(n: int, status: str, extent: float = float("nan"), rms: float = float("nan"), n_pts: int = 0,
+          plane_mask: np.ndarray | None = None, rope_mask: np.ndarray | None = None) -> HookDetection:
+    return HookDetection(np.full(3, np.nan), np.zeros(n, dtype=bool), n_pts, rms, status, extent,
+                         plane_mask=plane_mask, rope_mask=rope_mask)
 
 
 def detect_hook(
@@ -429,6 +660,8 @@ def detect_hook(
     cfg: HookConfig | None = None,
     rng: np.random.Generator | None = None,
     times: StageTimes | None = None,
+    *,
+    sensor_position_m: np.ndarray | None = None,
 ) -> HookDetection:
     """Segment the lower block in one LiDAR frame and estimate its reference point.
 
@@ -437,6 +670,9 @@ def detect_hook(
         the filter has converged).
     hoist_length_m: rope length l from the hoist encoder: sets the expected range (cluster radius)
         and a plausibility check (|reference| ~ l).
+    sensor_position_m: (3,) the LiDAR's origin in the same frame (the mount offset from the tip),
+        for the ray-consistency refinement; default the tip itself (about 1 cm worse at 60 m for a
+        1 m offset).
     Returns a :class:`HookDetection`; on failure position_m is NaN and status gives the reason.
     """
     cfg = cfg or HookConfig()
@@ -460,20 +696,24 @@ def detect_hook(
     # 2. Background: large horizontal planes (deck, big cargo tops), then the rope.
     with times.stage("hook.planes"):
         cell = max(cfg.plane_cell_min_m, cfg.plane_cell_steps * step_m)
-        bg = _remove_planes(p, cfg, cell, rng) if cfg.max_planes > 0 else np.zeros(len(p), dtype=bool)
-        u_prior = prior / np.linalg.norm(prior)
-        bg |= _rope_mask(p, u_prior, cfg)
-        keep = np.flatnonzero(~bg)
+        planes = _remove_planes(p, cfg, cell, rng) if cfg.max_planes > 0 else np.zeros(len(p), dtype=bool)
+        rope = _rope_mask(p, prior / range_m, cfg) & ~planes
+        plane_mask = np.zeros(n_all, dtype=bool)
+        plane_mask[gate[planes]] = True
+        rope_mask = np.zeros(n_all, dtype=bool)
+        rope_mask[gate[rope]] = True
+        keep = np.flatnonzero(~(planes | rope))
         p, gate = p[keep], gate[keep]
+    bgm = dict(plane_mask=plane_mask, rope_mask=rope_mask)
     if len(p) < cfg.min_gate_points:
-        return _fail(n_all, "only deck / cargo-top / rope points near the prediction")
+        return _fail(n_all, "only deck / cargo-top / rope points near the prediction", **bgm)
 
     # 3. Clusters: single linkage with a radius of a few beam spacings at the block's range (the
     # LiDAR's angular grid makes the point spacing grow with range), then the block-sized cluster
     # nearest to the prior.
     with times.stage("hook.cluster"):
         eps = float(np.clip(cfg.cluster_eps_steps * step_m, cfg.cluster_eps_min_m, cfg.cluster_eps_max_m))
-        lab = _clusters(p, eps, cfg.cluster_method)
+        lab = _clusters(p, eps, cfg.cluster_method, cfg.cluster_auto_points)
         order = np.argsort(lab, kind="stable")
         bounds = np.flatnonzero(np.diff(lab[order])) + 1
         groups = [g for g in np.split(order, bounds) if len(g) >= cfg.min_cluster_points and lab[g[0]] >= 0]
@@ -481,38 +721,74 @@ def detect_hook(
         dist = np.array([float(np.sqrt(np.min(np.einsum("ij,ij->i", p[g] - prior, p[g] - prior)))) for g in groups])
         ext = np.array([_cluster_extent(p[g]) for g in groups])
     if not groups:
-        return _fail(n_all, f"only stray points near the prediction (clusters < {cfg.min_cluster_points} points)")
+        why = f"only stray points near the prediction (clusters < {cfg.min_cluster_points} points)"
+        return _fail(n_all, why, **bgm)
     fits = (ext >= cfg.min_extent_m) & (ext <= cfg.max_extent_m)
     nearest = int(np.argmin(dist))
     if not fits.any():
         why = "too large: probably cargo" if ext[nearest] > cfg.max_extent_m else "too small"
-        return _fail(n_all, f"nearest cluster {why} (extent {ext[nearest]:.1f} m)", extent=float(ext[nearest]))
+        return _fail(n_all, f"nearest cluster {why} (extent {ext[nearest]:.1f} m)", extent=float(ext[nearest]), **bgm)
     k = int(np.flatnonzero(fits)[np.argmin(dist[fits])])
     idx = groups[k]
     pc = p[idx]
 
-    # 4. Model fit -> reference point.
+    # 4. Model fit -> reference point (ICP on the cluster). Then re-associate: the block's points
+    # are all remaining gated points within mask_distance_m of the posed FULL mesh (this brings
+    # back fragments that single linkage split off, and side walls seen at a slant, which the
+    # visible-surface model lacks), one fine ICP pass on the model inliers among them, and for a
+    # sparse block the ray-consistency refinement.
     with times.stage("hook.fit"):
+        model = block_model(cfg.block_height_m, cfg.model_points)
         fit = _fit_block(pc, cfg, rng)
-        d, _ = _residuals(pc, fit.t, fit.yaw, block_model(cfg.block_height_m, cfg.model_points)[1])
-        inl = d < cfg.icp_final_correspondence_m
+        frac_in = float(np.count_nonzero(fit.inliers)) / len(pc)
+        near = np.flatnonzero(np.linalg.norm(p - fit.t, axis=1) < cfg.block_height_m + 0.5)
+        pn = p[near]
+        sc = _score(pn, fit.t, fit.yaw, model, cfg)
+        t, yaw = fit.t, fit.yaw
+        if np.count_nonzero(sc.inliers) >= cfg.min_fit_points:
+            pi = pn[sc.inliers]
+            if len(pi) > cfg.fit_max_points:
+                pi = pi[rng.choice(len(pi), cfg.fit_max_points, replace=False)]
+            t, yaw = _icp_4dof(pi, t, yaw, model, cfg, coarse_iterations=0)
+            sc = _score(pn, t, yaw, model, cfg)
+        sigma_across = float("nan")
+        n_model = int(np.count_nonzero(sc.inliers))
+        if cfg.ray_refine and n_model >= cfg.min_fit_points:
+            s = np.zeros(3) if sensor_position_m is None else np.asarray(sensor_position_m, dtype=np.float64)
+            blk = np.zeros(n_all, dtype=bool)
+            blk[gate[near[model.mesh_distance((pn - t) @ sc.R) < cfg.mask_distance_m]]] = True
+            half1 = float(np.clip(cfg.ray_window_steps * step_m, cfg.ray_window_min_m, cfg.ray_window_max_m))
+            reach = max(half1, float(np.abs(np.asarray(AMBIGUOUS_SHIFTS_M)).max()))  # window or a shift
+            rays = _ray_evidence(pts, blk, t, yaw, s, reach, model, cfg, rng)
+            t1, yaw1 = _ray_pick(rays, t, yaw, model, cfg)
+            if t1 is not t:  # the rays chose a shifted copy: polish it with the ICP
+                t, yaw = _icp_4dof(pn[sc.inliers], t1, yaw1, model, cfg, 0)
+                sc = _score(pn, t, yaw, model, cfg)
+            if n_model <= cfg.ray_refine_max_points:
+                t, yaw, sigma_across = _ray_refine(rays, t, yaw, half1, model, cfg)
+            sc = _score(pn, t, yaw, model, cfg)
+        fit = sc
+        on_block = model.mesh_distance((pn - fit.t) @ fit.R) < cfg.mask_distance_m
     mask = np.zeros(n_all, dtype=bool)
-    mask[gate[idx[inl]]] = True
-    n_in = int(np.count_nonzero(inl))
+    mask[gate[near[on_block]]] = True
+    n_in = int(np.count_nonzero(fit.inliers))
     tol = max(cfg.length_tolerance_m, cfg.length_tolerance_fraction * hoist_length_m)
     status = "ok"
     if n_in < cfg.min_fit_points:
         status = f"too few block points ({n_in})"
-    elif fit.rms > cfg.max_fit_rms_m or fit.frac_in < cfg.min_inlier_fraction:
-        status = f"cluster does not fit the block model (rms {fit.rms:.2f} m, {100 * fit.frac_in:.0f} % explained)"
+    elif fit.rms > cfg.max_fit_rms_m or frac_in < cfg.min_inlier_fraction:
+        status = f"cluster does not fit the block model (rms {fit.rms:.2f} m, {100 * frac_in:.0f} % explained)"
     elif abs(float(np.linalg.norm(fit.t)) - hoist_length_m) > tol:
         status = f"reference point at {np.linalg.norm(fit.t):.1f} m from the tip, hoist length {hoist_length_m:.1f} m"
     if status != "ok":
-        return HookDetection(np.full(3, np.nan), np.zeros(n_all, dtype=bool), n_in, fit.rms, status, float(ext[k]))
-    return HookDetection(fit.t, mask, n_in, fit.rms, status, float(ext[k]), float(fit.yaw % math.pi), fit.R)
+        return _fail(n_all, status, float(ext[k]), fit.rms, n_in, **bgm)
+    return HookDetection(fit.t, mask, int(np.count_nonzero(mask)), fit.rms, status, float(ext[k]),
+                         float(fit.yaw % math.pi), fit.R, sigma_across, **bgm)
 
 
-def segmentation_scores(points_mask: np.ndarray, labels: np.ndarray, hook_label: int = int(Label.HOOK)) -> tuple[float, float]:
+def segmentation_scores(
+    points_mask: np.ndarray, labels: np.ndarray, hook_label: int = int(Label.HOOK)
+) -> tuple[float, float]:
     """(precision, recall) of a hook mask against per-point labels of the same frame.
 
     precision = |mask & hook| / |mask|, recall = |mask & hook| / |hook|, counting only the points

@@ -189,3 +189,27 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
         "baseline": f"Open3D remove_non_finite_points + voxel_down_sample({voxel_m}) + remove_statistical_outlier({sor_nb}, {sor_std}) "
                     f"+ segment_plane x{LIDAR_DECK.multi_plane.max_planes} (Algorithm 3)",
     }
+
+
+def bench_fusion(program: str = "hook-2", duration_s: float = 60.0, seed: int = 0) -> dict:
+    """Hook filter runtime as a fraction of the simulated time: the flexible EKF with its
+    complex-step Jacobian vs the same filter with numerically differenced Jacobians, on the
+    same measurement streams (truth + document 002's sensor noise), plus its accuracy."""
+    from data.crane import HOOK_SCENARIOS, CraneParams, simulate_crane
+    from fusion.hook_filter import HookFilterConfig, measurements_from_truth, rmse_per_axis, run_hook_filter, world_hook_from_states
+
+    params = CraneParams()
+    spec = HOOK_SCENARIOS[program](params)
+    truth = simulate_crane(params, spec.joints, spec.vessel, duration_s=duration_s)
+    meas = measurements_from_truth(truth, seed=seed)
+    out: dict = {"program": program, "duration_s": duration_s}
+    for label, cfg in (("analytic", HookFilterConfig()), ("numeric", HookFilterConfig(jacobian="numeric"))):
+        run = run_hook_filter(meas, "ekf", "flexible", params, cfg)
+        keep = run.t >= 5.0
+        _, _, p, v = world_hook_from_states(params, run.x[keep])
+        ref_p = np.column_stack([np.interp(run.t[keep], truth.t, truth.p_hook_world[:, k]) for k in range(3)])
+        ref_v = np.column_stack([np.interp(run.t[keep], truth.t, truth.v_hook_world[:, k]) for k in range(3)])
+        out[label] = {"runtime_s": run.runtime_s, "runtime_fraction": run.realtime_fraction,
+                      "rmse_pos_m": rmse_per_axis(p, ref_p).tolist(), "rmse_vel_mps": rmse_per_axis(v, ref_v).tolist()}
+    out["ratio"] = out["numeric"]["runtime_s"] / out["analytic"]["runtime_s"]
+    return out

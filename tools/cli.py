@@ -83,12 +83,12 @@ def simulate(
 ) -> None:
     """Simulate a scenario and write a recording (PCD frames, MRU log, ground truth)."""
     from data.recording import write_recording
-    from data.simulator import Simulation
+    from data.sources import simulation_for
 
     with user_errors():
         s = resolve_scenario(scenario, set_, duration, seed)
         t0 = time.perf_counter()
-        sim = Simulation(s)
+        sim = simulation_for(s)
         with progress_bar(len(sim), "simulating") as advance:
             meta = write_recording(sim, out, force=force, progress=advance)
         wall = time.perf_counter() - t0
@@ -103,6 +103,18 @@ def _print_kpis(kpis: dict) -> None:
     from tools.report import kpi_table, measurement_table
 
     print(f"\n{kpis['scenario']} (seed {kpis['seed']}, {kpis['duration_s']:.0f} s)\n")
+    if "hook" in kpis:
+        h = kpis["hook"]
+        seg = h["segmentation"]
+        print(f"hook segmentation: found {100 * seg['found_fraction']:.1f} % of {seg['frames']} frames, "
+              f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
+              f"{seg['apt_ms']:.1f} ms/frame")
+        print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s}")
+        for name, k in h.items():
+            if isinstance(k, dict) and "rmse_pos_m" in k:
+                f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
+                print(f"{name:14s} {f(k['rmse_pos_m']):>24s} {f(k['rmse_vel_mps']):>24s} {100 * k['runtime_fraction']:8.2f}%")
+        return
     print("Raw measurements (before any filter):")
     print(measurement_table(kpis))
     if "solutions" in kpis:
@@ -116,6 +128,9 @@ def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> N
     with progress_bar(len(source), "processing") as advance:
         result = run_heave(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance)
     _print_kpis(result.kpis)
+    if "hook" in result.kpis:
+        console.print(f"\nwrote {out}: hook_measurements.csv, hook_estimates.csv, kpis.json, hook_report.md, plots")
+        return
     console.print(f"\nwrote {out}: measurements.csv, estimates.csv" + (", kpis.json, report.md, plots" if "solutions" in result.kpis else "")
                   + (", boomtip.rrd" if rerun else ""))
 
@@ -131,11 +146,11 @@ def run(
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
 ) -> None:
     """Simulate a scenario in memory and run perception + fusion on it (no recording on disk)."""
-    from data.simulator import Simulation
+    from data.sources import simulation_for
 
     with user_errors():
         s = resolve_scenario(scenario, set_, duration, seed)
-        _run_and_report(Simulation(s), out, force, rerun)
+        _run_and_report(simulation_for(s), out, force, rerun)
 
 
 @app.command()
@@ -270,6 +285,30 @@ def bench_perception_cmd(
     for m, k in r["methods"].items():
         unit = "mm/s" if m.startswith("doppler") else "mm"
         print(f"    {m:20s} APT {k['apt_ms']:6.2f} ms   MAE {1e3 * k['mae']:6.2f} {unit}   valid {100 * k['valid_fraction']:.0f} %")
+
+
+@bench_app.command("fusion")
+def bench_fusion_cmd(
+    program: str = typer.Option("hook-2", "--program", help="hook-1 .. hook-4 (document 002, 5.2)"),
+    duration: float = typer.Option(60.0, "--duration"),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """Hook EKF (flexible) runtime vs the same filter with numerically differenced Jacobians."""
+    from tools.bench import bench_fusion
+
+    with user_errors():
+        if program not in ("hook-1", "hook-2", "hook-3", "hook-4"):
+            raise ScenarioError(f"--program '{program}': expected hook-1, hook-2, hook-3 or hook-4")
+        r = bench_fusion(program, duration)
+        write_bench_json(json_path, r, force)
+    print(f"fusion  EKF flexible on {program}, {duration:g} s, LiDAR = truth + 1.5 cm noise (document 002's measurement)")
+    for label in ("analytic", "numeric"):
+        k = r[label]
+        f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
+        print(f"  {label:9s} Jacobian: {k['runtime_s']:6.2f} s = {100 * k['runtime_fraction']:5.2f} % of real time, "
+              f"RMSE pos {f(k['rmse_pos_m'])} cm, vel {f(k['rmse_vel_mps'])} cm/s")
+    print(f"  ratio {r['ratio']:.2f}x")
 
 
 def main() -> None:  # pragma: no cover - console entry point

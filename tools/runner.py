@@ -81,6 +81,13 @@ def run_heave(
 
 def run_into(source, staging: Path, pipeline_cfg, fusion_cfg: FusionConfig, rerun: bool, report: bool, progress) -> RunResult:
     s = source.meta.scenario
+    if s.hook.enabled:
+        from tools.hook_runner import run_hook_into
+
+        hook = run_hook_into(source, staging, progress=progress)
+        kpis = {"scenario": s.name, "seed": s.seed, "duration_s": s.duration_s, "hook": hook}
+        write_json(staging / "kpis.json", kpis)
+        return RunResult([], {}, kpis)
     pipeline = HeavePipeline(source.meta, source.mru, pipeline_cfg)
     logger = None
     if rerun:

@@ -1,0 +1,191 @@
+"""The hook scene (document 002): a crane vessel whose boom, rope and lower block move with
+the crane's joints and the pendulum, seen by a spinning LiDAR at the boom tip.
+
+The crane and hook truth is integrated once (data/crane.py, DOP853 or RK4 at 1 kHz) over
+the whole run; frames then pose the bodies from it. The vessel's waves are the scenario's
+`crane.motion.roll` and `crane.motion.pitch` about the vessel origin, as in data/motion.py.
+
+Frames: the boom-tip frame has its origin at the tip and the axes of the vessel slewed by
+nu + nu_f (it turns with the boom, stays level in luff); sensors mount on it with
+`<sensor>.mount`. Hook positions relative to the tip are in world axes, which is what the
+perception reports and the filter's LiDAR model h(x) = l u(a, b) predicts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from data.crane import HOOK_SCENARIOS, CallableVesselMotion, CraneParams, CraneTruth, simulate_crane
+from data.frames import Frame, MruLog, Truth
+from data.hook_block import lower_block_parts, rope_mesh
+from data.scenario import Scenario
+from data.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
+from data.simulator import SENSOR_IDS, Simulation, World, frame_times
+
+HOOK_TRUTH_COLUMNS = (
+    "t",
+    "hook_x", "hook_y", "hook_z", "hook_vx", "hook_vy", "hook_vz",
+    "hook_rel_x", "hook_rel_y", "hook_rel_z", "hook_rel_vx", "hook_rel_vy", "hook_rel_vz",
+    "tip_x", "tip_y", "tip_z", "slew", "luff", "hoist", "boom_deflection", "sway_a", "sway_b",
+    "crane_roll", "crane_pitch",
+)
+ENCODER_COLUMNS = ("t", "slew", "luff", "hoist")
+BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
+
+
+def crane_params(s: Scenario) -> CraneParams:
+    h = s.hook
+    return CraneParams(
+        m=h.hook_mass_kg, m_b=h.boom_mass_kg, L=h.boom_length_m, b=h.boom_foot_offset_m, h=h.boom_foot_height_m,
+        c=h.crane_base_m, k_f=h.boom_stiffness_nm_per_rad, c_f=h.boom_damping, flexible=h.flexible,
+    )
+
+
+def _hook_vessel(s: Scenario) -> Body:
+    """The crane vessel: hull, deck, accommodation, pedestal and crane house (no boom: the
+    boom is its own moving body), and cargo on deck for the hook to pass over."""
+    g = s.crane.geometry
+    deck_z = g.freeboard_m
+    hull, is_deck = lofted_hull(g.length_m, g.beam_m, -g.draft_m, deck_z, bow_length_m=0.15 * g.length_m, n_stations=90)
+    cx, cy, cz = s.hook.crane_base_m
+    x_acc = -0.38 * g.length_m  # accommodation aft, out of the way of the boom
+    parts = [
+        Part(hull, Label.CRANE_HULL, 0.25, face_label=np.where(is_deck, int(Label.CRANE_DECK), int(Label.CRANE_HULL))),
+        Part(box([x_acc, 0, deck_z + 10], [24, 0.8 * g.beam_m, 20]), Label.CRANE_STRUCTURE, 0.6),
+        Part(cylinder(6.0, s.hook.boom_foot_height_m, [cx, cy, cz + s.hook.boom_foot_height_m / 2]), Label.CRANE_STRUCTURE, 0.5),
+    ]
+    if s.hook.deck_cargo:
+        for x, y in ((-10.0, 8.0), (5.0, -10.0), (20.0, 10.0), (80.0, 0.0)):
+            parts.append(Part(box([x, y, deck_z + 1.3], [12.2, 2.44, 2.6]), Label.CARGO, 0.4))
+        parts.append(Part(cylinder(3.0, 9.0, [-40.0, -8.0, deck_z + 4.5]), Label.CARGO, 0.55))
+    return Body.from_parts("crane", parts)
+
+
+def hook_bodies(s: Scenario) -> list[Body]:
+    L = s.hook.boom_length_m
+    boom = lattice_boom([0.0, 0.0, 0.0], [L - BOOM_SHORT_OF_TIP_M, 0.0, 0.0], 6.0, 2.0, panels=48, member=0.5)
+    return [
+        _hook_vessel(s),
+        Body.from_parts("boom", [Part(boom, Label.CRANE_STRUCTURE, 0.5)]),
+        Body.from_parts("block", lower_block_parts(s.hook.block_height_m)),
+        Body.from_parts("rope", [Part(rope_mesh(s.hook.rope_radius_m), Label.ROPE, 0.3)]),
+    ]
+
+
+def _rz(theta: np.ndarray) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros(theta.shape + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+def _ry(theta: np.ndarray) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros(theta.shape + (3, 3))
+    R[..., 0, 0], R[..., 0, 2], R[..., 2, 0], R[..., 2, 2], R[..., 1, 1] = c, s, -s, c, 1.0
+    return R
+
+
+def hanging_rotation(u: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """Block frames (M,3,3): z along -u (up the rope), x along the heading projected."""
+    z = -u / np.linalg.norm(u, axis=-1, keepdims=True)
+    x = np.stack([np.cos(heading), np.sin(heading), np.zeros_like(heading)], -1)
+    x = x - np.sum(x * z, axis=-1, keepdims=True) * z
+    x /= np.linalg.norm(x, axis=-1, keepdims=True)
+    return np.stack([x, np.cross(z, x), z], axis=-1)
+
+
+class HookSimulation(Simulation):
+    """A hook scenario simulated in memory: LiDAR frames, MRU and encoder logs, hook truth."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        if not scenario.hook.enabled:
+            raise ValueError(f"scenario '{scenario.name}': hook.enabled is false; use Simulation")
+        self.params = crane_params(scenario)
+        world = World(scenario, hook_bodies(scenario))
+        spec = HOOK_SCENARIOS[scenario.hook.program](self.params)
+        bank = world.crane_motion.bank  # DOF order: surge sway heave roll pitch yaw
+
+        def dof(i):
+            return lambda t: (bank.eval(np.atleast_1d(t))[:, i].reshape(np.shape(t)),
+                              bank.eval(np.atleast_1d(t), 1)[:, i].reshape(np.shape(t)),
+                              bank.eval(np.atleast_1d(t), 2)[:, i].reshape(np.shape(t)))
+
+        self.crane: CraneTruth = simulate_crane(
+            self.params, spec.joints, CallableVesselMotion(dof(3), dof(4)),
+            duration_s=scenario.duration_s + 0.5, record_rate_hz=max(scenario.truth_rate_hz, 200.0),
+        )
+        super().__init__(scenario, world)
+        self.encoders = self._encoder_log()
+
+    # -- poses from the crane truth ------------------------------------------------------
+    def _interp(self, name: str, t: np.ndarray) -> np.ndarray:
+        v = getattr(self.crane, name)
+        if v.ndim == 1:
+            return np.interp(t, self.crane.t, v)
+        return np.stack([np.interp(t, self.crane.t, v[:, k]) for k in range(v.shape[1])], axis=-1)
+
+    def _scene_poses(self, times: np.ndarray, sensor: str):
+        c = self.crane
+        roll, pitch = self._interp("roll", times), self._interp("pitch", times)
+        nu, mu, nu_f = self._interp("nu", times), self._interp("mu", times), self._interp("nu_f", times)
+        R_v = np.einsum("nij,njk->nik", _rz(np.zeros_like(roll)) @ _ry(pitch), _rx(roll))
+        base = np.asarray(self.params.c)
+        foot_v = base + self.params.b * np.stack([np.cos(nu), np.sin(nu), np.zeros_like(nu)], -1) + [0, 0, self.params.h]
+        R_tipframe = R_v @ _rz(nu + nu_f)
+        R_boom = R_tipframe @ _ry(-mu)
+        p_tip = self._interp("p_tip_world", times)
+        r_hook = self._interp("p_hook_rel_tip", times)
+        p_hook = p_tip + r_hook
+        R_block = hanging_rotation(r_hook, nu + nu_f)
+        l = np.linalg.norm(r_hook, axis=-1)
+        m = len(times)
+        Rs = [R_v, R_boom, R_block, R_block]
+        ps = [np.zeros((m, 3)), np.einsum("nij,nj->ni", R_v, foot_v), p_hook, p_hook]
+        scales = [None, None, None, np.stack([np.ones(m), np.ones(m), l], -1)]
+        T_ts = self.world.T_boomtip_sensor[sensor]
+        R_ws = R_tipframe @ T_ts[:3, :3]
+        p_ws = p_tip + np.einsum("nij,j->ni", R_tipframe, T_ts[:3, 3])
+        return R_ws, p_ws, Rs, ps, scales
+
+    def lidar_frame(self, index: int, t_s: float) -> Frame:
+        return self._lidar_frame_from(index, t_s, self._scene_poses)
+
+    def radar_frame(self, index: int, t_s: float) -> Frame:  # pragma: no cover - hook scenarios have no radar
+        raise NotImplementedError("hook scenarios simulate no radar (set radar.enabled: false)")
+
+    # -- logs ----------------------------------------------------------------------------
+    def _encoder_log(self) -> dict[str, np.ndarray]:
+        cfg = self.scenario.hook.encoders
+        t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
+        rng = np.random.default_rng([self.scenario.seed, SENSOR_IDS["mru"] + 10, 0])
+        n = len(t)
+        ang = np.deg2rad(cfg.angle_noise_deg)
+        return {
+            "t": t,
+            "slew": self._interp("nu", t) + ang * rng.standard_normal(n),
+            "luff": self._interp("mu", t) + ang * rng.standard_normal(n),
+            "hoist": self._interp("l", t) + cfg.hoist_noise_m * rng.standard_normal(n),
+        }
+
+    def _truth(self) -> Truth:
+        s = self.scenario
+        t = frame_times(s.truth_rate_hz, s.duration_s + 1.0 / s.truth_rate_hz)
+        cols = {"t": t}
+        for prefix, name in (("hook_", "p_hook_world"), ("hook_v", "v_hook_world"), ("hook_rel_", "p_hook_rel_tip"),
+                             ("hook_rel_v", "v_hook_rel_tip"), ("tip_", "p_tip_world")):
+            v = self._interp(name, t)
+            for k, ax in enumerate("xyz"):
+                cols[f"{prefix}{ax}"] = v[:, k]
+        for col, name in (("slew", "nu"), ("luff", "mu"), ("hoist", "l"), ("boom_deflection", "nu_f"),
+                          ("sway_a", "a"), ("sway_b", "b"), ("crane_roll", "roll"), ("crane_pitch", "pitch")):
+            cols[col] = self._interp(name, t)
+        return Truth({k: cols[k] for k in HOOK_TRUTH_COLUMNS})
+
+
+def _rx(theta: np.ndarray) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros(theta.shape + (3, 3))
+    R[..., 1, 1], R[..., 1, 2], R[..., 2, 1], R[..., 2, 2], R[..., 0, 0] = c, -s, s, c, 1.0
+    return R

@@ -1,0 +1,162 @@
+"""Multi-rate EKF / UKF for the hook (fusion/hook_filter.py) on simulated truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from data.crane import CraneJointProfiles, CraneParams, VesselWaves, simulate_crane
+from fusion.hook_filter import (
+    HookFilter,
+    HookFilterConfig,
+    measurements_from_truth,
+    rmse_per_axis,
+    run_hook_filter,
+    world_hook_from_states,
+)
+
+DEG = math.pi / 180
+T_CONVERGE = 5.0  # document 002 6.2: the first 5 s are excluded from the metrics
+
+
+@pytest.fixture(scope="module")
+def truth():
+    """60 s hook-2-like run: waves 1 deg / 8 s, hoist 80 -> 60 m from 5 s, slew 90 -> 60 deg and
+    luff 30 -> 40 deg from 15 s (document 002 acceleration limits)."""
+    joints = CraneJointProfiles.from_moves(90 * DEG, 30 * DEG, 80.0, slew_moves=[(15.0, 60 * DEG)],
+                                           luff_moves=[(15.0, 40 * DEG)], hoist_moves=[(5.0, 60.0)])
+    return simulate_crane(CraneParams(), joints, VesselWaves.regular(1.0, 8.0), 60.0)
+
+
+@pytest.fixture(scope="module")
+def ekf_run(truth):
+    return run_hook_filter(measurements_from_truth(truth, seed=7), "ekf", "flexible")
+
+
+def _errors(truth, run):
+    idx = np.searchsorted(truth.t, run.t - 1e-9)
+    assert np.allclose(truth.t[idx], run.t)
+    sel = run.t >= T_CONVERGE
+    e_p = (run.p_rel - truth.p_hook_rel_tip[idx])[sel]
+    e_v = (run.v_rel - truth.v_hook_rel_tip[idx])[sel]
+    _, _, p_hook, v_hook = world_hook_from_states(truth.params, run.x)
+    e_P = (p_hook - truth.p_hook_world[idx])[sel]
+    e_V = (v_hook - truth.v_hook_world[idx])[sel]
+    return e_p, e_v, e_P, e_V, sel
+
+
+def test_ekf_flexible_accuracy(truth, ekf_run):
+    e_p, e_v, e_P, e_V, _ = _errors(truth, ekf_run)
+    rel_p, rel_v = rmse_per_axis(e_p, 0), rmse_per_axis(e_v, 0)
+    abs_p, abs_v = rmse_per_axis(e_P, 0), rmse_per_axis(e_V, 0)
+    print(f"\nEKF flexible RMSE rel pos {100 * rel_p} cm, rel vel {100 * rel_v} cm/s, "
+          f"abs pos {100 * abs_p} cm, abs vel {100 * abs_v} cm/s, rt {ekf_run.realtime_fraction:.3f}")
+    # hook relative to the boom tip (what the LiDAR measures, world axes)
+    assert np.all(rel_p < 0.03)
+    # hook in the inertial frame (document 002 Table 6.1's metric)
+    assert np.all(abs_p < 0.03)
+    assert np.all(abs_v < 0.03)
+    # relative velocity: the tip's own velocity (0.1 deg slew encoder) limits it; document
+    # 002's requirement is 5-10 cm/s
+    assert np.all(rel_v < 0.08)
+    assert ekf_run.n_lidar_rejected == 0 and ekf_run.n_reacquired == 0
+    assert ekf_run.realtime_fraction < 0.5
+
+
+def test_ekf_consistency_nees_nis(truth, ekf_run):
+    e_p, _, _, _, sel = _errors(truth, ekf_run)
+    cov = ekf_run.cov_p[sel]
+    # NEES of the relative hook position, sampled at 1 Hz (nearly independent samples)
+    k = np.arange(0, len(e_p), 200)
+    nees = np.einsum("ni,nij,nj->n", e_p[k], np.linalg.inv(cov[k]), e_p[k])
+    n = len(k)
+    lo, hi = chi2.ppf(0.005, 3 * n) / n, chi2.ppf(0.995, 3 * n) / n
+    assert lo < nees.mean() < hi, (nees.mean(), lo, hi)
+    # NIS of every LiDAR innovation (white for a consistent filter)
+    nis = ekf_run.nis
+    m = len(nis)
+    assert m > 1000
+    lo, hi = chi2.ppf(0.005, 3 * m) / m, chi2.ppf(0.995, 3 * m) / m
+    assert lo < nis.mean() < hi, (nis.mean(), lo, hi)
+
+
+def test_dropout_bridged_and_wrong_detection_gated(truth):
+    meas = measurements_from_truth(truth, seed=3, lidar_dropouts=[(12.0, 17.0)],
+                                   lidar_outliers=[(45.0, (2.0, 0.0, 0.0))])
+    run = run_hook_filter(meas, "ekf", "flexible")
+    idx = np.searchsorted(truth.t, run.t - 1e-9)
+    err = np.linalg.norm(run.p_rel - truth.p_hook_rel_tip[idx], axis=1)
+    gap = (run.t >= 12.0) & (run.t <= 17.0)
+    assert err[gap].max() < 0.3  # bridged by prediction through the slew start
+    assert err[np.searchsorted(run.t, 18.0)] < 0.05  # re-converged 1 s after
+    k = int(np.argmin(np.abs(meas.t_lidar - 45.0)))
+    assert not run.lidar_accepted[k]  # the 2 m wrong detection is gated out
+    assert run.n_lidar_rejected == 1 and run.n_reacquired == 0
+    assert err[(run.t > 44.0) & (run.t < 46.0)].max() < 0.05
+
+
+def test_ukf_matches_ekf(truth, ekf_run):
+    meas = measurements_from_truth(truth, seed=7)
+    run = run_hook_filter(meas, "ukf", "flexible", t_end=20.0)
+    e_p, e_v, e_P, e_V, _ = _errors(truth, run)
+    print(f"\nUKF flexible 20 s RMSE rel pos {100 * rmse_per_axis(e_p, 0)} cm, abs vel "
+          f"{100 * rmse_per_axis(e_V, 0)} cm/s, rt {run.realtime_fraction:.3f}")
+    assert np.all(rmse_per_axis(e_p, 0) < 0.03)
+    assert np.all(rmse_per_axis(e_V, 0) < 0.04)
+    n = len(run.t)
+    assert np.abs(run.p_rel - ekf_run.p_rel[:n]).max() < 0.01
+
+
+def test_rigid_internal_model_is_worse(truth, ekf_run):
+    """Document 002 6.2.1: a rigid internal model on a flexible crane degrades the absolute
+    hook estimate (here ~10x in the slewing direction)."""
+    run = run_hook_filter(measurements_from_truth(truth, seed=7), "ekf", "rigid")
+    assert run.x.shape[1] == 19
+    _, _, e_P_rigid, _, _ = _errors(truth, run)
+    _, _, e_P_flex, _, _ = _errors(truth, ekf_run)
+    assert rmse_per_axis(e_P_rigid, 0).max() > 3 * rmse_per_axis(e_P_flex, 0).max()
+
+
+def test_jacobians_complex_step_vs_numeric():
+    f = HookFilter("ekf", "flexible")
+    rng = np.random.default_rng(0)
+    x = np.zeros(21)
+    x[[0, 1, 2, 3]] = [0.1, 0.05, -0.08, 0.02]
+    x[4:19] = rng.normal(0, 0.05, 15)
+    x[[7, 10, 11]] = [0.7, 80.0, 0.4]
+    x[[19, 20]] = [0.002, 0.001]
+    A_cs = f.continuous_jacobian(x, "complex_step")
+    A_fd = f.continuous_jacobian(x, "numeric")
+    assert np.abs(A_cs - A_fd).max() < 1e-6 * np.abs(A_cs).max()
+    assert np.count_nonzero(A_cs[1]) > 15  # a'' depends on (almost) every state
+    r = HookFilter("ekf", "rigid")
+    assert r.continuous_jacobian(x[:19]).shape == (19, 19)
+
+
+def test_numeric_jacobian_variant_runs(truth):
+    cfg = HookFilterConfig(jacobian="numeric")
+    run = run_hook_filter(measurements_from_truth(truth, seed=7), "ekf", "flexible", config=cfg, t_end=8.0)
+    e_p, *_ = _errors(truth, run)
+    assert np.all(rmse_per_axis(e_p, 0) < 0.03)
+
+
+def test_step_api():
+    f = HookFilter("ukf", "flexible")
+    f.initialize_from_measurements([0.5, -0.3, -59.99], (0.1, 0.6, 60.0), (0.0, 0.0, 0.0, 0.0), t0=0.0)
+    f.predict()
+    assert abs(f.t - 0.005) < 1e-12
+    f.update_mru(0.0, 0.0, 0.0, 0.0, t=0.005)
+    f.update_encoders(0.1, 0.6, 60.0, t=0.005)
+    assert f.update_lidar([0.5, -0.3, -59.99], t=0.01)  # predicts to t, then corrects
+    assert abs(f.t - 0.01) < 1e-12
+    f.update_mru(0.0, 0.0, 0.0, 0.0, t=0.01)  # a second update at the same time step
+    assert f.update_lidar([0.5, -0.3, -59.99], t=0.01)
+    assert not f.update_lidar([np.nan] * 3, t=0.015)  # no detection
+    f.predict(0.005)  # UKF: must not raise after several updates at one time step
+    p, v = f.hook_position_velocity()
+    assert p.shape == (3,) and v.shape == (3,)
+    np.testing.assert_allclose(p, [0.5, -0.3, -59.99], atol=0.02)
+    assert np.allclose(f.P, f.P.T)
