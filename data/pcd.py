@@ -21,6 +21,10 @@ _CODES = {np.dtype(v): k for k, v in _TYPES.items()}
 _HEADER_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
 
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
+
 class PcdError(ValueError):
     """A PCD file is unreadable; the message names the file and the problem."""
 
@@ -70,6 +74,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs get the usual permissions
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
