@@ -55,8 +55,7 @@ from dataclasses import dataclass, field
 from typing import Literal, Sequence
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
-from filterpy.kalman.unscented_transform import unscented_transform
+from filterpy.kalman import MerweScaledSigmaPoints
 from pydantic import BaseModel, Field
 from scipy.stats import chi2
 
@@ -232,6 +231,54 @@ def _rk4_step(sin, cos, prm, flex, x, h):
     return out
 
 
+def _rk4_float(prm, flex, x, h):
+    """:func:`_rk4_step` specialised to a list of floats (same operations, same result,
+    without the generic list handling: this runs at 200 Hz in the EKF)."""
+    sin, cos, acc = math.sin, math.cos, _accel_core
+    (a, ad, b, bd, nu, nud, nudd, mu, mud, mudd, l, ld, ldd,
+     r, rd, rdd, p, pd, pdd) = x[:19]
+    if flex:
+        f, fd = x[19], x[20]
+    else:
+        f = fd = 0.0
+    h2 = 0.5 * h
+    t1 = 0.5 * h2 * h2
+    t2 = 0.5 * h * h
+    # inputs at t + h/2 and t + h (:func:`_kin_at`)
+    nu1, nud1 = nu + nud * h2 + nudd * t1, nud + nudd * h2
+    mu1, mud1 = mu + mud * h2 + mudd * t1, mud + mudd * h2
+    l1, ld1 = l + ld * h2 + ldd * t1, ld + ldd * h2
+    r1, rd1 = r + rd * h2 + rdd * t1, rd + rdd * h2
+    p1, pd1 = p + pd * h2 + pdd * t1, pd + pdd * h2
+    nu2, nud2 = nu + nud * h + nudd * t2, nud + nudd * h
+    mu2, mud2 = mu + mud * h + mudd * t2, mud + mudd * h
+    l2, ld2 = l + ld * h + ldd * t2, ld + ldd * h
+    r2, rd2 = r + rd * h + rdd * t2, rd + rdd * h
+    p2, pd2 = p + pd * h + pdd * t2, pd + pdd * h
+    k1a, k1b, k1f = acc(sin, cos, prm, flex, a, ad, b, bd, nu, nud, nudd, mu, mud, mudd, l, ld, ldd,
+                        r, rd, rdd, p, pd, pdd, f, fd)
+    a2, ad2, b2, bd2, f2, fd2 = a + h2 * ad, ad + h2 * k1a, b + h2 * bd, bd + h2 * k1b, f + h2 * fd, fd + h2 * k1f
+    k2a, k2b, k2f = acc(sin, cos, prm, flex, a2, ad2, b2, bd2, nu1, nud1, nudd, mu1, mud1, mudd, l1, ld1, ldd,
+                        r1, rd1, rdd, p1, pd1, pdd, f2, fd2)
+    a3, ad3, b3, bd3, f3, fd3 = a + h2 * ad2, ad + h2 * k2a, b + h2 * bd2, bd + h2 * k2b, f + h2 * fd2, fd + h2 * k2f
+    k3a, k3b, k3f = acc(sin, cos, prm, flex, a3, ad3, b3, bd3, nu1, nud1, nudd, mu1, mud1, mudd, l1, ld1, ldd,
+                        r1, rd1, rdd, p1, pd1, pdd, f3, fd3)
+    a4, ad4, b4, bd4, f4, fd4 = a + h * ad3, ad + h * k3a, b + h * bd3, bd + h * k3b, f + h * fd3, fd + h * k3f
+    k4a, k4b, k4f = acc(sin, cos, prm, flex, a4, ad4, b4, bd4, nu2, nud2, nudd, mu2, mud2, mudd, l2, ld2, ldd,
+                        r2, rd2, rdd, p2, pd2, pdd, f4, fd4)
+    h6 = h / 6.0
+    out = [
+        a + h6 * (ad + 2 * ad2 + 2 * ad3 + ad4),
+        ad + h6 * (k1a + 2 * k2a + 2 * k3a + k4a),
+        b + h6 * (bd + 2 * bd2 + 2 * bd3 + bd4),
+        bd + h6 * (k1b + 2 * k2b + 2 * k3b + k4b),
+        nu2, nud2, nudd, mu2, mud2, mudd, l2, ld2, ldd, r2, rd2, rdd, p2, pd2, pdd,
+    ]
+    if flex:
+        out += [f + h6 * (fd + 2 * fd2 + 2 * fd3 + fd4), fd + h6 * (k1f + 2 * k2f + 2 * k3f + k4f)]
+    return out
+
+
 def _dwna(sigma, dt, full):
     if full:
         return sigma**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
@@ -281,17 +328,62 @@ def _hook_pos_vel_jacobians(x, n):
     return p, v, Hp, Hv
 
 
-# --------------------------------------------------------------------------------------
-# filterpy subclasses
-# --------------------------------------------------------------------------------------
-class _HookEKF(ExtendedKalmanFilter):
-    def __init__(self, dim_x: int, owner: "HookFilter") -> None:
-        super().__init__(dim_x=dim_x, dim_z=3)
-        self._owner = owner
-        self._step_dt = 0.0
+_HOOK_COLS_A = np.array(_HOOK_COLS, np.intp)
 
-    def predict_x(self, u=0):  # filterpy's predict() has no dt: the owner sets _step_dt
-        self.x = self._owner._propagate_mean(self.x, self._step_dt)
+
+def _lidar_h_jac(x):
+    """h(x) = l u(a, b) and its 3 x 6 Jacobian w.r.t. (a, a', b, b', l, l') (the rows of
+    :func:`_hook_pos_vel_small`'s Hp)."""
+    a, b, l = float(x[IA]), float(x[IB]), float(x[IL])
+    sa, ca, sb, cb = math.sin(a), math.cos(a), math.sin(b), math.cos(b)
+    u0, u1, u2 = -sa, ca * sb, -ca * cb
+    return (np.array([l * u0, l * u1, l * u2]),
+            np.array([[l * -ca, 0.0, l * 0.0, 0.0, u0, 0.0],
+                      [l * (-sa * sb), 0.0, l * (ca * cb), 0.0, u1, 0.0],
+                      [l * (sa * cb), 0.0, l * (ca * sb), 0.0, u2, 0.0]]))
+
+
+def _hook_pos_vel_batch(X):
+    """:func:`_hook_pos_vel_small` for states X (N, n): p, v (N, 3), Hp, Hv (N, 3, 6)."""
+    a, ad, b, bd, l, ld = (X[:, i] for i in _HOOK_COLS)
+    sa, ca, sb, cb = np.sin(a), np.cos(a), np.sin(b), np.cos(b)
+    z = np.zeros_like(a)
+    u = np.stack([-sa, ca * sb, -ca * cb], 1)
+    ea = np.stack([-ca, -sa * sb, sa * cb], 1)
+    eb = np.stack([z, ca * cb, ca * sb], 1)
+    u_ab = np.stack([z, -sa * cb, -sa * sb], 1)
+    u_bb = np.stack([z, -ca * sb, ca * cb], 1)
+    a, ad, b, bd, l, ld = (c[:, None] for c in (a, ad, b, bd, l, ld))
+    p = l * u
+    v = ld * u + l * (ad * ea + bd * eb)
+    N = len(X)
+    Hp = np.zeros((N, 3, 6))
+    Hv = np.empty((N, 3, 6))
+    Hp[:, :, 0] = l * ea
+    Hp[:, :, 2] = l * eb
+    Hp[:, :, 4] = u
+    Hv[:, :, 0] = ld * ea + l * (-ad * u + bd * u_ab)
+    Hv[:, :, 1] = l * ea
+    Hv[:, :, 2] = ld * eb + l * (ad * u_ab + bd * u_bb)
+    Hv[:, :, 3] = l * eb
+    Hv[:, :, 4] = ad * ea + bd * eb
+    Hv[:, :, 5] = u
+    return p, v, Hp, Hv
+
+
+# --------------------------------------------------------------------------------------
+# Helpers of the filter implementations
+# --------------------------------------------------------------------------------------
+class _State:
+    """The estimate (x, P).  The EKF and UKF equations are written out in :class:`HookFilter`
+    (same equations as filterpy's ExtendedKalmanFilter / UnscentedKalmanFilter; their
+    per-call overhead dominated the 200 Hz loop)."""
+
+    __slots__ = ("x", "P")
+
+    def __init__(self, n: int) -> None:
+        self.x = np.zeros(n)
+        self.P = np.eye(n)
 
 
 class _FastMerweSigmaPoints(MerweScaledSigmaPoints):
@@ -302,7 +394,9 @@ class _FastMerweSigmaPoints(MerweScaledSigmaPoints):
         lambda_ = self.alpha**2 * (n + self.kappa) - n
         M = (lambda_ + n) * np.asarray(P)
         try:
-            U = self.sqrt(M)
+            # the upper Cholesky factor (filterpy's default scipy.linalg.cholesky), without
+            # scipy's input checks
+            U = np.linalg.cholesky(M).T
         except np.linalg.LinAlgError:  # lost positive definiteness: clip the eigenvalues
             w, V = np.linalg.eigh(0.5 * (M + M.T))
             U = (V * np.sqrt(np.clip(w, 1e-300, None))).T
@@ -310,22 +404,46 @@ class _FastMerweSigmaPoints(MerweScaledSigmaPoints):
         return np.concatenate([x[None, :], x + U, x - U], axis=0)
 
 
-class _HookUKF(UnscentedKalmanFilter):
-    def __init__(self, dim_x: int, owner: "HookFilter", points) -> None:
-        super().__init__(dim_x=dim_x, dim_z=3, dt=owner.dt_s, hx=_lidar_h, fx=None, points=points)
-        self._owner = owner
+def _rk4_batch(prm, flex, X, h):
+    """:func:`_rk4_step` on arrays, X (n, N) -> (n, N), with the elementwise operations
+    grouped into a few 2-D ones (the same operations per element, so the same result)."""
+    sin, cos, acc = np.sin, np.cos, _accel_core
+    n, N = X.shape
+    h2 = 0.5 * h
+    C = X[4:19].reshape(5, 3, N)  # per chain (q, q', q'')
+    q, qd, qdd = C[:, 0], C[:, 1], C[:, 2]
+    t1 = 0.5 * h2 * h2
+    t2 = 0.5 * h * h
+    q1, qd1 = q + qd * h2 + qdd * t1, qd + qdd * h2
+    q2, qd2 = q + qd * h + qdd * t2, qd + qdd * h
+    u0 = list(X[4:19])
+    u1 = [v for i in range(5) for v in (q1[i], qd1[i], qdd[i])]
+    u2 = [v for i in range(5) for v in (q2[i], qd2[i], qdd[i])]
+    if flex:
+        Y, V = X[[IA, IB, IF]], X[[IAD, IBD, IFD]]  # positions (a, b, nu_f), rates
+        m = 3
+    else:
+        Y, V = X[[IA, IB]], X[[IAD, IBD]]
+        m = 2
 
-    def compute_process_sigmas(self, dt, fx=None, **fx_args):
-        sigmas = self.points_fn.sigma_points(self.x, self.P)
-        self.sigmas_f = self._owner._propagate_batch(sigmas.T, dt).T
+    def k(Yi, Vi, u):
+        f, fd = (Yi[2], Vi[2]) if flex else (0.0, 0.0)
+        return np.array(acc(sin, cos, prm, flex, Yi[0], Vi[0], Yi[1], Vi[1], *u, f, fd)[:m])
 
-    def predict(self, dt=None, UT=None, fx=None, **fx_args):
-        # filterpy's predict, minus the final sigma-point refresh (the owner recomputes the
-        # sigma points from (x, P) before every LiDAR update, see LIBRARIES.md)
-        self.compute_process_sigmas(self._dt if dt is None else dt)
-        self.x, self.P = unscented_transform(self.sigmas_f, self.Wm, self.Wc, self.Q, self.x_mean, self.residual_x)
-        self.x_prior = self.x.copy()
-        self.P_prior = self.P.copy()
+    k1 = k(Y, V, u0)
+    Y2, V2 = Y + h2 * V, V + h2 * k1
+    k2 = k(Y2, V2, u1)
+    Y3, V3 = Y + h2 * V2, V + h2 * k2
+    k3 = k(Y3, V3, u1)
+    Y4, V4 = Y + h * V3, V + h * k3
+    k4 = k(Y4, V4, u2)
+    h6 = h / 6.0
+    out = np.empty((n, N))
+    out[[IA, IB, IF][:m]] = Y + h6 * (V + 2 * V2 + 2 * V3 + V4)
+    out[[IAD, IBD, IFD][:m]] = V + h6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    Co = out[4:19].reshape(5, 3, N)
+    Co[:, 0], Co[:, 1], Co[:, 2] = q2, qd2, qdd
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -355,10 +473,10 @@ class HookFilter:
         self.params = params or CraneParams()
         self.cfg = config or HookFilterConfig()
         self.flex = model == "flexible"
-        self.n = 21 if self.flex else 19
+        self.n = n = 21 if self.flex else 19
         self.dt_s = 1.0 / self.cfg.predict_rate_hz
         self._prm = self.params.as_tuple()
-        self._I = np.eye(self.n)
+        self._I = np.eye(n)
         self.t = 0.0
         self.initialized = False
         m = self.cfg.measurement
@@ -370,13 +488,28 @@ class HookFilter:
         self._q_cache: dict[float, np.ndarray] = {}
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
+        self._jac_interval = float(self.cfg.jacobian_interval_s)
+        self._F: np.ndarray | None = None  # F for (self._A, self._F_key = round(dt, 12))
+        self._F_key: float | None = None
+        # constant part of the continuous Jacobian (the kinematic chains) and the complex step
+        A0 = np.zeros((n, n))
+        for i in (IA, IB):
+            A0[i, i + 1] = 1.0
+        for i in _KIN_CHAINS:
+            A0[i, i + 1] = 1.0
+            A0[i + 1, i + 2] = 1.0
+        if self.flex:
+            A0[IF, IFD] = 1.0
+        self._A0 = A0
+        self._cs_h = 1e-30
+        self._cs_step = 1j * self._cs_h * self._I
+        self._lin_cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self.n_jacobians = 0
-        if kind == "ekf":
-            self._kf = _HookEKF(self.n, self)
-        else:
-            pts = _FastMerweSigmaPoints(self.n, alpha=self.cfg.ukf_alpha, beta=self.cfg.ukf_beta,
-                                        kappa=self.cfg.ukf_kappa)
-            self._kf = _HookUKF(self.n, self, pts)
+        self._kf = _State(n)
+        if kind == "ukf":
+            self._pts = _FastMerweSigmaPoints(n, alpha=self.cfg.ukf_alpha, beta=self.cfg.ukf_beta,
+                                              kappa=self.cfg.ukf_kappa)
+            self._Wm, self._Wc = self._pts.Wm, self._pts.Wc
         self.n_lidar_accepted = 0
         self.n_lidar_rejected = 0
         self.n_reacquired = 0
@@ -443,40 +576,34 @@ class HookFilter:
 
     # ------------------------------------------------------------------ dynamics
     def _propagate_mean(self, x, dt):
-        return np.array(_rk4_step(math.sin, math.cos, self._prm, self.flex, x.tolist(), dt))
+        return np.array(_rk4_float(self._prm, self.flex, x.tolist(), dt))
 
     def _propagate_batch(self, X, dt):
         """X: (n, N) -> (n, N), one vectorised RK4 step (UKF sigma points)."""
-        return np.array(_rk4_step(np.sin, np.cos, self._prm, self.flex, list(X), dt))
+        return _rk4_batch(self._prm, self.flex, X, dt)
 
     def continuous_jacobian(self, x=None, method: str | None = None) -> np.ndarray:
         """A = df/dx of the continuous model at x ("complex_step" or "numeric")."""
         x = self._kf.x if x is None else np.asarray(x, float)
         n = self.n
         method = method or self.cfg.jacobian
-        A = np.zeros((n, n))
-        for i in (IA, IB):
-            A[i, i + 1] = 1.0
-        for i in _KIN_CHAINS:
-            A[i, i + 1] = 1.0
-            A[i + 1, i + 2] = 1.0
-        if self.flex:
-            A[IF, IFD] = 1.0
+        A = self._A0.copy()
         rows = (IAD, IBD, IFD) if self.flex else (IAD, IBD)
         if method == "complex_step":
-            hc = 1e-30
-            X = x[:, None] + 1j * hc * self._I
+            hc = self._cs_h
+            X = x[:, None] + self._cs_step
             f, fd = (X[IF], X[IFD]) if self.flex else (0.0, 0.0)
             acc = _accel_core(np.sin, np.cos, self._prm, self.flex, X[0], X[1], X[2], X[3],
                               *X[4:19], f, fd)
             for r, v in zip(rows, acc):
-                A[r] = np.imag(v) / hc
+                A[r] = v.imag / hc
         elif method == "numeric":
             xl = x.tolist()
+            prm, flex, sin, cos = self._prm, self.flex, math.sin, math.cos
 
             def acc_at(xx):
-                f, fd = (xx[IF], xx[IFD]) if self.flex else (0.0, 0.0)
-                return _accel_core(math.sin, math.cos, self._prm, self.flex, *xx[0:4], *xx[4:19], f, fd)
+                f, fd = (xx[IF], xx[IFD]) if flex else (0.0, 0.0)
+                return _accel_core(sin, cos, prm, flex, *xx[0:19], f, fd)
 
             for k in range(n):
                 eps = 1e-6 * max(1.0, abs(xl[k]))
@@ -508,7 +635,7 @@ class HookFilter:
             Q[i:i + 3, i:i + 3] = _dwnj(p.joint_jerk_scale * amax / Ts, dt, p.gamma_joint, full)
         for i in (IROLL, IPITCH):
             Q[i:i + 3, i:i + 3] = _dwnj(p.sigma_vessel_jerk_rad_s3, dt, p.gamma_vessel, full)
-        Q = Q[: self.n, : self.n]
+        Q = np.ascontiguousarray(Q[: self.n, : self.n])
         if len(self._q_cache) < 64:
             self._q_cache[key] = Q
         return Q
@@ -520,19 +647,33 @@ class HookFilter:
         if dt <= 0:
             return
         kf = self._kf
-        kf.Q = self.process_noise(dt)
+        Q = self.process_noise(dt)
         if self.kind == "ekf":
-            if self._A is None or self.t - self._A_t >= self.cfg.jacobian_interval_s - 1e-9:
+            if self._A is None or self.t - self._A_t >= self._jac_interval - 1e-9:
                 self._A = self.continuous_jacobian(kf.x)
                 self._A_t = self.t
                 self.n_jacobians += 1
-            Ad = self._A * dt
-            kf.F = self._I + Ad + 0.5 * (Ad @ Ad)
-            kf._step_dt = dt
-            kf.predict()
+                self._F_key = None
+            key = round(dt, 12)  # F depends on (A, dt) only: rebuilt when either changes
+            if key != self._F_key:
+                Ad = self._A * dt
+                self._F = self._I + Ad + 0.5 * (Ad @ Ad)
+                self._F_key = key
+            F = self._F
+            kf.x = np.array(_rk4_float(self._prm, self.flex, kf.x.tolist(), dt))
+            P = (F @ kf.P) @ F.T
         else:
-            kf.predict(dt=dt)
-        kf.P = 0.5 * (kf.P + kf.P.T)
+            # sigma points from (x, P), one batched RK4 step, unscented transform
+            sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
+            Xf = _rk4_batch(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
+            x = Xf @ self._Wm
+            D = Xf - x[:, None]
+            kf.x = x
+            P = (D * self._Wc) @ D.T
+        P += Q
+        P += P.T  # symmetrise: P = (P + P^T) / 2
+        P *= 0.5
+        kf.P = P
         self.t += dt
 
     def advance_to(self, t: float) -> None:
@@ -542,48 +683,65 @@ class HookFilter:
 
     # ------------------------------------------------------------------ updates
     def _linear_update(self, idx: Sequence[int], z: np.ndarray, r_diag: np.ndarray) -> None:
-        """Exact Kalman update for z = x[idx] + noise with diagonal R, one scalar at a time
-        (identical to the batch update for uncorrelated noise, and much cheaper here)."""
+        """Exact Kalman update for z = x[idx] + noise with diagonal R (H selects states):
+        K = P H^T S^-1 with S = P[idx, idx] + R.  For a linear h the unscented transform
+        gives the same result, so the UKF uses it too."""
         kf = self._kf
-        x, P = kf.x.copy(), kf.P.copy()
-        for i, zi, ri in zip(idx, z, r_diag):
-            Pi = P[:, i].copy()
-            inv_s = 1.0 / (Pi[i] + ri)
-            x += Pi * ((zi - x[i]) * inv_s)
-            P -= np.outer(Pi, Pi) * inv_s  # exactly symmetric
-        kf.x = x
-        kf.P = P
+        x, P = kf.x, kf.P
+        key = tuple(idx)
+        c = self._lin_cache.get(key)
+        if c is None:
+            c = self._lin_cache[key] = (np.array(key, np.intp), np.arange(len(key)))
+        ii, di = c
+        W = P.take(ii, 1)  # P H^T, (n, k)
+        S = W.take(ii, 0)
+        S[di, di] += r_diag
+        K = W @ np.linalg.inv(S)
+        kf.x = x + K @ (np.asarray(z, float) - x.take(ii))
+        kf.P = P - K @ W.T
 
     def update_encoders(self, slew_rad: float, luff_rad: float, hoist_m: float | None = None,
                         t: float | None = None) -> None:
         if t is not None:
             self.advance_to(t)
         if hoist_m is None or not np.isfinite(hoist_m):
-            idx, z, r = [INU, IMU], np.array([slew_rad, luff_rad]), self._R_enc[:2]
+            idx, z, r = (INU, IMU), np.array([slew_rad, luff_rad]), self._R_enc[:2]
         else:
-            idx, z, r = [INU, IMU, IL], np.array([slew_rad, luff_rad, hoist_m]), self._R_enc
+            idx, z, r = (INU, IMU, IL), np.array([slew_rad, luff_rad, hoist_m]), self._R_enc
         self._linear_update(idx, z, r)
 
     def update_mru(self, roll_rad: float, pitch_rad: float, roll_rate_rad_s: float, pitch_rate_rad_s: float,
                    t: float | None = None) -> None:
         if t is not None:
             self.advance_to(t)
-        self._linear_update([IROLL, IPITCH, IROLL + 1, IPITCH + 1],
+        self._linear_update((IROLL, IPITCH, IROLL + 1, IPITCH + 1),
                             np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]), self._R_mru)
+
+    def _lidar_terms(self, z, R):
+        """Innovation y, its covariance S and what the update needs (EKF: P H^T; UKF: the
+        sigma points and their measurements) at the current (x, P)."""
+        kf = self._kf
+        x, P = kf.x, kf.P
+        if self.kind == "ekf":
+            p, Hs = _lidar_h_jac(x)  # Hs: 3 x 6, w.r.t. _HOOK_COLS
+            PHT = P.take(_HOOK_COLS_A, 1) @ Hs.T  # (n, 3)
+            S = Hs @ PHT.take(_HOOK_COLS_A, 0) + R
+            return z - p, S, PHT
+        sig = self._pts.sigma_points(x, P)  # (2n+1, n)
+        a, b, l = sig[:, IA], sig[:, IB], sig[:, IL]
+        ca = np.cos(a)
+        Z = np.stack([-l * np.sin(a), l * ca * np.sin(b), -l * ca * np.cos(b)], 1)
+        zp = self._Wm @ Z
+        D = Z - zp
+        Wc = self._Wc
+        S = (D.T * Wc) @ D + R
+        Pxz = ((sig - x).T * Wc) @ D  # cross covariance (n, 3)
+        return z - zp, S, Pxz
 
     def lidar_innovation(self, z, R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(innovation y, its covariance S) of a LiDAR fix before any update."""
-        kf = self._kf
-        R = self._R_lidar if R is None else R
-        if self.kind == "ekf":
-            p, _, Hp, _ = _hook_pos_vel_jacobians(kf.x, self.n)
-            return z - p, Hp @ kf.P @ Hp.T + R
-        sig = kf.points_fn.sigma_points(kf.x, kf.P)  # (2n+1, n)
-        a, b, l = sig[:, IA], sig[:, IB], sig[:, IL]
-        Z = np.stack([-l * np.sin(a), l * np.cos(a) * np.sin(b), -l * np.cos(a) * np.cos(b)], 1)
-        zp = kf.Wm @ Z
-        D = Z - zp
-        return z - zp, (D.T * kf.Wc) @ D + R
+        y, S, _ = self._lidar_terms(np.asarray(z, float), self._R_lidar if R is None else R)
+        return y, S
 
     def update_lidar(self, p_rel_tip_world, t: float | None = None, sigma_m: float | None = None) -> bool:
         """Correct with a LiDAR hook fix (world axes, relative to the boom tip).
@@ -599,7 +757,7 @@ class HookFilter:
             return False
         # A per-fix sigma (from the detection: range, point spacing, point count) replaces R.
         R = self._R_lidar if sigma_m is None or not np.isfinite(sigma_m) else np.eye(3) * sigma_m**2
-        y, S = self.lidar_innovation(z, R)
+        y, S, PHT = self._lidar_terms(z, R)
         nis = float(y @ np.linalg.solve(S, y))
         self.last_nis = nis
         if nis > self._gate:
@@ -608,16 +766,19 @@ class HookFilter:
                 self.n_lidar_rejected += 1
                 return False
             self._reacquire(z)
+            y, S, PHT = self._lidar_terms(z, R)  # x, P changed
         else:
             self.nis_history.append(nis)
         self._consecutive_rejections = 0
+        # K = P H^T S^-1 (EKF) or Pxz S^-1 (UKF); P - K S K^T (= filterpy's Joseph form
+        # with the optimal gain, and its UKF update)
         kf = self._kf
-        if self.kind == "ekf":
-            kf.update(z, HJacobian=lambda x: _hook_pos_vel_jacobians(x, self.n)[2], Hx=_lidar_h, R=R)
-        else:
-            kf.sigmas_f = kf.points_fn.sigma_points(kf.x, kf.P)  # x, P changed since predict
-            kf.update(z, R=R)
-        kf.P = 0.5 * (kf.P + kf.P.T)
+        K = PHT @ np.linalg.inv(S)
+        kf.x = kf.x + K @ y
+        P = kf.P - K @ PHT.T
+        P += P.T
+        P *= 0.5
+        kf.P = P
         self.n_lidar_accepted += 1
         return True
 
@@ -745,6 +906,10 @@ def run_hook_filter(
     encoder/MRU samples), predicts at ``config.predict_rate_hz``, applies every
     measurement at its time stamp and records the estimate at ``output_rate_hz``.
     ``runtime_s`` is the wall-clock time of the whole loop (predictions, updates, output).
+    An MRU sample and an encoder sample with the same time stamp are applied as one
+    linear update (the same result as one after the other: H selects states, R is diagonal).
+    The hook outputs (p_rel, v_rel and their covariances) are computed from the recorded
+    states and covariance blocks after the loop, vectorised (inside the timed region).
     """
     if isinstance(data, CraneTruth):
         meas = measurements_from_truth(data, sensors, seed)
@@ -753,6 +918,7 @@ def run_hook_filter(
         meas = data
     params = params or CraneParams()
     filt = HookFilter(kind, model, params, config)
+    n = filt.n
     valid = np.all(np.isfinite(meas.lidar_p_rel_tip_world), 1)
     k0 = int(np.argmax(valid))
     t0 = float(meas.t_lidar[k0])
@@ -772,39 +938,50 @@ def run_hook_filter(
     ev_t, ev_s, ev_i = ev_t[keep][order].tolist(), ev_s[keep][order].tolist(), ev_i[keep][order].tolist()
     n_out = int(math.floor((t_end - t0) * output_rate_hz + 1e-6)) + 1
     t_out = t0 + np.arange(n_out) / output_rate_hz
-    p_out = np.empty((n_out, 3))
-    v_out = np.empty((n_out, 3))
-    cp_out = np.empty((n_out, 3, 3))
-    cv_out = np.empty((n_out, 3, 3))
-    x_out = np.empty((n_out, filt.n))
-    pd_out = np.empty((n_out, filt.n))
+    x_out = np.empty((n_out, n))
+    # per output sample: diag(P) (n) and P's hook block P[_HOOK_IX] (36), from the flat P
+    flat_idx = np.concatenate([np.arange(n) * (n + 1), np.ravel_multi_index(np.ix_(_HOOK_COLS, _HOOK_COLS), (n, n)).ravel()])
+    pb_out = np.empty((n_out, len(flat_idx)))
     lidar_ok = np.zeros(len(meas.t_lidar), bool)
     lid, enc, mru = meas.lidar_p_rel_tip_world, meas.encoders, meas.mru
     lid_sigma = meas.lidar_sigma_m
+    # MRU + encoders (slew, luff, hoist) as one linear update
+    me_idx = (IROLL, IPITCH, IROLL + 1, IPITCH + 1, INU, IMU, IL)
+    me_r = np.concatenate([filt._R_mru, filt._R_enc])
+    enc_ok = np.isfinite(enc[:, 2]).tolist() if len(enc) else []
 
     tic = time.perf_counter()
     filt.initialize_from_measurements(lid[k0], enc[ie], mru[im], t0)
     lidar_ok[k0] = True
+    kf = filt._kf
     j = 0
     n_ev = len(ev_t)
-    for k in range(n_out):
-        tk = float(t_out[k])
+    for k, tk in enumerate(t_out.tolist()):
         while j < n_ev and ev_t[j] <= tk + 1e-9:
-            s, i = ev_s[j], ev_i[j]
+            s, i, te = ev_s[j], ev_i[j], ev_t[j]
             if s == 0:
+                if j + 1 < n_ev and ev_s[j + 1] == 1 and ev_t[j + 1] - te <= 1e-9 and enc_ok[ev_i[j + 1]]:
+                    filt.advance_to(te)
+                    filt._linear_update(me_idx, np.concatenate([mru[i], enc[ev_i[j + 1]]]), me_r)
+                    j += 2
+                    continue
                 r = mru[i]
-                filt.update_mru(r[0], r[1], r[2], r[3], t=ev_t[j])
+                filt.update_mru(r[0], r[1], r[2], r[3], t=te)
             elif s == 1:
                 e = enc[i]
-                filt.update_encoders(e[0], e[1], e[2], t=ev_t[j])
+                filt.update_encoders(e[0], e[1], e[2], t=te)
             else:
-                lidar_ok[i] = filt.update_lidar(lid[i], t=ev_t[j], sigma_m=None if lid_sigma is None else lid_sigma[i])
+                lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i])
             j += 1
         filt.advance_to(tk)
-        p, v, cp, cv = filt.hook_position_velocity_covariance()
-        p_out[k], v_out[k], cp_out[k], cv_out[k] = p, v, cp, cv
-        x_out[k] = filt.x
-        pd_out[k] = np.diag(filt.P)
+        x_out[k] = kf.x
+        kf.P.take(flat_idx, out=pb_out[k])
+    # hook outputs, vectorised over the recorded samples
+    p_out, v_out, Hp, Hv = _hook_pos_vel_batch(x_out)
+    Ps = pb_out[:, n:].reshape(n_out, 6, 6)
+    cp_out = Hp @ Ps @ Hp.transpose(0, 2, 1)
+    cv_out = Hv @ Ps @ Hv.transpose(0, 2, 1)
+    pd_out = pb_out[:, :n].copy()
     runtime = time.perf_counter() - tic
     return HookFilterRun(
         t=t_out, p_rel=p_out, v_rel=v_out, cov_p=cp_out, cov_v=cv_out, x=x_out, P_diag=pd_out,
