@@ -99,16 +99,16 @@ def lidar_measure(
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label."""
-    keep = hits.hit & (hits.range_m >= cfg.min_range_m) & (hits.range_m <= cfg.max_range_m)
+    keep = (hits.range_m >= cfg.min_range_m) & (hits.range_m <= cfg.max_range_m)  # a miss (inf) fails the max
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
         sea = keep & (hits.body == sea_body)
         keep &= ~sea | (rng.random(len(keep)) < sea_probability)
     if cfg.dropout_probability > 0:
         keep &= rng.random(len(keep)) >= cfg.dropout_probability
     idx = np.flatnonzero(keep)
-    f = faces.flat(hits, keep)
+    f = faces.offset[hits.body[idx]] + hits.face[idx]
     r = hits.range_m[idx]
-    cos_inc = np.clip(np.abs(np.einsum("ij,ij->i", hits.normal_world[idx], dirs_world[idx])), 1e-3, 1.0)
+    cos_inc = np.clip(hits.cos_incidence[idx], 1e-3, 1.0)
     intensity = faces.reflectivity[f] * cos_inc  # diffuse (Lambert)
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
     # incidence. Only the few retro hits need the transcendental functions.
@@ -118,12 +118,14 @@ def lidar_measure(
         lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
         intensity[retro_i] = np.maximum(lobe, intensity[retro_i])
     intensity *= (INTENSITY_REFERENCE_RANGE_M / r) ** 2
+    n = len(idx)
+    noise = rng.standard_normal(2 * n) if (cfg.intensity_noise > 0 or cfg.range_noise_m > 0) else None
     if cfg.intensity_noise > 0:
-        intensity = intensity * np.maximum(1 + cfg.intensity_noise * rng.standard_normal(len(idx)), 0.05)
+        intensity *= np.maximum(1 + cfg.intensity_noise * noise[:n], 0.05)
     if cfg.range_noise_m > 0:
         # Weaker returns are noisier: sigma grows as 1/sqrt(intensity), capped.
-        gain = np.clip(np.sqrt(1.0 / np.maximum(intensity, 1e-9)), 1.0, cfg.weak_return_noise_gain)
-        r = r + cfg.range_noise_m * gain * rng.standard_normal(len(idx))
+        gain = np.clip(1.0 / np.sqrt(np.maximum(intensity, 1e-9)), 1.0, cfg.weak_return_noise_gain)
+        r = r + cfg.range_noise_m * gain * noise[n:]
     if cfg.range_resolution_m > 0:
         r = np.round(r / cfg.range_resolution_m) * cfg.range_resolution_m
     points = pattern.dirs_sensor[idx] * r[:, None]

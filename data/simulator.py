@@ -125,9 +125,23 @@ class Simulation(FrameSource):
         return R_ws, p_ws, Rs, ps, None
 
     def lidar_frame(self, index: int, t_s: float) -> Frame:
-        return self._lidar_frame_from(index, t_s, self._scene_poses)
+        return self._lidar_frame_from(index, t_s, self._scene_poses, self._sensor_fixed_hits("lidar"))
 
-    def _lidar_frame_from(self, index: int, t_s: float, scene_poses) -> Frame:
+    def _sensor_fixed_hits(self, sensor: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """The crane vessel carries the sensors (boom tip on the crane body), so the pattern's
+        rays are fixed in the crane's frame and so are their hits on it: cast them once."""
+        cache = self.__dict__.setdefault("_fixed_hits", {})
+        if sensor not in cache:
+            crane = next((i for i, b in enumerate(self.world.bodies) if b.name == "crane"), None)
+            if crane is None:
+                cache[sensor] = {}
+            else:
+                T_cs = self.world.T_crane_boomtip @ self.world.T_boomtip_sensor[sensor]
+                pat = self.lidar_pattern if sensor == "lidar" else self.radar_pattern
+                cache[sensor] = {crane: self.world.caster.cast_in_body_frame(crane, T_cs[:3, 3], pat.dirs_sensor @ T_cs[:3, :3].T)}
+        return cache[sensor]
+
+    def _lidar_frame_from(self, index: int, t_s: float, scene_poses, fixed_hits=None) -> Frame:
         cfg, pat, w = self.scenario.lidar, self.lidar_pattern, self.world
         if cfg.motion_during_sweep:
             times = t_s + pat.column_time_s
@@ -142,7 +156,7 @@ class Simulation(FrameSource):
         else:
             dirs_w = np.einsum("kij,kj->ki", R_ws[pose_index], pat.dirs_sensor)
             origins_w = p_ws[pose_index]
-        hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index, scales)
+        hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index, scales, fixed_hits)
         points, fields = lidar_measure(
             cfg, hits, pat, dirs_w, w.faces, w.sea_index, self.scenario.sea.clutter_probability, self._rng("lidar", index)
         )
