@@ -10,6 +10,7 @@ with o(t) = rest position + (surge, sway, heave). Surge/sway/heave are along wor
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -74,6 +75,17 @@ def sine_bank(motion: Motion, irregular: IrregularSea, seed: int) -> SineBank:
     return SineBank(amp_a, om_a, ph_a)
 
 
+def rpy_matrices(rpy: np.ndarray) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) for (T,3) angles: (T,3,3)."""
+    c, s = np.cos(rpy), np.sin(rpy)
+    cr, cp, cy, sr, sp, sy = c[:, 0], c[:, 1], c[:, 2], s[:, 0], s[:, 1], s[:, 2]
+    R = np.empty((len(rpy), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -sp, cp * sr, cp * cr
+    return R
+
+
 def euler_rates_to_omega_world(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:
     """Angular velocity in world axes for R = Rz(yaw) Ry(pitch) Rx(roll).
 
@@ -103,10 +115,16 @@ class BodyStates:
     def rotation(self) -> Rotation:
         return Rotation.from_euler("xyz", self.rpy_rad)
 
+    @cached_property
+    def R(self) -> np.ndarray:
+        """Rotation matrices (T,3,3), R = Rz(yaw) Ry(pitch) Rx(roll): written out because a
+        scipy Rotation per frame costs more than the maths for a few matrices."""
+        return rpy_matrices(self.rpy_rad)
+
     def matrices(self) -> np.ndarray:
         """4x4 T_world_body per time: (T,4,4)."""
         T = np.tile(np.eye(4), (len(self.t_s), 1, 1))
-        T[:, :3, :3] = self.rotation.as_matrix()
+        T[:, :3, :3] = self.R
         T[:, :3, 3] = self.position_m
         return T
 

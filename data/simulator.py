@@ -70,15 +70,15 @@ class World:
                 Rs.append(np.broadcast_to(np.eye(3), (m, 3, 3)))
                 ps.append(np.zeros((m, 3)))
             else:
-                Rs.append(st.rotation.as_matrix())
+                Rs.append(st.R)
                 ps.append(st.position_m)
         return Rs, ps
 
     def sensor_pose(self, crane: BodyStates, sensor: str) -> tuple[np.ndarray, np.ndarray]:
         """World rotation (M,3,3) and position (M,3) of a sensor."""
         T_cs = self.T_crane_boomtip @ self.T_boomtip_sensor[sensor]
-        R_wc = crane.rotation.as_matrix()
-        return R_wc @ T_cs[:3, :3], crane.rotation.apply(T_cs[:3, 3]) + crane.position_m
+        R_wc = crane.R
+        return R_wc @ T_cs[:3, :3], R_wc @ T_cs[:3, 3] + crane.position_m
 
 
 class Simulation(FrameSource):
