@@ -137,8 +137,10 @@ def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndar
             return None
         u = inv @ (b.T @ r)
     mask = None
+    converged = False
     for it in range(6):
-        res = np.abs(b @ u - r)
+        e_all = b @ u - r
+        res = np.abs(e_all)
         if it == 0 and u_prior is None:
             # A wide first band (3 robust sigmas from the median, at least the configured one) so a
             # start biased by the outliers cannot throw good detections away; then the configured band.
@@ -148,6 +150,7 @@ def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndar
             band = cfg.inlier_threshold_mps
         new = res < band
         if mask is not None and np.array_equal(new, mask):
+            converged = True  # e_all holds the final residuals of this u
             break
         mask = new
         if np.count_nonzero(mask) < max(3, cfg.trimmed_min_fraction * len(r)):
@@ -166,7 +169,7 @@ def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndar
     cond = float(math.sqrt(np.linalg.norm(a) * np.linalg.norm(inv)))
     if cond > cfg.max_condition:
         return None
-    e = (b @ u - r)[mask]
+    e = (e_all if converged else b @ u - r)[mask]
     sigma2 = float(e @ e) / max(n_in - 3, 1)
     full = np.zeros(n_all, dtype=bool)
     full[vidx[mask]] = True

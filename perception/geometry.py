@@ -132,7 +132,11 @@ class NormalRate:
             tt = np.asarray(self.t) - self.t[-1]
             deg = 2 if len(tt) >= 6 else 1
             V = np.vander(tt, deg + 1, increasing=True)  # columns 1, t, t^2
-            self._coef = np.linalg.lstsq(V, np.asarray(self.n), rcond=None)[0]  # (deg+1, 3)
+            VtV = V.T @ V
+            # Normal equations: the system is at most 3x3 and well conditioned (times within one
+            # window about the newest sample); lstsq's SVD costs several times more.
+            inv = inv3(VtV) if deg == 2 else np.linalg.inv(VtV)
+            self._coef = inv @ (V.T @ np.asarray(self.n))  # (deg+1, 3)
         return self._coef
 
     def _predict_normal(self, t_s: float) -> np.ndarray:

@@ -162,7 +162,9 @@ class HeavePipeline:
             if rr is None:
                 return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
             # Only finite detections within the range window: the full preprocess is not needed.
-            rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor))
+            # The radar reports each detection's range; without it, the norm of the point.
+            rng_m = frame.fields.get("range")
+            rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor)) if rng_m is None else rng_m.astype(np.float64)
             pc = self.cfg.doppler_preprocess
             keep = (rng_m >= max(pc.min_range_m, 1e-6)) & (rng_m <= pc.max_range_m) & np.isfinite(rr)  # NaN compares False
             pts = frame.points_sensor[keep]
