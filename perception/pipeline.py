@@ -98,6 +98,7 @@ class HeavePipeline:
         self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
+        self.mru_sigma_rad = float(np.deg2rad(meta.scenario.mru.angle_noise_deg))  # the MRU's stated noise
 
     def _wants(self, sensor: str) -> list[str]:
         return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor]
@@ -200,6 +201,9 @@ class HeavePipeline:
             omega_c = omega_from_euler_rates(rpy, rpy_rate)
             r_tip = R_ls @ p_tip
             value = heave_rate_exact(u_level, n, omega_f, omega_c, r_tip, last[1])
-            sigma = float(np.sqrt(n @ cov_level @ n) / abs(n[2]))
+            # Besides the fit: an attitude error tilts the (large) horizontal relative velocity
+            # into the vertical when u is levelled; the MRU's stated noise sizes that term.
+            tilt_var = (float(np.hypot(u_level[0], u_level[1])) * self.mru_sigma_rad) ** 2
+            sigma = float(np.sqrt(n @ cov_level @ n + tilt_var) / abs(n[2]))
             return (value, sigma, "ok")
         return (np.nan, np.nan, "no recent deck plane for the deck's normal and spin")
