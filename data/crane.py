@@ -723,8 +723,10 @@ class CraneTruth:
         return len(self.t)
 
 
-def _rk4_substep(prm, flex, y, h, u0, u1, u2):
-    sin, cos = math.sin, math.cos
+def _rk4_substep(prm, flex, y, h, u0, u1, u2, sin=math.sin, cos=math.cos):
+    """One RK4 step of (a, a', b, b', nu_f, nu_f') with prescribed inputs u0, u1, u2 at the
+    start, middle and end. sin/cos are parameters so the filter can run it on arrays and
+    complex numbers (fusion/hook_filter.py) with the very same operations."""
     a, ad, b, bd, f, fd = y
     h2 = 0.5 * h
     k1a, k1b, k1f = _accel_core(sin, cos, prm, flex, a, ad, b, bd, *u0, f, fd)

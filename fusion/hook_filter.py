@@ -73,6 +73,7 @@ from data.crane import (
     JointStates,
     VesselState,
     _accel_core,
+    _rk4_substep,
     hook_relative_kinematics,
     tip_kinematics,
 )
@@ -219,27 +220,11 @@ def _rk4_step(sin, cos, prm, flex, x, h):
     u0 = x[4:19]
     u1 = _kin_at(x, h2)
     u2 = _kin_at(x, h)
-    a, ad, b, bd = x[0], x[1], x[2], x[3]
+    f, fd = (x[19], x[20]) if flex else (0.0, 0.0)
+    a, ad, b, bd, f, fd = _rk4_substep(prm, flex, (x[0], x[1], x[2], x[3], f, fd), h, u0, u1, u2, sin, cos)
+    out = [a, ad, b, bd] + list(u2)
     if flex:
-        f, fd = x[19], x[20]
-    else:
-        f = fd = 0.0
-    k1a, k1b, k1f = _accel_core(sin, cos, prm, flex, a, ad, b, bd, *u0, f, fd)
-    a2, ad2, b2, bd2, f2, fd2 = a + h2 * ad, ad + h2 * k1a, b + h2 * bd, bd + h2 * k1b, f + h2 * fd, fd + h2 * k1f
-    k2a, k2b, k2f = _accel_core(sin, cos, prm, flex, a2, ad2, b2, bd2, *u1, f2, fd2)
-    a3, ad3, b3, bd3, f3, fd3 = a + h2 * ad2, ad + h2 * k2a, b + h2 * bd2, bd + h2 * k2b, f + h2 * fd2, fd + h2 * k2f
-    k3a, k3b, k3f = _accel_core(sin, cos, prm, flex, a3, ad3, b3, bd3, *u1, f3, fd3)
-    a4, ad4, b4, bd4, f4, fd4 = a + h * ad3, ad + h * k3a, b + h * bd3, bd + h * k3b, f + h * fd3, fd + h * k3f
-    k4a, k4b, k4f = _accel_core(sin, cos, prm, flex, a4, ad4, b4, bd4, *u2, f4, fd4)
-    h6 = h / 6.0
-    out = [
-        a + h6 * (ad + 2 * ad2 + 2 * ad3 + ad4),
-        ad + h6 * (k1a + 2 * k2a + 2 * k3a + k4a),
-        b + h6 * (bd + 2 * bd2 + 2 * bd3 + bd4),
-        bd + h6 * (k1b + 2 * k2b + 2 * k3b + k4b),
-    ] + list(u2)
-    if flex:
-        out += [f + h6 * (fd + 2 * fd2 + 2 * fd3 + fd4), fd + h6 * (k1f + 2 * k2f + 2 * k3f + k4f)]
+        out += [f, fd]
     return out
 
 
