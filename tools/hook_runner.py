@@ -272,8 +272,11 @@ def write_hook_report(out: Path, s, hook: dict, runs, source, params, rows) -> N
         _, _, p, v = world_hook_from_states(params, run.x)
         ref = np.column_stack([truth.at(f"hook_{a}", run.t) for a in "xyz"])
         refv = np.column_stack([truth.at(f"hook_v{a}", run.t) for a in "xyz"])
-        ax[0].plot(run.t, 100 * np.linalg.norm(p - ref, axis=1), lw=0.8, label=name)
-        ax[1].plot(run.t, 100 * np.linalg.norm(v - refv, axis=1), lw=0.8, label=name)
+        # Colour by internal model, line style by estimator: EKF and UKF nearly coincide.
+        style = {"color": "tab:green" if run.model == "flexible" else "tab:red", "ls": "-" if run.kind == "ekf" else "--",
+                 "lw": 0.9 if run.kind == "ekf" else 1.2}
+        ax[0].plot(run.t, 100 * np.linalg.norm(p - ref, axis=1), label=name, **style)
+        ax[1].plot(run.t, 100 * np.linalg.norm(v - refv, axis=1), label=name, **style)
     ax[0].set_ylabel("|position error| [cm]")
     ax[1].set_ylabel("|velocity error| [cm/s]")
     ax[1].set_xlabel("t [s]")
