@@ -220,6 +220,8 @@ class Recording(FrameSource):
             raise RecordingError(f"{meta_path}: missing; is {self.root} a boomtip recording?") from None
         except json.JSONDecodeError as exc:
             raise RecordingError(f"{meta_path}: line {exc.lineno}: not valid JSON: {exc.msg}") from None
+        if not isinstance(meta, dict):
+            raise RecordingError(f"{meta_path}: expected a JSON object with format_version, scenario, sensors, ...")
         version = meta.get("format_version")
         if version != FORMAT_VERSION:
             raise RecordingError(f"{meta_path}: format_version {version!r}; this boomtip reads version {FORMAT_VERSION}")
@@ -236,9 +238,14 @@ class Recording(FrameSource):
             )
         except KeyError as exc:
             raise RecordingError(f"{meta_path}: missing key {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise RecordingError(f"{meta_path}: a value has the wrong shape or type ({exc}); expected 4x4 numeric "
+                                 "matrices under T_crane_boomtip and sensors.<name>.T_boomtip_sensor") from None
         except ScenarioError as exc:
             raise RecordingError(str(exc)) from None
         mru = read_csv(self.root / "mru.csv", MRU_COLUMNS)
+        if len(mru["t"]) < 2:
+            raise RecordingError(f"{self.root / 'mru.csv'}: {len(mru['t'])} samples; the attitude needs at least 2")
         rate = scenario.mru.rate_hz
         self.mru = MruLog(
             mru["t"],
@@ -284,4 +291,22 @@ class Recording(FrameSource):
             except PcdError as exc:
                 yield Frame(sensor, i, t_s, np.zeros((0, 3)), {}, path=str(path), error=str(exc))
                 continue
+            bad = self._implausible(sensor, points)
+            if bad:
+                yield Frame(sensor, i, t_s, np.zeros((0, 3)), {}, path=str(path), error=f"{path}: {bad}")
+                continue
             yield Frame(sensor, i, t_s, points, fields, path=str(path))
+
+    def _implausible(self, sensor: str, points: np.ndarray) -> str | None:
+        """A frame whose points are mostly non-finite or beyond the sensor's range is corrupt
+        data behind a valid header (a few NaN or dropped points are normal and kept)."""
+        if len(points) == 0:
+            return None
+        cfg = getattr(self.meta.scenario, sensor)
+        with np.errstate(invalid="ignore", over="ignore"):
+            r = np.sqrt(np.einsum("ij,ij->i", points, points))
+        ok = np.count_nonzero(np.isfinite(r) & (r <= cfg.max_range_m * 1.05))
+        if ok < 0.5 * len(points):
+            return (f"{len(points) - ok} of {len(points)} points are non-finite or beyond the {cfg.max_range_m:g} m "
+                    "range: corrupt point data")
+        return None

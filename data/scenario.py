@@ -86,6 +86,7 @@ class Reflectors(_Model):
     spacing_m: float = Field(8.0, gt=0)
     size_m: float = Field(1.0, gt=0)
     inset_m: float = Field(1.5, ge=0, description="distance from the bulwark inboard")
+    height_m: float = Field(0.002, ge=0, le=0.5, description="markers' height above the deck (tape thickness)")
     false_bright_points: int = Field(
         0, ge=0, description="extra bright patches on cargo/bulwarks that are not markers"
     )
@@ -273,10 +274,14 @@ def _nearest(key: str, keys: list[str]) -> str:
     return ", ".join(close) if close else "(none close; `boomtip scenarios --keys` lists all)"
 
 
-def _format_validation(err: ValidationError, source: str) -> str:
+def _format_validation(err: ValidationError, source: str, overridden: dict[str, str] | None = None) -> str:
     lines = []
     for e in err.errors():
         key = ".".join(str(p) for p in e["loc"])
+        if overridden and key in overridden:  # the user's --set, not the file, supplied this value
+            got = e.get("input")
+            lines.append(f"--set {overridden[key]}: key '{key}': {e['msg']} (got {got!r})")
+            continue
         if e["type"] == "extra_forbidden":
             lines.append(f"{source}: unknown key '{key}'; nearest valid keys: {_nearest(key, valid_keys())}")
         else:
@@ -337,14 +342,15 @@ def load_scenario(name_or_path: str | Path, overrides: list[str] | None = None) 
         raise ScenarioError(f"{path}: expected a mapping of scenario keys at the top level")
     raw.setdefault("name", path.stem)
     raw = apply_overrides(raw, overrides or [])
-    return scenario_from_dict(raw, source=str(path))
+    overridden = {parse_override(o)[0]: o for o in overrides or []}
+    return scenario_from_dict(raw, source=str(path), overridden=overridden)
 
 
-def scenario_from_dict(raw: dict, source: str = "scenario") -> Scenario:
+def scenario_from_dict(raw: dict, source: str = "scenario", overridden: dict[str, str] | None = None) -> Scenario:
     try:
         return Scenario.model_validate(raw)
     except ValidationError as exc:
-        raise ScenarioError(_format_validation(exc, source)) from None
+        raise ScenarioError(_format_validation(exc, source, overridden)) from None
 
 
 def scenario_to_yaml(scenario: Scenario) -> str:

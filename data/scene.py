@@ -321,9 +321,9 @@ def feeder_vessel(s: Scenario) -> Body:
             parts.append(Part(cylinder(0.3, 0.8, [x, sy * (g.beam_m / 2 - 0.9), z + 0.4], sections=24), Label.FEEDER_BULWARK, 0.4))
     r = s.feeder.reflectors
     if r.enabled:
-        # Retro-reflective tape, 2 mm proud of the deck.
+        # Retro-reflective tape, reflectors.height_m proud of the deck.
         for cx, cy in _marker_centers(s):
-            parts.append(Part(patch([cx, cy, z + 0.002], r.size_m, r.size_m), Label.REFLECTOR, 0.9, retro=True,
+            parts.append(Part(patch([cx, cy, z + r.height_m], r.size_m, r.size_m), Label.REFLECTOR, 0.9, retro=True,
                               rcs=RcsClass.CORNER))
     if s.feeder.cargo:
         parts += _cargo_parts(s)

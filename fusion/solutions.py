@@ -36,6 +36,14 @@ class FusionConfig(BaseModel):
     output_rate_hz: float = Field(100.0, gt=0)
     gate_chi2_probability: float = Field(0.9999, gt=0, lt=1)
     max_delay_s: float = Field(1.0, ge=0, description="oldest measurement the filters still place in sequence")
+    floor_sigma_D_m: float = Field(
+        0.5e-3, ge=0, description="added to every D sigma: what no fit sees (surface detail, marker placement, "
+        "mesh facets); with ideal sensors a fit claims micrometres and methods that differ by a millimetre gate each other out",
+    )
+    floor_sigma_D_dot_mps: float = Field(
+        3e-3, ge=0, description="the same for D-dot: the rotation-aware Doppler's deck spin comes from a 1 s window "
+        "of deck normals, an error its velocity fit cannot see (1.4-3.5 mm/s rms in the evaluation scenarios)",
+    )
 
 
 @dataclass
@@ -49,16 +57,18 @@ class Estimates:
     statuses: dict[str, int]
 
 
-def measurement_sigma(row: Row, s: Scenario) -> float:
+def measurement_sigma(row: Row, s: Scenario, cfg: "FusionConfig | None" = None) -> float:
     """The fit's own sigma plus what the fit cannot see: the wire direction's error from the
-    MRU (D x tan(deck tilt) x angle noise, with the scenario's tilt) for D measurements."""
+    MRU (D x tan(deck tilt) x angle noise, with the scenario's tilt) for D measurements, and
+    a floor for unmodelled detail."""
+    cfg = cfg or FusionConfig()
     sigma = row.sigma if np.isfinite(row.sigma) and row.sigma > 0 else np.nan
     if row.quantity == "D":
         tilt = np.deg2rad(max(abs(s.feeder.motion.pitch.amplitude), abs(s.feeder.motion.roll.amplitude)) +
                           max(abs(s.crane.motion.pitch.amplitude), abs(s.crane.motion.roll.amplitude)))
         mru = abs(row.value) * np.tan(tilt) * np.deg2rad(s.mru.angle_noise_deg)
-        return float(np.hypot(sigma, mru))
-    return float(sigma)
+        return float(np.sqrt(sigma**2 + mru**2 + cfg.floor_sigma_D_m**2))
+    return float(np.hypot(sigma, cfg.floor_sigma_D_dot_mps))
 
 
 def filter_config(s: Scenario, cfg: FusionConfig) -> HeaveFilterConfig:
@@ -72,7 +82,7 @@ def run_solution(name: str, rows: list[Row], s: Scenario, cfg: FusionConfig, dur
     inputs = []
     for r in rows:
         if r.method in methods and r.ok:
-            sigma = measurement_sigma(r, s)
+            sigma = measurement_sigma(r, s, cfg)
             if np.isfinite(sigma) and sigma > 0:
                 arrival = r.t_s + latency[SENSOR_OF[r.method]]
                 inputs.append(Measurement(r.t_s, arrival, r.quantity, r.value, sigma, r.method))

@@ -196,20 +196,23 @@ def _prediction_sigma(pts, plane, c, evals, evecs, query) -> float:
     return float(math.sqrt(max(var, 0.0)))
 
 
-def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray) -> tuple[np.ndarray, float, float]:
+def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray, offset_m: float = 0.0) -> tuple[np.ndarray, float, float]:
     """Least-squares plane (normal towards the sensor), D along the wire from the tip, and D's
     1-sigma, all from one eigendecomposition of the scatter: the smallest eigenvector is the
-    normal, the other two are the in-plane axes the prediction variance needs."""
+    normal, the other two are the in-plane axes the prediction variance needs. `offset_m`
+    moves the plane that far away from the sensor (points lying on top of the surface wanted)."""
     c = points.mean(axis=0)
     X = points - c
     evals, evecs = np.linalg.eigh(X.T @ X)
     n = evecs[:, 0]
     d = -float(n @ c)
     plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
+    fitted = plane.copy()
+    plane[3] += offset_m  # normal towards the sensor: a larger d is farther away
     D = heave_distance(plane, wire_dir, p_tip)
     if not np.isfinite(D) or len(points) < 4:
         return plane, D, float("nan")
-    return plane, D, _prediction_sigma(points, plane, c, evals, evecs, p_tip + D * wire_dir)
+    return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
 
 
 def solve3(a: np.ndarray, y: np.ndarray) -> np.ndarray | None:

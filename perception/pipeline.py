@@ -99,6 +99,9 @@ class HeavePipeline:
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
         self.mru_sigma_rad = float(np.deg2rad(meta.scenario.mru.angle_noise_deg))  # the MRU's stated noise
+        if self.cfg.reflectors.marker_height_m == 0.0:  # installation knowledge from the scenario
+            self.cfg = self.cfg.model_copy(update={"reflectors": self.cfg.reflectors.model_copy(
+                update={"marker_height_m": meta.scenario.feeder.reflectors.height_m})})
 
     def _wants(self, sensor: str) -> list[str]:
         return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor]

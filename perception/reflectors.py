@@ -45,6 +45,9 @@ class ReflectorConfig(BaseModel):
     min_markers: int = Field(3, ge=3)
     min_spread_m: float = Field(2.0, gt=0, description="markers must span this much across their main axis")
     max_markers_ransac: int = Field(40, ge=3, description="markers used for the triplet search (largest first)")
+    marker_height_m: float = Field(
+        0.0, ge=0, description="the markers' height above the deck (installation); the deck plane lies this far below theirs"
+    )
 
 
 @dataclass
@@ -123,7 +126,7 @@ def detect_reflectors(
         r2 = np.einsum("ij,ij->i", points_sensor, points_sensor)
         comp = intensity * (r2 / INTENSITY_REFERENCE_RANGE_M**2) if cfg.range_compensate else intensity
         thr = intensity_threshold(comp, cfg)
-        bright = points_sensor[comp > thr]  # NaN compares False; a zero-range point has comp 0
+        bright = points_sensor[(comp > thr) & (comp < np.inf)]  # NaN compares False; inf points are garbage
     if len(bright) < 3:
         return ReflectorResult(float("nan"), None, empty, bright, thr, f"no reflectors ({len(bright)} bright points)")
     if len(bright) > cfg.max_bright_points:
@@ -147,5 +150,6 @@ def detect_reflectors(
     if spread < cfg.min_spread_m:
         return ReflectorResult(float("nan"), None, good, bright, thr, f"markers collinear (spread {spread:.2f} m)")
     with times.stage("reflectors.plane"):
-        plane, D, sigma = fit_plane_heave(bright[on_plane[labels]], wire_dir_sensor, p_tip_sensor)
+        plane, D, sigma = fit_plane_heave(bright[on_plane[labels]], wire_dir_sensor, p_tip_sensor,
+                                          offset_m=cfg.marker_height_m)
     return ReflectorResult(D, plane, good, bright, thr, "ok" if np.isfinite(D) else "wire parallel to the plane", sigma)
