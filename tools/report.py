@@ -20,7 +20,8 @@ DOC000 = {
     "doppler_radar": {"mae_D": 0.159, "max_D": None, "mae_V": 0.018, "max_V": 0.057, "apt": 2.4},
 }
 DOC000_AMPLITUDE = {"D_m": 3.06, "D_dot_mps": 2.3}
-COLORS = {"deck_lidar": "#1f77b4", "deck_radar": "#ff7f0e", "reflectors_lidar": "#2ca02c", "doppler_radar": "#9467bd", "fused": "#d62728"}
+COLORS = {"deck_lidar": "#1f77b4", "deck_radar": "#ff7f0e", "reflectors_lidar": "#2ca02c", "doppler_radar": "#9467bd", "fused": "#d62728",
+          "doppler_radar_rot": "#8c564b"}
 
 
 def _fmt(v, pct_of=None, unit_mm=False) -> str:
@@ -144,7 +145,7 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
             continue
         t = np.array([r.t_s for r in ok])
         err = (np.array([r.value for r in ok]) - truth.at(ok[0].quantity, t)) * 1e3
-        ax[0 if ok[0].quantity == "D" else 1].plot(t, err, ".", ms=2, label=m)
+        ax[0 if ok[0].quantity == "D" else 1].plot(t, err, ".", ms=2, label=m, color=COLORS.get(m))
     ax[0].set_ylabel("D error [mm]")
     ax[1].set_ylabel("D-dot error [mm/s]")
     ax[1].set_xlabel("t [s]")
