@@ -14,10 +14,9 @@ perception reports and the filter's LiDAR model h(x) = l u(a, b) predicts.
 from __future__ import annotations
 
 import numpy as np
-import trimesh
 
 from data.crane import HOOK_SCENARIOS, CallableVesselMotion, CraneParams, CraneTruth, simulate_crane
-from data.frames import Frame, MruLog, Truth
+from data.frames import Frame, Truth
 from data.hook_block import lower_block_parts, rope_mesh
 from data.scenario import Scenario
 from data.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
@@ -127,7 +126,6 @@ class HookSimulation(Simulation):
         return np.stack([np.interp(t, self.crane.t, v[:, k]) for k in range(v.shape[1])], axis=-1)
 
     def _scene_poses(self, times: np.ndarray, sensor: str):
-        c = self.crane
         roll, pitch = self._interp("roll", times), self._interp("pitch", times)
         nu, mu, nu_f = self._interp("nu", times), self._interp("mu", times), self._interp("nu_f", times)
         R_v = np.einsum("nij,njk->nik", _rz(np.zeros_like(roll)) @ _ry(pitch), _rx(roll))

@@ -27,7 +27,7 @@ from perception.geometry import (
     tip_in_sensor,
     wire_dir_sensor,
 )
-from perception.preprocess import PreprocessConfig, preprocess
+from perception.preprocess import PreprocessConfig
 from perception.reflectors import ReflectorConfig, ReflectorResult, detect_reflectors
 from perception.timing import StageTimes
 

@@ -12,14 +12,12 @@ from perception.deck import LIDAR_DECK, RADAR_DECK, detect_deck
 from perception.doppler import doppler_velocity
 from perception.geometry import (
     NormalRate,
-    heave_distance,
     heave_rate_document,
     heave_rate_exact,
     plane_sigma_at,
     rotation_level_sensor,
     rpy_matrix,
     tip_in_sensor,
-    wire_dir_sensor,
 )
 from perception.pipeline import HeavePipeline
 from perception.reflectors import ReflectorConfig, detect_reflectors

@@ -17,7 +17,6 @@ import numpy as np
 from data.frames import FrameSource
 from data.hook_world import crane_params
 from data.pcd import atomic_write_bytes
-from data.recording import write_json
 from fusion.hook_filter import HookFilterRun, HookMeasurements, run_hook_filter, world_hook_from_states
 from perception.geometry import rpy_matrix
 from perception.hook import HookConfig, detect_hook, segmentation_scores

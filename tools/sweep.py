@@ -3,11 +3,9 @@ parallel processes, KPIs plotted against the parameter."""
 
 from __future__ import annotations
 
-import json
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import numpy as np
 
 from data.recording import commit_output, prepare_output, write_json
 
