@@ -43,7 +43,9 @@ def tip_in_sensor(T_boomtip_sensor: np.ndarray) -> np.ndarray:
 
 
 def heave_distance(plane_sensor: np.ndarray, wire_dir: np.ndarray, p_tip_sensor: np.ndarray) -> float:
-    """D: distance from the tip along the wire to the plane n.x + d = 0 (eq. 4.8, from the tip)."""
+    """D: distance from the tip along the wire to the plane n.x + d = 0 (eq. 4.8, from the tip).
+    Expects a unit normal and a unit wire direction (perception.plane.wire_plane_distance
+    normalises arbitrary inputs first); NaN when the wire is parallel to the plane."""
     n, d = plane_sensor[:3], plane_sensor[3]
     denom = float(n @ wire_dir)
     if abs(denom) < 1e-6:

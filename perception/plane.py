@@ -236,16 +236,12 @@ def wire_plane_distance(
     and independent of the plane's sign convention. Returns NaN when |n . wire_dir| < 1e-6
     (wire parallel to the plane).
     """
+    from perception.geometry import heave_distance  # the one implementation of eq. 4.8
+
     plane = np.asarray(plane, dtype=np.float64)
-    n = plane[:3] / np.linalg.norm(plane[:3])
-    d = plane[3] / np.linalg.norm(plane[:3])
     w = np.asarray(wire_dir, dtype=np.float64)
-    w = w / np.linalg.norm(w)
     o = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
-    den = float(n @ w)
-    if abs(den) < 1e-6:
-        return float("nan")
-    return float(-(n @ o + d) / den)
+    return float(heave_distance(plane / np.linalg.norm(plane[:3]), w / np.linalg.norm(w), o))
 
 
 def transform_plane(plane: np.ndarray, T_a_b: np.ndarray) -> np.ndarray:
