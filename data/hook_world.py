@@ -72,7 +72,9 @@ def hook_bodies(s: Scenario) -> list[Body]:
     ]
 
 
-def _rz(theta: np.ndarray) -> np.ndarray:
+def rot_z(theta) -> np.ndarray:
+    """Rotation(s) about z by theta (any shape): (..., 3, 3)."""
+    theta = np.asarray(theta, dtype=float)
     c, s = np.cos(theta), np.sin(theta)
     R = np.zeros(theta.shape + (3, 3))
     R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
@@ -128,10 +130,10 @@ class HookSimulation(Simulation):
     def _scene_poses(self, times: np.ndarray, sensor: str):
         roll, pitch = self._interp("roll", times), self._interp("pitch", times)
         nu, mu, nu_f = self._interp("nu", times), self._interp("mu", times), self._interp("nu_f", times)
-        R_v = np.einsum("nij,njk->nik", _rz(np.zeros_like(roll)) @ _ry(pitch), _rx(roll))
+        R_v = _ry(pitch) @ _rx(roll)  # R = Rz(yaw) Ry(pitch) Rx(roll) with yaw = 0
         base = np.asarray(self.params.c)
         foot_v = base + self.params.b * np.stack([np.cos(nu), np.sin(nu), np.zeros_like(nu)], -1) + [0, 0, self.params.h]
-        R_tipframe = R_v @ _rz(nu + nu_f)
+        R_tipframe = R_v @ rot_z(nu + nu_f)
         R_boom = R_tipframe @ _ry(-mu)
         p_tip = self._interp("p_tip_world", times)
         r_hook = self._interp("p_hook_rel_tip", times)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from data.frames import FrameSource
-from data.hook_world import crane_params
+from data.hook_world import crane_params, rot_z
 from data.pcd import atomic_write_bytes
 from fusion.hook_filter import HookFilterRun, HookMeasurements, run_hook_filter, world_hook_from_states
 from perception.geometry import rpy_matrix
@@ -32,11 +32,6 @@ DOC002 = {  # Table 6.1, flexible internal model, EKF
     "hook-4": {"pos_cm": (2.292, 2.246, 3.576), "vel_cms": (1.251, 1.268, 5.517)},
 }
 DOC002_RUNTIME_PCT = "2.4-4.0 % (flexible EKF 3.3-3.8 %)"
-
-
-def _rz(theta: float) -> np.ndarray:
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def angular_spacing_rad(lidar) -> float:
@@ -79,7 +74,7 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
             with times.stage("hook.level"):
                 slew = float(np.interp(t, enc["t"], enc["slew"]))
                 hoist = float(np.interp(t, enc["t"], enc["hoist"]))
-                R_tip = rpy_matrix(np.array([att[0][0], att[0][1], 0.0])) @ _rz(slew)
+                R_tip = rpy_matrix(np.array([att[0][0], att[0][1], 0.0])) @ rot_z(slew)
                 pts = frame.points_sensor @ (R_tip @ T_ts[:3, :3]).T + R_tip @ T_ts[:3, 3]
             # Prior: the last detection when recent (the hook moves < 1 m in 0.5 s), else
             # straight below the tip at the hoist length from the encoder.
