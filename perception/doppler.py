@@ -116,64 +116,90 @@ def _cond(b: np.ndarray) -> float:
     return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
 
 
-def _trimmed_fit(b: np.ndarray, r: np.ndarray, cfg: DopplerConfig, vidx: np.ndarray, n_all: int,
+def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.ndarray | None, n_all: int,
                  u_prior: np.ndarray | None = None) -> "DopplerFit | None":
     """Least squares on everything, then on what lies within the band, until the set is stable.
 
     Radar false alarms are rare, gross outliers, so this settles in 2-4 passes of 3x3 normal
     equations, and the final system gives the covariance and condition directly. None (use
     RANSAC) when too few detections stay in the band or the geometry is degenerate.
+    ``bT`` is the (3, N) unit beams, one contiguous row per axis: ``u @ bT`` then runs ~3x
+    faster than ``b @ u`` on (N, 3) rows. Each pass needs the normal equations of a different
+    subset; one product ``Z @ w`` with the 10 x N table of the per-detection terms (b b^T, b r,
+    r^2) gives them all at once, instead of gathering the subset and multiplying it out.
     """
-    from perception.geometry import inv3
+    n = len(r)
+    bx, by, bz = bT
+    Z = np.empty((10, n))
+    np.multiply(bx, bT, out=Z[0:3])  # xx xy xz
+    np.multiply(by, bT[1:], out=Z[3:5])  # yy yz
+    np.multiply(bz, bz, out=Z[5])  # zz
+    np.multiply(bT, r, out=Z[6:9])  # x r, y r, z r
+    np.multiply(r, r, out=Z[9])
+
+    def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+        # The symmetric 3x3 solve in Python floats: numpy's per-call overhead on a 3x3 is
+        # several times the arithmetic, and this runs up to six times per radar frame.
+        xx, xy, xz, yy, yz, zz, yx_, yy_, yz_, rr = (Z @ w).tolist()
+        c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
+        det = xx * c00 + xy * c01 + xz * c02
+        if abs(det) < 1e-300:
+            return None
+        c11, c12, c22 = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
+        inv = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
+        u = inv @ np.array([yx_, yy_, yz_])
+        # Sum of squared residuals over the subset from the same sums: r.r - u.(B^T r).
+        sse = max(rr - float(u[0] * yx_ + u[1] * yy_ + u[2] * yz_), 0.0)
+        frob_a2 = xx * xx + yy * yy + zz * zz + 2.0 * (xy * xy + xz * xz + yz * yz)
+        return u, inv, sse, frob_a2
 
     if u_prior is not None:
         # Tracking: last frame's velocity is within the band of this one's (the deck's
         # acceleration times one radar period is a few cm/s), so the wide first pass is skipped.
-        u, a, inv = np.asarray(u_prior, dtype=float), None, None
+        u = np.asarray(u_prior, dtype=float)
     else:
-        a = b.T @ b
-        inv = inv3(a)
-        if inv is None:
+        sol = solve(np.ones(n))
+        if sol is None:
             return None
-        u = inv @ (b.T @ r)
-    mask = None
-    converged = False
+        u = sol[0]
+    mask, sol = None, None
     for it in range(6):
-        e_all = b @ u - r
-        res = np.abs(e_all)
+        res = u @ bT
+        res -= r
+        np.abs(res, out=res)
         if it == 0 and u_prior is None:
             # A wide first band (3 robust sigmas from the median, at least the configured one) so a
             # start biased by the outliers cannot throw good detections away; then the configured band.
-            k = len(res) // 2
+            k = n // 2
             band = max(cfg.inlier_threshold_mps, 4.45 * float(np.partition(res, k)[k]))
         else:
             band = cfg.inlier_threshold_mps
         new = res < band
         if mask is not None and np.array_equal(new, mask):
-            converged = True  # e_all holds the final residuals of this u
             break
         mask = new
-        if np.count_nonzero(mask) < max(3, cfg.trimmed_min_fraction * len(r)):
+        n_in = int(np.count_nonzero(mask))
+        if n_in < max(3, cfg.trimmed_min_fraction * n):
             return None
-        bi = b[mask]
-        a = bi.T @ bi
-        inv = inv3(a)
-        if inv is None:
+        sol = solve(mask.astype(np.float64))
+        if sol is None:
             return None
-        u = inv @ (bi.T @ r[mask])
-    n_in = int(np.count_nonzero(mask))
-    if a is None or n_in < max(3, cfg.min_inliers, cfg.trimmed_min_fraction * len(r)):
+        u = sol[0]
+    if sol is None or n_in < max(3, cfg.min_inliers):
         return None
+    u, inv, sse, frob_a2 = sol
     # cond(B) = sqrt(cond(B^T B)); the Frobenius-norm bound ||A|| ||A^-1|| is enough to refuse
     # degenerate beam geometry without an eigendecomposition.
-    cond = float(math.sqrt(np.linalg.norm(a) * np.linalg.norm(inv)))
+    cond = float(math.sqrt(math.sqrt(frob_a2) * np.linalg.norm(inv)))
     if cond > cfg.max_condition:
         return None
-    e = (e_all if converged else b @ u - r)[mask]
-    sigma2 = float(e @ e) / max(n_in - 3, 1)
-    full = np.zeros(n_all, dtype=bool)
-    full[vidx[mask]] = True
-    return DopplerFit(u, full, float(math.sqrt(float(e @ e) / n_in)), sigma2 * inv, cond, 0)
+    sigma2 = sse / max(n_in - 3, 1)
+    if valid is None:
+        full = mask
+    else:
+        full = np.zeros(n_all, dtype=bool)
+        full[np.flatnonzero(valid)[mask]] = True
+    return DopplerFit(u, full, float(math.sqrt(sse / n_in)), sigma2 * inv, cond, 0)
 
 
 def doppler_velocity(
@@ -194,28 +220,33 @@ def doppler_velocity(
     degenerate geometry (cond(B) > ``cfg.max_condition``, e.g. all beams nearly parallel).
     """
     cfg = cfg or DopplerConfig()
-    rng = rng if rng is not None else np.random.default_rng()
     b_all = np.asarray(beam_dirs, dtype=np.float64).reshape(-1, 3)
     r_all = np.asarray(range_rate_mps, dtype=np.float64).reshape(-1)
     if len(b_all) != len(r_all):
         raise ValueError("beam_dirs and range_rate_mps must have the same length")
     n_all = len(r_all)
-    norms = np.linalg.norm(b_all, axis=1)
-    valid = np.isfinite(r_all) & np.all(np.isfinite(b_all), axis=1) & (norms > 0)
-    vidx = np.flatnonzero(valid)
-    if len(vidx) < 3:
-        return None
-    b = b_all[vidx] / norms[vidx, None]
-    r = r_all[vidx]
+    # Squared norms also catch NaN/inf beams (their square is not finite) in one pass.
+    n2 = np.einsum("ij,ij->i", b_all, b_all)
+    valid = np.isfinite(r_all) & np.isfinite(n2) & (n2 > 0)
+    if valid.all():
+        valid_sel, b_sel, r, n2_sel = None, b_all, r_all, n2
+    else:
+        valid_sel, b_sel, r, n2_sel = valid, b_all[valid], r_all[valid], n2[valid]
     n = len(r)
+    if n < 3:
+        return None
+    bT = np.divide(b_sel.T, np.sqrt(n2_sel), out=np.empty((3, n)))  # unit beams, one row per axis
     thr = cfg.inlier_threshold_mps
 
     if cfg.start == "trimmed" and cfg.huber_delta_mps is None:
-        fit = _trimmed_fit(b, r, cfg, vidx, n_all, u_prior) if u_prior is not None else None
+        fit = _trimmed_fit(bT, r, cfg, valid_sel, n_all, u_prior) if u_prior is not None else None
         if fit is None:  # no prior, or the prior did not hold: the full trimmed fit
-            fit = _trimmed_fit(b, r, cfg, vidx, n_all)
+            fit = _trimmed_fit(bT, r, cfg, valid_sel, n_all)
         if fit is not None:
             return fit
+    rng = rng if rng is not None else np.random.default_rng()  # only RANSAC draws: built here, not per call
+    b = np.ascontiguousarray(bT.T)
+    vidx = np.flatnonzero(valid)
     best_count, best_u, drawn = -1, None, 0
     needed = float(cfg.max_iterations)
     while drawn < min(needed, cfg.max_iterations):

@@ -78,11 +78,20 @@ def heave_rate_exact(
                   = n.(-u + w_c x r - w_f x (r - D e_z)) / (n.e_z)
     Only w_f's components perpendicular to n matter (n.(w x a) = a.(n x w)).
     """
-    n = normal_level if normal_level[2] > 0 else -normal_level
-    rel = -u_level + cross3(omega_crane_level, r_tip_from_sensor_level) - cross3(
-        omega_feeder_level, r_tip_from_sensor_level - D_m * E_Z
-    )
-    return float(n @ rel / n[2])  # n need not be unit: the ratio is scale-free
+    # Python floats: eleven products per radar frame, where numpy's per-call overhead on
+    # 3-vectors would cost more than the arithmetic.
+    ux, uy, uz = np.asarray(u_level, dtype=float).tolist()
+    nx, ny, nz = np.asarray(normal_level, dtype=float).tolist()
+    if nz < 0:
+        nx, ny, nz = -nx, -ny, -nz
+    cx, cy, cz = np.asarray(omega_crane_level, dtype=float).tolist()
+    fx, fy, fz = np.asarray(omega_feeder_level, dtype=float).tolist()
+    rx, ry, rz = np.asarray(r_tip_from_sensor_level, dtype=float).tolist()
+    qz = rz - float(D_m)  # r - D e_z
+    rel_x = -ux + (cy * rz - cz * ry) - (fy * qz - fz * ry)
+    rel_y = -uy + (cz * rx - cx * rz) - (fz * rx - fx * qz)
+    rel_z = -uz + (cx * ry - cy * rx) - (fx * ry - fy * rx)
+    return (nx * rel_x + ny * rel_y + nz * rel_z) / nz  # n need not be unit: the ratio is scale-free
 
 
 class NormalRate:
@@ -129,7 +138,8 @@ class NormalRate:
         self._coef = None
         return True
 
-    def _fit(self) -> np.ndarray:
+    def _fit(self) -> list[list[float]]:
+        """Coefficients [c0, c1, c2] (each an xyz list) of n(t) = c0 + c1 dt + c2 dt^2 about t[-1]."""
         if self._coef is None:
             tt = np.asarray(self.t) - self.t[-1]
             deg = 2 if len(tt) >= 6 else 1
@@ -138,21 +148,28 @@ class NormalRate:
             # Normal equations: the system is at most 3x3 and well conditioned (times within one
             # window about the newest sample); lstsq's SVD costs several times more.
             inv = inv3(VtV) if deg == 2 else np.linalg.inv(VtV)
-            self._coef = inv @ (V.T @ np.asarray(self.n))  # (deg+1, 3)
+            coef = (inv @ (V.T @ np.asarray(self.n))).tolist()
+            # Kept as Python floats: every radar frame evaluates the polynomial at its own time,
+            # and a few float products beat numpy's per-call overhead on 3-vectors.
+            self._coef = coef if deg == 2 else coef + [[0.0, 0.0, 0.0]]
         return self._coef
 
+    def _predict(self, t_s: float) -> tuple[list[float], list[float]]:
+        """Unit normal and the derivative of the (unnormalised) fitted normal at t."""
+        (c0, c1, c2), dt = self._fit(), t_s - self.t[-1]
+        n_t = [a + b * dt + c * dt * dt for a, b, c in zip(c0, c1, c2)]
+        s = math.sqrt(n_t[0] * n_t[0] + n_t[1] * n_t[1] + n_t[2] * n_t[2])
+        return [v / s for v in n_t], [b + 2.0 * c * dt for b, c in zip(c1, c2)]
+
     def _predict_normal(self, t_s: float) -> np.ndarray:
-        c, dt = self._fit(), t_s - self.t[-1]
-        n_t = c[0] + c[1] * dt + (c[2] * dt * dt if len(c) > 2 else 0.0)
-        return n_t / np.linalg.norm(n_t)
+        return np.array(self._predict(t_s)[0])
 
     def omega(self, t_s: float) -> np.ndarray | None:
         """w_perp at time t (extrapolated from the fit), or None with too few samples."""
         if len(self.t) < self.min_samples:
             return None
-        c, dt = self._fit(), t_s - self.t[-1]
-        n_dot = c[1] + (2 * c[2] * dt if len(c) > 2 else 0.0)
-        return cross3(self._predict_normal(t_s), n_dot)
+        (nx, ny, nz), (dx, dy, dz) = self._predict(t_s)
+        return np.array([ny * dz - nz * dy, nz * dx - nx * dz, nx * dy - ny * dx])
 
     def normal(self, t_s: float) -> np.ndarray | None:
         if not self.n:

@@ -10,6 +10,7 @@ Each stage reports its own time; a row's time_ms is the sum of the stages its me
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,7 +24,7 @@ from perception.geometry import (
     heave_rate_document,
     heave_rate_exact,
     omega_from_euler_rates,
-    rotation_level_sensor,
+    rpy_matrix,
     tip_in_sensor,
     wire_dir_sensor,
 )
@@ -95,6 +96,8 @@ class HeavePipeline:
         if unknown:
             raise ValueError(f"unknown method(s) {sorted(unknown)}; expected some of {', '.join(METHODS)}")
         self.p_tip = {s: tip_in_sensor(meta.T_boomtip_sensor[s]) for s in ("lidar", "radar")}
+        # The mount is fixed: sensor axes -> crane-vessel axes once, the MRU attitude per frame.
+        self.R_crane_sensor = {s: meta.T_crane_boomtip[:3, :3] @ meta.T_boomtip_sensor[s][:3, :3] for s in ("lidar", "radar")}
         self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
@@ -121,7 +124,7 @@ class HeavePipeline:
             att = self.mru.attitude(frame.t_s)
             if att is not None:
                 rpy, rpy_rate = att
-                R_ls = rotation_level_sensor(rpy, self.meta.T_crane_boomtip, self.meta.T_boomtip_sensor[frame.sensor])
+                R_ls = rpy_matrix(rpy) @ self.R_crane_sensor[frame.sensor]  # eq. 4.3, as geometry.rotation_level_sensor
                 wire = wire_dir_sensor(R_ls)
         if att is None:
             status = f"no MRU attitude at t={frame.t_s:.3f} s (outside the log or in a gap)"
@@ -171,18 +174,18 @@ class HeavePipeline:
             rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor)) if rng_m is None else rng_m.astype(np.float64)
             pc = self.cfg.doppler_preprocess
             keep = (rng_m >= max(pc.min_range_m, 1e-6)) & (rng_m <= pc.max_range_m) & np.isfinite(rr)  # NaN compares False
-            pts = frame.points_sensor[keep]
-            beams = pts / rng_m[keep, None]
-            attrs = {"range_rate": rr[keep]}
+            pts = frame.points_sensor[keep]  # doppler_velocity takes them as beam directions and normalises them
+            range_rate_mps = rr[keep].astype(np.float64)
         with times.stage("doppler.fit"):
             prior = self.last_doppler[1] if self.last_doppler and frame.t_s - self.last_doppler[0] <= 0.2 else None
-            fit = doppler_velocity(beams, attrs["range_rate"].astype(float), self.cfg.doppler, rng, prior) if len(pts) >= 3 else None
+            fit = doppler_velocity(pts, range_rate_mps, self.cfg.doppler, rng, prior) if len(pts) >= 3 else None
+            if fit is not None:  # to level axes, where D-dot is defined
+                u_level = R_ls @ fit.velocity_sensor
+                cov_level = R_ls @ fit.covariance @ R_ls.T
         out.doppler = fit
         self.last_doppler = (frame.t_s, fit.velocity_sensor) if fit is not None else None
         if fit is None:
             return {m: (np.nan, np.nan, f"no Doppler velocity ({len(pts)} detections or degenerate beams)") for m in wanted if m.startswith("doppler")}
-        u_level = R_ls @ fit.velocity_sensor
-        cov_level = R_ls @ fit.covariance @ R_ls.T
         if "doppler_radar" in wanted:
             with times.stage("doppler.document"):
                 res["doppler_radar"] = (heave_rate_document(u_level), float(np.sqrt(cov_level[2, 2])), "ok")
@@ -206,7 +209,7 @@ class HeavePipeline:
             value = heave_rate_exact(u_level, n, omega_f, omega_c, r_tip, last[1])
             # Besides the fit: an attitude error tilts the (large) horizontal relative velocity
             # into the vertical when u is levelled; the MRU's stated noise sizes that term.
-            tilt_var = (float(np.hypot(u_level[0], u_level[1])) * self.mru_sigma_rad) ** 2
-            sigma = float(np.sqrt(n @ cov_level @ n + tilt_var) / abs(n[2]))
+            tilt_var = (math.hypot(float(u_level[0]), float(u_level[1])) * self.mru_sigma_rad) ** 2
+            sigma = math.sqrt(float(n @ cov_level @ n) + tilt_var) / abs(float(n[2]))
             return (value, sigma, "ok")
         return (np.nan, np.nan, "no recent deck plane for the deck's normal and spin")

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
-from contextlib import contextmanager
-from typing import Iterator
 
 
 class StageTimes:
@@ -19,13 +17,9 @@ class StageTimes:
     def __init__(self) -> None:
         self.ms: dict[str, float] = defaultdict(float)
 
-    @contextmanager
-    def stage(self, name: str) -> Iterator[None]:
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.ms[name] += (time.perf_counter() - start) * 1e3
+    def stage(self, name: str) -> "_Stage":
+        """`with times.stage("deck.planes"): ...` adds the block's wall time to that stage."""
+        return _Stage(self.ms, name)
 
     def total(self, *names: str) -> float:
         """Sum of the named stages (all stages when no name is given)."""
@@ -35,3 +29,19 @@ class StageTimes:
     def merge(self, other: "StageTimes") -> None:
         for k, v in other.ms.items():
             self.ms[k] += v
+
+
+class _Stage:
+    """A plain context manager, not @contextmanager: a generator-based one costs a few
+    microseconds per use, which shows in stages that themselves take tens of microseconds."""
+
+    __slots__ = ("ms", "name", "start")
+
+    def __init__(self, ms: dict[str, float], name: str) -> None:
+        self.ms, self.name = ms, name
+
+    def __enter__(self) -> None:
+        self.start = time.perf_counter()
+
+    def __exit__(self, *exc) -> None:
+        self.ms[self.name] += (time.perf_counter() - self.start) * 1e3

@@ -112,6 +112,60 @@ def test_outlier_rejection_400_detections():
     assert np.all(np.abs(fit_h.velocity_sensor - u) < 0.015)
 
 
+TRIMMED = DopplerConfig(inlier_threshold_mps=0.25, start="trimmed")  # the pipeline's radar setting
+
+
+def _outlier_scan(seed: int, n: int = 500, p_bad: float = 0.05):
+    rng = np.random.default_rng(seed)
+    x, _ = deck_points(rng, n=n)
+    b = x / np.linalg.norm(x, axis=1, keepdims=True)
+    u = np.array([-0.8, 0.5, 1.5])
+    r_dot = b @ u + rng.normal(0, 0.05, n)
+    bad = rng.random(n) < p_bad
+    r_dot[bad] += rng.choice([-1.0, 1.0], bad.sum()) * rng.uniform(1.0, 5.0, bad.sum())
+    return x, b, u, r_dot, bad
+
+
+@pytest.mark.parametrize("prior", [None, "true", "wrong"])
+def test_trimmed_fit_equals_least_squares_on_its_inliers(prior):
+    """The trimmed start (normal equations from one table of per-detection sums) must give the
+    same u, residual RMS and covariance as plain least squares on the detections it keeps,
+    with no prior, a good prior (last scan's u) or a wrong one (it must fall back, not follow it)."""
+    x, b, u, r_dot, bad = _outlier_scan(21)
+    u_prior = {None: None, "true": u + 0.02, "wrong": u + np.array([3.0, -2.0, 4.0])}[prior]
+    fit = doppler_velocity(x * 3.0, r_dot, TRIMMED, np.random.default_rng(0), u_prior)  # unnormalised beams
+    assert fit is not None
+    assert fit.iterations == 0  # settled by trimming, no RANSAC hypotheses drawn
+    m = fit.inlier_mask
+    assert not (m & bad).any() and m[~bad].mean() > 0.99
+    bi, ri = b[m], r_dot[m]
+    u_ls = np.linalg.lstsq(bi, ri, rcond=None)[0]
+    np.testing.assert_allclose(fit.velocity_sensor, u_ls, atol=1e-10)
+    e = bi @ u_ls - ri
+    assert fit.residual_rms_mps == pytest.approx(math.sqrt(e @ e / len(e)), rel=1e-6)
+    np.testing.assert_allclose(fit.covariance, (e @ e) / (len(e) - 3) * np.linalg.inv(bi.T @ bi), rtol=1e-6)
+    assert fit.condition_number == pytest.approx(np.linalg.cond(bi), rel=2.0)  # a cheap bound, same scale
+
+
+def test_trimmed_fit_maps_its_mask_past_invalid_detections():
+    x, b, u, r_dot, bad = _outlier_scan(22, n=300)
+    r_dot[:7] = np.nan
+    x[7:10] = np.inf
+    fit = doppler_velocity(x, r_dot, TRIMMED, np.random.default_rng(0))
+    assert fit is not None and len(fit.inlier_mask) == 300
+    assert not fit.inlier_mask[:10].any()
+    assert not (fit.inlier_mask & bad).any() and fit.inlier_mask[10:][~bad[10:]].all()
+    assert np.all(np.abs(fit.velocity_sensor - u) < 0.03)
+
+
+def test_trimmed_start_hands_over_to_ransac_when_too_much_is_outlying():
+    """40 % gross outliers: fewer than trimmed_min_fraction stay in the band, so RANSAC decides."""
+    x, b, u, r_dot, bad = _outlier_scan(23, p_bad=0.4)
+    fit = doppler_velocity(b, r_dot, TRIMMED, np.random.default_rng(0))
+    assert fit is not None and fit.iterations > 0
+    assert abs((fit.velocity_sensor - u) @ DOWN) < 0.01
+
+
 def test_two_bodies_majority_wins():
     """35 % of the detections come from a second rigid body (e.g. the crane vessel's own deck):
     the fit locks onto the majority body (the feeder). NOTE: with a majority of detections on another
