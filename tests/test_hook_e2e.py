@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -54,7 +58,7 @@ def test_hook_recording_round_trips_encoders_and_truth(sim, tmp_path):
 
 def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
     out = tmp_path / "hook"
-    r = CliRunner().invoke(app, ["run", "-s", "hook-2", "--duration", "8", "--out", str(out)])
+    r = CliRunner().invoke(app, ["run", "-s", "hook-2", "--duration", "8", "--out", str(out), "--rerun"])
     assert r.exit_code == 0, r.output
     kpis = json.loads((out / "kpis.json").read_text())["hook"]
     for name in ("ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"):
@@ -64,5 +68,15 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
     assert {"precision", "recall", "found_fraction", "rmse_m"} <= set(seg)
     assert seg["precision"] > 0.95 and seg["found_fraction"] > 0.5
     assert max(kpis["ekf_flexible"]["rmse_pos_m"]) < 0.3  # a working chain; the targets are measured by the full runs
-    for name in ("hook_measurements.csv", "hook_estimates.csv", "hook_report.md", "hook_trajectory.png"):
+    for name in ("hook_measurements.csv", "hook_estimates.csv", "hook_report.md", "hook_trajectory.png", "boomtip.rrd"):
         assert (out / name).is_file()
+    # The recording holds the cloud, the segmented block, the rope line, the estimated and the
+    # true hook with their trails, and the errors (rerun's own reader lists its entities).
+    rerun_cli = Path(sys.executable).with_name("rerun")
+    if rerun_cli.exists():
+        listing = subprocess.run([str(rerun_cli), "rrd", "print", str(out / "boomtip.rrd")], capture_output=True,
+                                 text=True, timeout=120, env={**os.environ, "RERUN_ANALYTICS": "0"})
+        assert listing.returncode == 0, listing.stderr
+        for entity in ("/tip/cloud", "/tip/hook_points", "/tip/rope", "/tip/hook_estimate", "/tip/hook_estimate_trail",
+                       "/tip/hook_truth", "/tip/hook_truth_trail", "/hook/error_cm/x"):
+            assert entity in listing.stdout, entity

@@ -48,7 +48,7 @@ def detection_sigma_m(position_m: np.ndarray, n_points: int, lidar) -> float:
     return float(max(lidar.range_noise_m, 0.005, r * angular_spacing_rad(lidar) / np.sqrt(12 * max(n_points, 1))))
 
 
-def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progress=None) -> tuple[list[dict], HookMeasurements]:
+def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progress=None, logger=None) -> tuple[list[dict], HookMeasurements]:
     """Segment the hook in every LiDAR frame; return per-frame rows and the filter's streams."""
     cfg = cfg or HookConfig()
     s = source.meta.scenario
@@ -81,6 +81,8 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
             prior = last[1] if last is not None and t - last[0] <= 0.5 else np.array([0.0, 0.0, -hoist])
             rng = np.random.default_rng([s.seed, 7, frame.index])
             det = detect_hook(pts, prior, hoist, cfg, rng, times, sensor_position_m=R_tip @ T_ts[:3, 3])
+            if logger is not None:
+                logger.log_frame(t, pts, det, prior, cfg.prior_radius_m)
             row["status"] = det.status
             row["n_points"] = det.n_points
             row["fit_rms_m"] = det.fit_rms_m
@@ -109,7 +111,9 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
 
 def _errors(run: HookFilterRun, source: FrameSource, params) -> dict:
     truth = source.truth
-    keep = run.t >= WARMUP_S
+    # Runs shorter than the warm-up are scored over all their samples (and say so).
+    t_from = WARMUP_S if np.any(run.t >= WARMUP_S) else float(run.t[0])
+    keep = run.t >= t_from
     t = run.t[keep]
     _, _, p_hook, v_hook = world_hook_from_states(params, run.x[keep])
     ref_p = np.column_stack([truth.at(f"hook_{a}", t) for a in "xyz"])
@@ -120,16 +124,23 @@ def _errors(run: HookFilterRun, source: FrameSource, params) -> dict:
         "rmse_vel_mps": np.sqrt(np.mean(ev**2, axis=0)).tolist(),
         "max_pos_m": np.abs(ep).max(axis=0).tolist(),
         "max_vel_mps": np.abs(ev).max(axis=0).tolist(),
+        "evaluated_from_s": t_from,
         "runtime_fraction": run.realtime_fraction,
         "lidar_accepted": run.n_lidar_accepted,
         "lidar_rejected": run.n_lidar_rejected,
     }
 
 
-def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = ESTIMATORS, progress=None) -> dict:
+def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = ESTIMATORS, progress=None,
+                  rerun: bool = False) -> dict:
     s = source.meta.scenario
     params = crane_params(s)
-    rows, meas = hook_measurements(source, progress=progress)
+    logger = None
+    if rerun:
+        from tools.visualise import HookRerunLogger
+
+        logger = HookRerunLogger(out / "boomtip.rrd", source)
+    rows, meas = hook_measurements(source, progress=progress, logger=logger)
     _write_rows(out / "hook_measurements.csv", rows)
     runs: dict[str, HookFilterRun] = {}
     for name in estimators:
@@ -162,6 +173,17 @@ def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = 
     hook["segmentation"] = seg
     if source.truth is not None and runs:
         write_hook_report(out, s, hook, runs, source, params, rows)
+    if logger is not None:
+        if runs:
+            name = "ekf_flexible" if "ekf_flexible" in runs else next(iter(runs))
+            run = runs[name]
+            t_l = meas.t_lidar[(meas.t_lidar >= run.t[0]) & (meas.t_lidar <= run.t[-1])]
+            p_est = np.column_stack([np.interp(t_l, run.t, run.p_rel[:, k]) for k in range(3)])
+            p_true = None
+            if source.truth is not None:
+                p_true = np.column_stack([source.truth.at(f"hook_rel_{a}", t_l) for a in "xyz"])
+            logger.log_hook_tracks(t_l, p_est, p_true, name)
+        logger.close()
     return hook
 
 

@@ -83,12 +83,7 @@ def run_into(source, staging: Path, pipeline_cfg, fusion_cfg: FusionConfig, reru
     if s.hook.enabled:
         from tools.hook_runner import run_hook_into
 
-        if rerun:
-            from data.scenario import ScenarioError
-
-            raise ScenarioError(f"scenario '{s.name}' is a hook scenario: --rerun is not available for it yet; run without it")
-
-        hook = run_hook_into(source, staging, progress=progress)
+        hook = run_hook_into(source, staging, progress=progress, rerun=rerun)
         kpis = {"scenario": s.name, "seed": s.seed, "duration_s": s.duration_s, "hook": hook}
         write_json(staging / "kpis.json", kpis)
         return RunResult([], {}, kpis)
