@@ -781,7 +781,13 @@ def detect_hook(
     elif abs(float(np.linalg.norm(fit.t)) - hoist_length_m) > tol:
         status = f"reference point at {np.linalg.norm(fit.t):.1f} m from the tip, hoist length {hoist_length_m:.1f} m"
     if status != "ok":
-        return _fail(n_all, status, float(ext[k]), fit.rms, n_in, **bgm)
+        failed = _fail(n_all, status, float(ext[k]), fit.rms, n_in, **bgm)
+        if n_in < cfg.min_fit_points and fit.rms <= cfg.max_fit_rms_m and frac_in >= cfg.min_inlier_fraction:
+            # Too few points to fix the reference point, but the cluster did fit the block: its
+            # points are still the block's (segmentation), only the position is withheld.
+            failed.points_mask = mask
+            failed.n_points = int(np.count_nonzero(mask))
+        return failed
     return HookDetection(fit.t, mask, int(np.count_nonzero(mask)), fit.rms, status, float(ext[k]),
                          float(fit.yaw % math.pi), fit.R, sigma_across, **bgm)
 

@@ -109,11 +109,12 @@ def _print_kpis(kpis: dict) -> None:
         print(f"hook segmentation: found {100 * seg['found_fraction']:.1f} % of {seg['frames']} frames, "
               f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
               f"{seg['apt_ms']:.1f} ms/frame")
-        print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s}")
+        print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}")
         for name, k in h.items():
             if isinstance(k, dict) and "rmse_pos_m" in k:
                 f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
-                print(f"{name:14s} {f(k['rmse_pos_m']):>24s} {f(k['rmse_vel_mps']):>24s} {100 * k['runtime_fraction']:8.2f}%")
+                print(f"{name:14s} {f(k['rmse_pos_m']):>24s} {f(k['rmse_vel_mps']):>24s} {100 * k['runtime_fraction']:8.2f}% "
+                      f"{k.get('nees_pos_mean', float('nan')):9.2f}")
         return
     print("Raw measurements (before any filter):")
     print(measurement_table(kpis))
