@@ -1173,8 +1173,15 @@ def run_hook_filter(
     filt = HookFilter(kind, model, params, config)
     n = filt.n
     valid = np.all(np.isfinite(meas.lidar_p_rel_tip_world), 1)
-    k0 = int(np.argmax(valid))
-    t0 = float(meas.t_lidar[k0])
+    has_fix = bool(valid.any())
+    if has_fix:
+        k0 = int(np.argmax(valid))
+        t0 = float(meas.t_lidar[k0])
+    else:
+        # No LiDAR fix in the whole run (a block too far or hidden): start from the encoders with
+        # the hook hanging straight down at the hoist length and bridge everything by prediction.
+        k0 = -1
+        t0 = float(max(meas.t_encoders[0], meas.t_mru[0]))
     ie = max(0, int(np.searchsorted(meas.t_encoders, t0, "right")) - 1)
     im = max(0, int(np.searchsorted(meas.t_mru, t0, "right")) - 1)
     t_last = max(meas.t_lidar[-1], meas.t_encoders[-1], meas.t_mru[-1])
@@ -1204,8 +1211,9 @@ def run_hook_filter(
     enc_ok = np.isfinite(enc[:, 2]).tolist() if len(enc) else []
 
     tic = time.perf_counter()
-    filt.initialize_from_measurements(lid[k0], enc[ie], mru[im], t0)
-    lidar_ok[k0] = True
+    filt.initialize_from_measurements(lid[k0] if has_fix else np.array([0.0, 0.0, -float(enc[ie][2])]), enc[ie], mru[im], t0)
+    if has_fix:
+        lidar_ok[k0] = True
     kf = filt._kf
     j = 0
     n_ev = len(ev_t)

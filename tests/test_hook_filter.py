@@ -98,6 +98,22 @@ def test_dropout_bridged_and_wrong_detection_gated(truth):
     assert err[(run.t > 44.0) & (run.t < 46.0)].max() < 0.05
 
 
+def test_no_lidar_fix_at_all_runs_on_encoders_and_mru(truth):
+    """A block never found (too far, hidden): the filter starts from the encoders with the hook
+    hanging straight down and predicts from the crane and vessel motion alone; its covariance
+    says how little it knows (the errors stay inside a few of its own sigmas)."""
+    meas = measurements_from_truth(truth, seed=4, lidar_dropouts=[(-1.0, 100.0)])
+    assert not np.isfinite(meas.lidar_p_rel_tip_world).any()
+    run = run_hook_filter(meas, "ekf", "flexible")
+    assert run.n_lidar_accepted == 0 and run.t[0] < 0.05 and run.t[-1] > 59.0
+    idx = np.searchsorted(truth.t, run.t - 1e-9)
+    err = run.p_rel - truth.p_hook_rel_tip[idx]
+    assert np.all(np.isfinite(err))
+    assert np.abs(err[:, 2]).max() < 0.1  # the hoist encoder holds the height
+    sd = np.sqrt(np.einsum("nii->ni", run.cov_p))
+    assert np.mean(np.abs(err) < 3 * sd) > 0.95
+
+
 def test_ukf_matches_ekf(truth, ekf_run):
     meas = measurements_from_truth(truth, seed=7)
     run = run_hook_filter(meas, "ukf", "flexible", t_end=20.0)

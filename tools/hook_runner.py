@@ -157,8 +157,6 @@ def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = 
     runs: dict[str, HookFilterRun] = {}
     for name in estimators:
         kind, model = name.split("_")
-        if not np.any(np.all(np.isfinite(meas.lidar_p_rel_tip_world), axis=1)):
-            break  # no detection at all: nothing to start a filter from
         runs[name] = run_hook_filter(meas, kind, model, params.model_copy(update={"flexible": model == "flexible"}))
     _write_estimates(out / "hook_estimates.csv", runs, params)
     hook: dict = {"estimators_note": f"errors in the world frame, first {WARMUP_S:g} s excluded"}
