@@ -31,6 +31,15 @@ def _hex(c: str) -> list[int]:
     return [int(c[i : i + 2], 16) for i in (1, 3, 5)]
 
 
+def _start(rec, path: Path, blueprint, tip_radius_m: float) -> None:
+    """Save to `path` (before anything is logged) and set up the levelled boom-tip frame."""
+    import rerun as rr
+
+    rec.save(str(path), default_blueprint=blueprint)
+    rec.log("tip", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("tip/boom_tip", rr.Points3D([[0, 0, 0]], radii=tip_radius_m, colors=[[255, 255, 255]], labels=["boom tip"]), static=True)
+
+
 class RerunLogger:
     def __init__(self, path: Path, source: FrameSource) -> None:
         import rerun as rr
@@ -51,9 +60,7 @@ class RerunLogger:
             ),
             collapse_panels=True,
         )
-        self.rec.save(str(path), default_blueprint=blueprint)
-        self.rec.log("tip", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        self.rec.log("tip/boom_tip", rr.Points3D([[0, 0, 0]], radii=0.4, colors=[[255, 255, 255]], labels=["boom tip"]), static=True)
+        _start(self.rec, path, blueprint, tip_radius_m=0.4)
 
     def _to_tip(self, res: FrameResult, p_sensor: np.ndarray) -> np.ndarray:
         R = res.extras["R_level_sensor"]
@@ -145,9 +152,7 @@ class HookRerunLogger:
             ),
             collapse_panels=True,
         )
-        self.rec.save(str(path), default_blueprint=blueprint)
-        self.rec.log("tip", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        self.rec.log("tip/boom_tip", rr.Points3D([[0, 0, 0]], radii=0.3, colors=[[255, 255, 255]], labels=["boom tip"]), static=True)
+        _start(self.rec, path, blueprint, tip_radius_m=0.3)
 
     def log_frame(self, t_s: float, points_level: np.ndarray, det, prior: np.ndarray, gate_radius_m: float) -> None:
         """One LiDAR frame: points in the levelled tip frame, the detection (perception.hook)."""
