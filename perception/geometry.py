@@ -26,9 +26,14 @@ def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
     ])
 
 
+def mount_rotation(T_crane_boomtip: np.ndarray, T_boomtip_sensor: np.ndarray) -> np.ndarray:
+    """Sensor axes -> crane-vessel axes: fixed for a run, so callers may compute it once."""
+    return T_crane_boomtip[:3, :3] @ T_boomtip_sensor[:3, :3]
+
+
 def rotation_level_sensor(rpy_crane_rad: np.ndarray, T_crane_boomtip: np.ndarray, T_boomtip_sensor: np.ndarray) -> np.ndarray:
     """Sensor axes -> gravity-aligned axes, from the MRU attitude and the mount (eq. 4.3)."""
-    return rpy_matrix(rpy_crane_rad) @ (T_crane_boomtip[:3, :3] @ T_boomtip_sensor[:3, :3])
+    return rpy_matrix(rpy_crane_rad) @ mount_rotation(T_crane_boomtip, T_boomtip_sensor)
 
 
 def wire_dir_sensor(R_level_sensor: np.ndarray) -> np.ndarray:

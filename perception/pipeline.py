@@ -23,6 +23,7 @@ from perception.geometry import (
     NormalRate,
     heave_rate_document,
     heave_rate_exact,
+    mount_rotation,
     omega_from_euler_rates,
     rpy_matrix,
     tip_in_sensor,
@@ -97,7 +98,7 @@ class HeavePipeline:
             raise ValueError(f"unknown method(s) {sorted(unknown)}; expected some of {', '.join(METHODS)}")
         self.p_tip = {s: tip_in_sensor(meta.T_boomtip_sensor[s]) for s in ("lidar", "radar")}
         # The mount is fixed: sensor axes -> crane-vessel axes once, the MRU attitude per frame.
-        self.R_crane_sensor = {s: meta.T_crane_boomtip[:3, :3] @ meta.T_boomtip_sensor[s][:3, :3] for s in ("lidar", "radar")}
+        self.R_crane_sensor = {s: mount_rotation(meta.T_crane_boomtip, meta.T_boomtip_sensor[s]) for s in ("lidar", "radar")}
         self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
@@ -124,7 +125,7 @@ class HeavePipeline:
             att = self.mru.attitude(frame.t_s)
             if att is not None:
                 rpy, rpy_rate = att
-                R_ls = rpy_matrix(rpy) @ self.R_crane_sensor[frame.sensor]  # eq. 4.3, as geometry.rotation_level_sensor
+                R_ls = rpy_matrix(rpy) @ self.R_crane_sensor[frame.sensor]  # geometry.rotation_level_sensor, mount cached
                 wire = wire_dir_sensor(R_ls)
         if att is None:
             status = f"no MRU attitude at t={frame.t_s:.3f} s (outside the log or in a gap)"
