@@ -87,6 +87,7 @@ __all__ = [
     "HookMeasurements",
     "HookFilter",
     "HookFilterRun",
+    "HookTracker",
     "measurements_from_truth",
     "run_hook_filter",
     "truth_state_matrix",
@@ -1000,9 +1001,12 @@ class HookFilter:
         y, S, _ = self._lidar_terms(np.asarray(z, float), self._R_lidar if R is None else R)
         return y, S
 
-    def update_lidar(self, p_rel_tip_world, t: float | None = None, sigma_m: float | None = None) -> bool:
+    def update_lidar(self, p_rel_tip_world, t: float | None = None, sigma_m: float | None = None,
+                     cov_m2: np.ndarray | None = None) -> bool:
         """Correct with a LiDAR hook fix (world axes, relative to the boom tip).
 
+        ``sigma_m`` (isotropic) or ``cov_m2`` (3x3, e.g. a sparse fix: loose across the rope,
+        tighter along it) replaces the configured R for this fix.
         Returns False when the fix is gated out (or NaN: no detection).  After
         ``reacquire_after_rejections`` consecutive gated fixes the sway states are
         re-initialised from the fix (lost-and-found hook) and it is applied.
@@ -1012,8 +1016,13 @@ class HookFilter:
         z = np.asarray(p_rel_tip_world, float)
         if not np.all(np.isfinite(z)):
             return False
-        # A per-fix sigma (from the detection: range, point spacing, point count) replaces R.
-        R = self._R_lidar if sigma_m is None or not np.isfinite(sigma_m) else np.eye(3) * sigma_m**2
+        # A per-fix covariance (from the detection: range, point spacing, point count) replaces R.
+        if cov_m2 is not None and np.all(np.isfinite(cov_m2)):
+            R = np.asarray(cov_m2, float).reshape(3, 3)
+        elif sigma_m is not None and np.isfinite(sigma_m):
+            R = np.eye(3) * sigma_m**2
+        else:
+            R = self._R_lidar
         y, S, PHT = self._lidar_terms(z, R)
         kf = self._kf
         x_new, P_new, nis = _kalman_correction(kf.x, kf.P, PHT, S, y, True)
@@ -1078,6 +1087,7 @@ class HookMeasurements:
     t_mru: np.ndarray
     mru: np.ndarray  # (K, 4): roll, pitch, roll rate, pitch rate
     lidar_sigma_m: np.ndarray | None = None  # (K,) per-fix 1-sigma; None: the config's
+    lidar_cov_m2: np.ndarray | None = None  # (K, 3, 3) per-fix covariance; rows with NaN: lidar_sigma_m
 
 
 def _decimate(t: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -1205,6 +1215,7 @@ def run_hook_filter(
     lidar_ok = np.zeros(len(meas.t_lidar), bool)
     lid, enc, mru = meas.lidar_p_rel_tip_world, meas.encoders, meas.mru
     lid_sigma = meas.lidar_sigma_m
+    lid_cov = meas.lidar_cov_m2
     # MRU + encoders (slew, luff, hoist) as one linear update
     me_idx = np.array([IROLL, IPITCH, IROLL + 1, IPITCH + 1, INU, IMU, IL], np.intp)
     me_R = np.diag(np.concatenate([filt._R_mru, filt._R_enc]))
@@ -1232,7 +1243,8 @@ def run_hook_filter(
                 e = enc[i]
                 filt.update_encoders(e[0], e[1], e[2], t=te)
             else:
-                lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i])
+                lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i],
+                                                cov_m2=None if lid_cov is None else lid_cov[i])
             j += 1
         filt.advance_to(tk)
         x_out[k] = kf.x
@@ -1251,6 +1263,71 @@ def run_hook_filter(
         n_reacquired=filt.n_reacquired, lidar_accepted=lidar_ok, kind=kind, model=model,
         nis=np.array(filt.nis_history),
     )
+
+
+class HookTracker:
+    """The hook filter run online, frame by frame, so the detector gets the filter's prediction
+    (and its covariance) as its prior: the association of a far, sparse block's few points
+    needs to know where the block should be (document 002 runs its filter the same way).
+
+    >>> tr = HookTracker(t_enc, enc, t_mru, mru, params=params)
+    >>> p_pred, cov_pred = tr.predict(t)      # applies every encoder/MRU sample <= t first
+    >>> tr.correct(p_fix, cov_fix)            # a detection at t (gated like any LiDAR fix)
+
+    It starts at the first ``predict`` with the hook hanging straight down at the hoist length
+    and the filter's default initial covariance; detections then pull it in (a fix far outside
+    the gate re-initialises the sway after ``reacquire_after_rejections`` frames).
+    """
+
+    def __init__(self, t_encoders: np.ndarray, encoders: np.ndarray, t_mru: np.ndarray, mru: np.ndarray,
+                 kind: Literal["ekf", "ukf"] = "ekf", model: Literal["rigid", "flexible"] = "flexible",
+                 params: CraneParams | None = None, config: HookFilterConfig | None = None) -> None:
+        self.filter = HookFilter(kind, model, params, config)
+        self._enc = np.asarray(encoders, float).reshape(-1, 3)
+        self._mru = np.asarray(mru, float).reshape(-1, 4)
+        t_e, t_m = np.asarray(t_encoders, float), np.asarray(t_mru, float)
+        ev_t = np.concatenate([t_m, t_e])
+        ev_s = np.concatenate([np.zeros(len(t_m), int), np.ones(len(t_e), int)])
+        ev_i = np.concatenate([np.arange(len(t_m)), np.arange(len(t_e))])
+        order = np.lexsort((ev_s, ev_t))
+        self._ev = list(zip(ev_t[order].tolist(), ev_s[order].tolist(), ev_i[order].tolist()))
+        self._t_enc, self._t_mru = t_e, t_m
+        self._j = 0
+
+    @property
+    def started(self) -> bool:
+        return self.filter.initialized
+
+    def _start(self, t: float) -> None:
+        ie = max(0, int(np.searchsorted(self._t_enc, t, "right")) - 1)
+        im = max(0, int(np.searchsorted(self._t_mru, t, "right")) - 1)
+        e = self._enc[ie]
+        self.filter.initialize_from_measurements(np.array([0.0, 0.0, -float(e[2])]), e, self._mru[im], t)
+        while self._j < len(self._ev) and self._ev[self._j][0] <= t + 1e-9:
+            self._j += 1
+
+    def predict(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Hook position relative to the tip (world axes) and its 3x3 covariance at time t."""
+        f = self.filter
+        if not f.initialized:
+            self._start(t)
+        ev, enc, mru = self._ev, self._enc, self._mru
+        while self._j < len(ev) and ev[self._j][0] <= t + 1e-9:
+            te, s, i = ev[self._j]
+            if s == 0:
+                r = mru[i]
+                f.update_mru(r[0], r[1], r[2], r[3], t=te)
+            elif np.isfinite(enc[i, 2]):
+                e = enc[i]
+                f.update_encoders(e[0], e[1], e[2], t=te)
+            self._j += 1
+        f.advance_to(t)
+        p, _, cov_p, _ = f.hook_position_velocity_covariance()
+        return p, cov_p
+
+    def correct(self, p_rel_tip_world: np.ndarray, cov_m2: np.ndarray) -> bool:
+        """Apply a detection at the time of the last :meth:`predict`; False if gated out."""
+        return self.filter.update_lidar(p_rel_tip_world, cov_m2=cov_m2)
 
 
 # --------------------------------------------------------------------------------------

@@ -70,6 +70,8 @@ __all__ = [
     "HookDetection",
     "detect_hook",
     "segmentation_scores",
+    "sparse_block_fix",
+    "block_footprint",
     "block_model",
     "rotation_hanging",
 ]
@@ -164,7 +166,13 @@ class HookConfig(BaseModel):
     ray_starts: int = Field(4, ge=1, description="best coarse poses refined locally")
     ray_clip_m: float = Field(0.08, gt=0, description="residual clip: cost of a hit/miss contradiction")
     ray_occlusion_m: float = Field(0.15, gt=0, description="a non-block point this far in front: occlusion")
-    ray_sigma_m: float = Field(0.03, gt=0, description="range noise for the posterior-mean weights")
+    ray_sigma_m: float = Field(0.03, gt=0, description="range noise for the posterior-mean weights (near)")
+    ray_sigma_per_m: float = Field(
+        4e-4, ge=0, description="far blocks: range noise = max(ray_sigma_m, this * range) up to ray_sigma_max_m; a "
+        "weak return is noisier, and the block's return weakens as 1/range^2 (OS1 class: ~1.5 cm at 30 m, ~4.5 cm "
+        "at 115 m)"
+    )
+    ray_sigma_max_m: float = Field(0.06, gt=0)
     min_fit_points: int = Field(
         6, ge=4, description="fewer block points: no fix (4 unknowns; with 3-5 points of a far block the error "
         "reached 35 cm in simulation)"
@@ -175,6 +183,33 @@ class HookConfig(BaseModel):
     length_tolerance_m: float = Field(2.0, ge=0, description="|reference - tip| must match the hoist length within "
                                       "max(this, length_tolerance_fraction * l)")
     length_tolerance_fraction: float = Field(0.03, ge=0)
+
+    # --- 5. sparse fix (a far block: too few points for the model fit) ---------------------------
+    sparse: bool = Field(
+        True, description="when the model fit fails and a filter prediction with its covariance is given, take "
+        "the non-background points inside the predicted block volume as the block and return a loose fix from "
+        "them (status 'sparse')"
+    )
+    sparse_max_prior_sigma_m: float = Field(
+        2.5, gt=0, description="no sparse association when the prediction is less certain than this across the rope"
+    )
+    prior_pick_sigma_m: float = Field(
+        0.1, gt=0, description="a fix's scatter within one of the block's near-symmetric copies, added to the "
+        "prediction's covariance when the prediction helps pick the copy"
+    )
+    sparse_max_expected_points: float = Field(
+        12.0, gt=0, description="sparse fixes only for a far block: one the LiDAR puts at most this many points on "
+        "(footprint area / beam spacing^2; OS1-128 at 1024 columns: beyond ~80 m)"
+    )
+    sparse_rope_plane_m: float = Field(
+        0.15, gt=0, description="points this close to the plane through the sensor and the rope: in the rope's "
+        "shadow line (see sparse_block_fix)"
+    )
+    sparse_gate_sigmas: float = Field(3.0, gt=0, description="predicted block volume grown by this many sigmas")
+    sparse_max_points_factor: float = Field(
+        2.0, gt=0, description="more candidates than factor * expected + 3 (footprint area / beam spacing^2): "
+        "something else is there, no sparse fix"
+    )
 
 
 @dataclass
@@ -192,10 +227,17 @@ class HookDetection:
     sigma_across_m: float = float("nan")  # posterior std across the rope from the ray refinement (larger axis)
     plane_mask: np.ndarray | None = None  # (N,) points removed as deck / large cargo-top planes
     rope_mask: np.ndarray | None = None  # (N,) points removed as rope
+    cov_m2: np.ndarray | None = None  # (3, 3) covariance of a sparse fix (None: the caller's sigma model)
 
     @property
     def ok(self) -> bool:
+        """A model fit: the reference point from the block's shape."""
         return self.status == "ok"
+
+    @property
+    def has_fix(self) -> bool:
+        """A position, from the model fit or (status 'sparse') from a few points the prediction associated."""
+        return self.status in ("ok", "sparse")
 
 
 # --------------------------------------------------------------------------------------
@@ -254,6 +296,37 @@ class BlockModel:
 def block_model(height_m: float = 4.0, n: int = 6000) -> BlockModel:
     """The known block's visible-surface model and indices (cached: ~0.5 s to build once)."""
     return BlockModel(height_m, n)
+
+
+@dataclass(frozen=True)
+class BlockFootprint:
+    """Where beams from above land on the block (block frame, metres): what one LiDAR point on a
+    far block tells about the reference point when the point's place on the block is unknown."""
+
+    mean_m: np.ndarray  # (3,) mean hit relative to the reference point (x, y ~ 0 by symmetry)
+    var_long_m2: float  # hit variance along the block's long axis (the worse one: yaw unknown)
+    var_vertical_m2: float  # hit height variance (sheave crowns to body top)
+    area_m2: float  # footprint area seen from above
+    reach_m: float  # farthest hit from the rope axis
+
+
+@functools.lru_cache(maxsize=8)
+def block_footprint(height_m: float = 4.0, cell_m: float = 0.01) -> BlockFootprint:
+    """Cast a fine vertical grid of rays down on the known block mesh (once, cached)."""
+    model = block_model(height_m)
+    half = np.abs(model.points[:, :2]).max(axis=0) + 0.1
+    # symmetric about the rope, cell centres off the mesh's edges (which sit on round numbers)
+    ax = [(np.arange(2 * int(h / cell_m)) - int(h / cell_m) + 0.5) * cell_m for h in half]
+    gx, gy = np.meshgrid(*ax, indexing="ij")
+    n = gx.size
+    rays = np.zeros((n, 6), np.float32)
+    rays[:, 0], rays[:, 1], rays[:, 2], rays[:, 5] = gx.ravel(), gy.ravel(), 2.0, -1.0
+    t = model.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    hit = np.isfinite(t)
+    q = np.column_stack([rays[hit, 0], rays[hit, 1], 2.0 - t[hit]]).astype(np.float64)
+    var = q.var(axis=0)
+    return BlockFootprint(q.mean(axis=0), float(var[:2].max()), float(var[2]), float(hit.sum() * cell_m**2),
+                          float(np.sqrt(np.einsum("ij,ij->i", q[:, :2], q[:, :2])).max()))
 
 
 def rotation_hanging(u: np.ndarray) -> np.ndarray:
@@ -586,20 +659,41 @@ def _ray_evidence(pts: np.ndarray, blk_mask: np.ndarray, t0: np.ndarray, yaw0: f
     return _Rays(s, v[idx] / r[idx, None], r[idx], blk)
 
 
-def _ray_pick(rays: _Rays, t: np.ndarray, yaw: float, model: BlockModel, cfg: HookConfig) -> tuple[np.ndarray, float]:
+def _ray_sigma(cfg: HookConfig, t: np.ndarray) -> float:
+    """Range noise of the block's returns at the block's range (see ``ray_sigma_per_m``)."""
+    r = float(np.linalg.norm(t))
+    return max(cfg.ray_sigma_m, min(cfg.ray_sigma_per_m * r, cfg.ray_sigma_max_m))
+
+
+def _prior_nats(refs: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """-log N(ref; prior) up to a constant for each row of refs (0 without a prior)."""
+    if prior is None:
+        return np.zeros(len(refs))
+    d = refs - prior[0]
+    return 0.5 * np.einsum("ij,ij->i", d, np.linalg.solve(prior[1], d.T).T)
+
+
+def _ray_pick(rays: _Rays, t: np.ndarray, yaw: float, model: BlockModel, cfg: HookConfig,
+              prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, float]:
     """Of the fitted pose and its near-symmetric copies (AMBIGUOUS_SHIFTS_M, one sheave pitch along
     the axle: a partly hidden block can be fitted one pitch off, with the same point-to-model RMS),
-    the one the rays agree with best: the wrong copy puts the block on rays that went past it."""
+    the one the rays agree with best: the wrong copy puts the block on rays that went past it.
+    With a sparse block the rays often cannot tell (on hook-2 at 115 m one fix in four was a pitch
+    off); a filter prediction ``prior`` = (mean, covariance) then joins the choice: the copy with
+    the least ray cost / (2 ray_sigma^2) + Mahalanobis^2 / 2. The prior only picks the copy; the
+    fix itself comes from the rays and points (no double counting in the filter)."""
     R = _pose(t, yaw)
     cands = [t] + [t + R @ np.asarray(sh) for sh in AMBIGUOUS_SHIFTS_M]
     costs = [_ray_costs(model, c, yaw, np.zeros((1, 2)), np.zeros(1), rays.s, rays.d, rays.r, rays.blk, cfg)
              for c in cands]
-    k = int(np.argmin([c[0][0] for c in costs]))
-    return (t, yaw) if k == 0 else (costs[k][1][0], yaw)
+    refs = np.array([c[1][0] for c in costs])
+    nats = np.array([c[0][0] for c in costs]) / (2 * _ray_sigma(cfg, t) ** 2) + _prior_nats(refs, prior)
+    k = int(np.argmin(nats))
+    return (t, yaw) if k == 0 else (refs[k], yaw)
 
 
 def _ray_refine(rays: _Rays, t0: np.ndarray, yaw0: float, half1: float, model: BlockModel,
-                cfg: HookConfig) -> tuple[np.ndarray, float, float]:
+                cfg: HookConfig, prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, float, float]:
     """Refine the pose by ray consistency; returns the posterior mean (reference point, yaw) and
     the posterior standard deviation across the rope (m, the larger axis).
 
@@ -611,11 +705,12 @@ def _ray_refine(rays: _Rays, t0: np.ndarray, yaw0: float, half1: float, model: B
          yaw +- what that spacing means at the block's ends;
       2. the cost is rough (hits and misses flip in steps of a few cm and ~1 deg), so the coarse
          minimum need not hold the best basin: the ray_starts best coarse poses are refined on a
-         local grid, the best kept;
+         local grid, the best kept (with a filter prediction ``prior``, by ray cost plus prior
+         Mahalanobis distance, as in :func:`_ray_pick`: the coarse grid spans a sheave pitch);
       3. a fine grid around it: the estimate is its posterior mean, weights exp(-cost / 2 sigma^2),
          the centre of the poses the rays cannot tell apart rather than an arbitrary one of them.
     """
-    inv2s2 = 1.0 / (2 * cfg.ray_sigma_m**2)
+    inv2s2 = 1.0 / (2 * _ray_sigma(cfg, t0) ** 2)
 
     def grid(t_c, yaw_c, half, n, yaw_half, n_yaw):
         g = np.linspace(-half, half, n)
@@ -629,11 +724,12 @@ def _ray_refine(rays: _Rays, t0: np.ndarray, yaw0: float, half1: float, model: B
     cost, refs, yaws = grid(t0, yaw0, half1, n1, yaw1, ny1)
     step1, ystep1 = 2 * half1 / (n1 - 1), 2 * yaw1 / max(ny1 - 1, 1)
     best = (np.inf, t0, yaw0)
-    for k in np.argsort(cost)[: cfg.ray_starts]:
+    for k in np.argsort(cost * inv2s2 + _prior_nats(refs, prior))[: cfg.ray_starts]:
         c2, r2, y2 = grid(refs[k], float(yaws[k]), step1, n2, ystep1, ny2)
         j = int(np.argmin(c2))
-        if c2[j] < best[0]:
-            best = (float(c2[j]), r2[j], float(y2[j]))
+        score = float(c2[j]) * inv2s2 + float(_prior_nats(r2[j:j + 1], prior)[0])
+        if score < best[0]:
+            best = (score, r2[j], float(y2[j]))
     step2, ystep2 = 2 * step1 / (n2 - 1), 2 * ystep1 / max(ny2 - 1, 1)
     cost, refs, yaws = grid(best[1], best[2], 1.5 * step2, n3, 1.5 * ystep2, ny3)
     w = np.exp(-(cost - cost.min()) * inv2s2)
@@ -662,6 +758,7 @@ def detect_hook(
     times: StageTimes | None = None,
     *,
     sensor_position_m: np.ndarray | None = None,
+    prior_cov_m2: np.ndarray | None = None,
 ) -> HookDetection:
     """Segment the lower block in one LiDAR frame and estimate its reference point.
 
@@ -673,12 +770,121 @@ def detect_hook(
     sensor_position_m: (3,) the LiDAR's origin in the same frame (the mount offset from the tip),
         for the ray-consistency refinement; default the tip itself (about 1 cm worse at 60 m for a
         1 m offset).
+    prior_cov_m2: (3, 3) covariance of p_prior when it is a filter prediction. With it, a frame
+        whose block is too sparse for the model fit (a far block: 1-5 points) still gives its
+        points and a loose fix, status "sparse" (:func:`sparse_block_fix`).
     Returns a :class:`HookDetection`; on failure position_m is NaN and status gives the reason.
     """
     cfg = cfg or HookConfig()
-    rng = rng if rng is not None else np.random.default_rng()
     times = times if times is not None else StageTimes()
     pts = np.asarray(points_level, dtype=np.float64).reshape(-1, 3)
+    # The prediction resolves the block's near-symmetric copies (a sheave pitch apart); its
+    # covariance is widened by the fix's own scatter within one copy.
+    prior = None
+    if prior_cov_m2 is not None:
+        prior = (np.asarray(p_prior, float), np.asarray(prior_cov_m2, float) + cfg.prior_pick_sigma_m**2 * np.eye(3))
+    det = _detect_by_model_fit(pts, p_prior, hoist_length_m, cfg, rng, times, sensor_position_m, prior)
+    if det.ok or not cfg.sparse or prior_cov_m2 is None:
+        return det
+    with times.stage("hook.sparse"):
+        background = np.zeros(len(pts), dtype=bool)
+        for m in (det.plane_mask, det.rope_mask):
+            if m is not None:
+                background |= m
+        sparse = sparse_block_fix(pts, background, np.asarray(p_prior, float), np.asarray(prior_cov_m2, float),
+                                  hoist_length_m, cfg, sensor_position_m)
+    if isinstance(sparse, str):
+        det.status = f"{det.status}; no sparse fix: {sparse}"
+        return det
+    sparse.plane_mask, sparse.rope_mask = det.plane_mask, det.rope_mask
+    return sparse
+
+
+def sparse_block_fix(
+    points_level: np.ndarray,
+    background: np.ndarray,
+    p_prior: np.ndarray,
+    prior_cov_m2: np.ndarray,
+    hoist_length_m: float,
+    cfg: HookConfig,
+    sensor_position_m: np.ndarray | None = None,
+) -> HookDetection | str:
+    """A loose fix from the few points a far block gets, associated by the filter's prediction.
+
+    The block's points are the non-background points inside the predicted block volume (a
+    cylinder about the rope direction: footprint reach + k sigma across, block height + k sigma
+    along). Each is a beam that landed somewhere on the block's top: the reference point is
+    their mean minus the footprint's mean hit (:func:`block_footprint`). Its covariance, in the
+    block frame: across the rope, the mean of grid samples on a footprint of width W is off by
+    at most half a beam spacing s, and by W / sqrt(12) when one beam hits: min(W^2, s^2) / 12 per
+    axis (W the long axis: yaw is unknown); along the rope, the hit heights (sheave crowns or
+    body top) vary independently: var_z / n. Plus the range noise. The fix does not use the
+    prior's value, only its direction (the block hangs along it) and the association volume.
+
+    The rope's shadow: the LiDAR sits beside the rope, so the beams in the plane through the
+    sensor and the rope cross the rope before they reach the block's far half, which they never
+    hit. When every point lies within ``sparse_rope_plane_m`` of that plane (one scan line
+    along it: the usual case with 1-3 points), the hits sample only the near half and their
+    mean is off by a quarter of the block (~0.3 m, measured on hook-2). Such frames keep their
+    segmentation but give no fix (status "segmented: ...").
+    Returns the detection, or a reason string.
+    """
+    fp = block_footprint(cfg.block_height_m)
+    P = np.asarray(prior_cov_m2, float).reshape(3, 3)
+    sig_across = math.sqrt(max(float(np.linalg.eigvalsh(P[:2, :2])[-1]), 0.0))
+    if sig_across > cfg.sparse_max_prior_sigma_m:
+        return f"prediction too uncertain ({sig_across:.1f} m across the rope)"
+    sig_along = math.sqrt(max(float(P[2, 2]), 0.0))
+    range_m = max(float(np.linalg.norm(p_prior)), 1.0)
+    step_m = cfg.lidar_angular_step_rad * range_m
+    R = rotation_hanging(p_prior / range_m)  # block frame -> level frame
+    q = (points_level - p_prior) @ R  # block frame, origin at the predicted reference point
+    k = cfg.sparse_gate_sigmas
+    radius = min(fp.reach_m + k * sig_across + 0.5 * step_m, cfg.prior_radius_m)
+    z_hi, z_lo = 0.3 + k * sig_along, -cfg.block_height_m - 0.3 - k * sig_along
+    cand = ((~background) & (points_level[:, 2] < -cfg.below_tip_m)
+            & (np.einsum("ij,ij->i", q[:, :2], q[:, :2]) < radius**2) & (q[:, 2] < z_hi) & (q[:, 2] > z_lo))
+    n = int(np.count_nonzero(cand))
+    if n == 0:
+        return "no points in the predicted block volume"
+    n_expected = fp.area_m2 / step_m**2
+    if n_expected > cfg.sparse_max_expected_points:
+        # A near block that gives too few points is hidden or not there; its few points would
+        # be a biased sample (and clutter of block size looks the same): no sparse fix.
+        return f"a block at {range_m:.0f} m gives ~{n_expected:.0f} points: too near for a sparse fix"
+    n_max = cfg.sparse_max_points_factor * n_expected + 3
+    if n > n_max:
+        return f"{n} points in the predicted block volume, a far block gives at most {n_max:.0f}"
+    pc = points_level[cand]
+    qc = q[cand]
+    extent = float(np.ptp(qc[:, :2], axis=0).max()) if n > 1 else 0.0
+    if extent > 2 * fp.reach_m + step_m:
+        return f"points in the predicted block volume spread over {extent:.1f} m: not one block"
+    mask = np.zeros(len(points_level), dtype=bool)
+    mask[cand] = True
+    s_pos = np.zeros(3) if sensor_position_m is None else np.asarray(sensor_position_m, float)
+    normal = np.cross(s_pos, p_prior)  # the plane through the rope (tip -> block) and the sensor
+    nn = float(np.linalg.norm(normal))
+    if nn > 1e-9 and np.all(np.abs(pc @ (normal / nn)) < cfg.sparse_rope_plane_m):
+        return HookDetection(np.full(3, np.nan), mask, n, float("nan"),
+                             f"segmented: {n} points along the rope's shadow plane, no fix", extent)
+    position = pc.mean(axis=0) - R @ fp.mean_m
+    tol = max(cfg.length_tolerance_m, cfg.length_tolerance_fraction * hoist_length_m)
+    if abs(float(np.linalg.norm(position)) - hoist_length_m) > tol:
+        return f"sparse fix at {np.linalg.norm(position):.1f} m from the tip, hoist length {hoist_length_m:.1f} m"
+    noise2 = _ray_sigma(cfg, p_prior) ** 2
+    var_across = min(12.0 * fp.var_long_m2, step_m**2) / 12.0 + noise2
+    var_along = fp.var_vertical_m2 + noise2  # not / n: the hits of one scan line share a surface
+    cov = R @ np.diag([var_across, var_across, var_along]) @ R.T
+    return HookDetection(position, mask, n, float("nan"), "sparse", extent, cov_m2=cov)
+
+
+def _detect_by_model_fit(pts: np.ndarray, p_prior: np.ndarray, hoist_length_m: float, cfg: HookConfig,
+                         rng: np.random.Generator | None, times: StageTimes,
+                         sensor_position_m: np.ndarray | None,
+                         pick_prior: tuple[np.ndarray, np.ndarray] | None = None) -> HookDetection:
+    """Steps 1-4 of the module docstring (gate, background, clusters, model fit)."""
+    rng = rng if rng is not None else np.random.default_rng()
     n_all = len(pts)
     prior = np.asarray(p_prior, dtype=np.float64).reshape(3)
     range_m = max(float(np.linalg.norm(prior)), 1.0)
@@ -760,12 +966,12 @@ def detect_hook(
             half1 = float(np.clip(cfg.ray_window_steps * step_m, cfg.ray_window_min_m, cfg.ray_window_max_m))
             reach = max(half1, float(np.abs(np.asarray(AMBIGUOUS_SHIFTS_M)).max()))  # window or a shift
             rays = _ray_evidence(pts, blk, t, yaw, s, reach, model, cfg, rng)
-            t1, yaw1 = _ray_pick(rays, t, yaw, model, cfg)
+            t1, yaw1 = _ray_pick(rays, t, yaw, model, cfg, pick_prior)
             if t1 is not t:  # the rays chose a shifted copy: polish it with the ICP
                 t, yaw = _icp_4dof(pn[sc.inliers], t1, yaw1, model, cfg, 0)
                 sc = _score(pn, t, yaw, model, cfg)
             if n_model <= cfg.ray_refine_max_points:
-                t, yaw, sigma_across = _ray_refine(rays, t, yaw, half1, model, cfg)
+                t, yaw, sigma_across = _ray_refine(rays, t, yaw, half1, model, cfg, pick_prior)
             sc = _score(pn, t, yaw, model, cfg)
         fit = sc
         on_block = model.mesh_distance((pn - fit.t) @ fit.R) < cfg.mask_distance_m

@@ -106,7 +106,8 @@ def _print_kpis(kpis: dict) -> None:
     if "hook" in kpis:
         h = kpis["hook"]
         seg = h["segmentation"]
-        print(f"hook segmentation: found {100 * seg['found_fraction']:.1f} % of {seg['frames']} frames, "
+        print(f"hook segmentation: model fit in {100 * seg['found_fraction']:.1f} % and sparse fix in "
+              f"{100 * seg.get('sparse_fraction', 0.0):.1f} % of {seg['frames']} frames, "
               f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
               f"{seg['apt_ms']:.1f} ms/frame")
         print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}")
