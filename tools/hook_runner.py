@@ -96,11 +96,11 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
                 pts = frame.points_sensor @ (R_tip @ T_ts[:3, :3]).T + R_tip @ T_ts[:3, 3]
             with times.stage("hook.track"):
                 p_pred, cov_pred = tracker.predict(t)
-            # Prior: the tracker's prediction when its gate (3 sigma across the rope) fits the
-            # detector's; else the last detection when recent (the hook moves < 1 m in 0.5 s),
-            # else straight below the tip at the hoist length.
+            # Prior: the tracker's prediction when it is certain enough to associate a sparse
+            # block; else the last detection when recent (the hook moves < 1 m in 0.5 s), else
+            # straight below the tip at the hoist length.
             sig_across = float(np.sqrt(max(np.linalg.eigvalsh(cov_pred[:2, :2])[-1], 0.0)))
-            tracked = bool(np.all(np.isfinite(p_pred)) and 3.0 * sig_across <= cfg.prior_radius_m)
+            tracked = bool(np.all(np.isfinite(p_pred)) and sig_across <= cfg.sparse_max_prior_sigma_m)
             row["pred_x"], row["pred_y"], row["pred_z"] = p_pred
             row["pred_sigma_across_m"] = sig_across
             if tracked:
