@@ -1151,6 +1151,18 @@ class HookFilterRun:
     nis: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
+def _merged_events(stamps: Sequence[np.ndarray], t_after: float, t_until: float) -> tuple[list, list, list]:
+    """One time-ordered event list over several sensors' time stamps, in (t_after, t_until]:
+    (times, sensor = position in ``stamps``, sample index). Equal times keep the sensor order
+    (MRU, encoders, LiDAR), so the linear updates come before a LiDAR fix at the same stamp."""
+    ev_t = np.concatenate([np.asarray(t, float) for t in stamps])
+    ev_s = np.concatenate([np.full(len(t), k) for k, t in enumerate(stamps)])
+    ev_i = np.concatenate([np.arange(len(t)) for t in stamps])
+    keep = (ev_t > t_after + 1e-9) & (ev_t <= t_until + 1e-9)
+    order = np.lexsort((ev_s[keep], ev_t[keep]))
+    return ev_t[keep][order].tolist(), ev_s[keep][order].tolist(), ev_i[keep][order].tolist()
+
+
 def run_hook_filter(
     data: CraneTruth | HookMeasurements,
     kind: Literal["ekf", "ukf"] = "ekf",
@@ -1198,14 +1210,7 @@ def run_hook_filter(
     t_end = float(t_last if t_end is None else min(t_end, t_last))
 
     # merged event list: (time, priority, sensor, index); MRU, encoders, LiDAR at equal times
-    ev_t = np.concatenate([meas.t_mru, meas.t_encoders, meas.t_lidar])
-    ev_s = np.concatenate([np.zeros(len(meas.t_mru), int), np.ones(len(meas.t_encoders), int),
-                           np.full(len(meas.t_lidar), 2)])
-    ev_i = np.concatenate([np.arange(len(meas.t_mru)), np.arange(len(meas.t_encoders)),
-                           np.arange(len(meas.t_lidar))])
-    keep = (ev_t > t0 + 1e-9) & (ev_t <= t_end + 1e-9)
-    order = np.lexsort((ev_s[keep], ev_t[keep]))
-    ev_t, ev_s, ev_i = ev_t[keep][order].tolist(), ev_s[keep][order].tolist(), ev_i[keep][order].tolist()
+    ev_t, ev_s, ev_i = _merged_events((meas.t_mru, meas.t_encoders, meas.t_lidar), t0, t_end)
     n_out = int(math.floor((t_end - t0) * output_rate_hz + 1e-6)) + 1
     t_out = t0 + np.arange(n_out) / output_rate_hz
     x_out = np.empty((n_out, n))
@@ -1286,11 +1291,7 @@ class HookTracker:
         self._enc = np.asarray(encoders, float).reshape(-1, 3)
         self._mru = np.asarray(mru, float).reshape(-1, 4)
         t_e, t_m = np.asarray(t_encoders, float), np.asarray(t_mru, float)
-        ev_t = np.concatenate([t_m, t_e])
-        ev_s = np.concatenate([np.zeros(len(t_m), int), np.ones(len(t_e), int)])
-        ev_i = np.concatenate([np.arange(len(t_m)), np.arange(len(t_e))])
-        order = np.lexsort((ev_s, ev_t))
-        self._ev = list(zip(ev_t[order].tolist(), ev_s[order].tolist(), ev_i[order].tolist()))
+        self._ev = list(zip(*_merged_events((t_m, t_e), -math.inf, math.inf)))
         self._t_enc, self._t_mru = t_e, t_m
         self._j = 0
 
