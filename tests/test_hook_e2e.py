@@ -68,6 +68,9 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
     assert {"precision", "recall", "found_fraction", "rmse_m"} <= set(seg)
     assert seg["precision"] > 0.95 and seg["found_fraction"] > 0.5
     assert max(kpis["ekf_flexible"]["rmse_pos_m"]) < 0.3  # a working chain; the targets are measured by the full runs
+    rope = kpis["rope"]
+    assert rope["found_fraction"] > 0.95 and rope["precision"] > 0.99
+    assert rope["rmse_angle_mrad"] < 0.5 and max(rope["rmse_at_hook_m"]) < 0.05
     for name in ("hook_measurements.csv", "hook_estimates.csv", "hook_report.md", "hook_trajectory.png", "boomtip.rrd"):
         assert (out / name).is_file()
     # The recording holds the cloud, the segmented block, the rope line, the estimated and the
@@ -77,6 +80,6 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
         listing = subprocess.run([str(rerun_cli), "rrd", "print", str(out / "boomtip.rrd")], capture_output=True,
                                  text=True, timeout=120, env={**os.environ, "RERUN_ANALYTICS": "0"})
         assert listing.returncode == 0, listing.stderr
-        for entity in ("/tip/cloud", "/tip/hook_points", "/tip/rope", "/tip/hook_estimate", "/tip/hook_estimate_trail",
+        for entity in ("/tip/cloud", "/tip/hook_points", "/tip/rope", "/tip/rope_fit/axis", "/tip/hook_estimate", "/tip/hook_estimate_trail",
                        "/tip/hook_truth", "/tip/hook_truth_trail", "/hook/error_cm/x"):
             assert entity in listing.stdout, entity

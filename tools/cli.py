@@ -110,6 +110,10 @@ def _print_kpis(kpis: dict) -> None:
               f"{100 * seg.get('sparse_fraction', 0.0):.1f} % of {seg['frames']} frames, "
               f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
               f"{seg['apt_ms']:.1f} ms/frame")
+        if "rope" in h:
+            from tools.hook_runner import rope_summary
+
+            print(rope_summary(h["rope"]))
         print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}")
         for name, k in h.items():
             if isinstance(k, dict) and "rmse_pos_m" in k:

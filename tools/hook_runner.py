@@ -1,15 +1,16 @@
 """Hook localisation over a frame source (document 002's chain, on ray-cast clouds).
 
-Per LiDAR frame: level the cloud into the boom tip's world-axes frame with the MRU
-attitude and the slew encoder, segment the lower block and fit its model (perception/hook),
-then run the multi-rate EKF/UKF (fusion/hook_filter) on the detections, the encoders and the
-MRU. Outputs in OUT: hook_measurements.csv, hook_estimates.csv, the `hook` section of
+Per LiDAR frame: level the cloud into the boom tip's world-axes frame with the tracking
+filter's attitude (MRU and encoders filtered), fit the rope's direction (perception/rope),
+segment the lower block and fit its model (perception/hook), then run the multi-rate EKF/UKF
+(fusion/hook_filter) on the rope directions, the block fixes, the encoders and the MRU. Outputs in OUT: hook_measurements.csv, hook_estimates.csv, the `hook` section of
 kpis.json, and hook_report.md with document 002's Tables 6.1/6.4 layout and plots.
 """
 
 from __future__ import annotations
 
 import io
+import math
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +18,11 @@ import numpy as np
 from data.frames import FrameSource
 from data.hook_world import crane_params, rot_z
 from data.pcd import atomic_write_bytes
+from data.scene import Label
 from fusion.hook_filter import HookFilterRun, HookMeasurements, HookTracker, run_hook_filter, world_hook_from_states
 from perception.geometry import rpy_matrix
 from perception.hook import HookConfig, detect_hook, segmentation_scores
+from perception.rope import RopeConfig, RopeFix, fit_rope
 from perception.timing import StageTimes
 
 WARMUP_S = 5.0
@@ -53,15 +56,24 @@ def detection_sigma_m(position_m: np.ndarray, n_points: int, lidar) -> float:
     return float(max(lidar.range_noise_m, 0.005, r * angular_spacing_rad(lidar) / np.sqrt(24.0)))
 
 
-def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progress=None, logger=None) -> tuple[list[dict], HookMeasurements]:
+def _sigma_across(cov_m2: np.ndarray) -> float:
+    """Largest horizontal 1-sigma of a hook position covariance (m): across the rope."""
+    return float(np.sqrt(max(np.linalg.eigvalsh(cov_m2[:2, :2])[-1], 0.0)))
+
+
+def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progress=None, logger=None,
+                      rope_cfg: RopeConfig | None = None) -> tuple[list[dict], HookMeasurements]:
     """Segment the hook in every LiDAR frame; return per-frame rows and the filter's streams.
 
     A tracking EKF (flexible model) runs beside the detector on the encoders, the MRU and the
-    detections so far: its prediction and covariance are each frame's prior, which is what
-    lets a far block's 1-5 points be associated (sparse fixes) instead of dropped.
+    measurements so far. Per frame: its prediction levels the cloud and gates the rope; the
+    rope's direction (perception.rope) corrects it; its estimate is then the block detector's
+    prior, which is what lets a far block's 1-5 points be associated (sparse fixes) instead of
+    dropped; the block's fix corrects it.
     """
     cfg = cfg or HookConfig()
     s = source.meta.scenario
+    rope_cfg = rope_cfg or RopeConfig(radius_m=s.hook.rope_radius_m)
     enc = source.encoders
     m = source.mru
     enc_table = np.column_stack([enc["slew"], enc["luff"], enc["hoist"]])
@@ -70,6 +82,8 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
     T_ts = source.meta.T_boomtip_sensor["lidar"]
     rows: list[dict] = []
     covs: list[np.ndarray] = []
+    rope_dirs: list[np.ndarray] = []
+    rope_covs: list[np.ndarray] = []
     last: tuple[float, np.ndarray] | None = None
     for frame in source:
         if progress:
@@ -81,28 +95,44 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
         row = {"t": t, "x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sigma_y_m": np.nan,
                "sigma_z_m": np.nan, "n_points": 0, "fit_rms_m": np.nan, "precision": np.nan, "recall": np.nan,
                "hook_points_true": 0, "tracker_accepted": False, "pred_x": np.nan, "pred_y": np.nan, "pred_z": np.nan,
-               "pred_sigma_across_m": np.nan}
+               "pred_sigma_across_m": np.nan, "rope_status": "", "rope_points": 0, "rope_ux": np.nan,
+               "rope_uy": np.nan, "rope_uz": np.nan, "rope_sigma_across_m": np.nan, "rope_accepted": False,
+               "rope_precision": np.nan}
         cov = np.full((3, 3), np.nan)
+        rope: RopeFix | None = None
         att = source.mru.attitude(t)
         if frame.error is not None:
             row["status"] = f"unreadable frame: {frame.error}"
         elif att is None or not (enc["t"][0] <= t <= enc["t"][-1]):
             row["status"] = f"no MRU attitude or encoder reading at t={t:.3f} s"
         else:
-            with times.stage("hook.level"):
-                slew = float(np.interp(t, enc["t"], enc["slew"]))
-                hoist = float(np.interp(t, enc["t"], enc["hoist"]))
-                R_tip = rpy_matrix(np.array([att[0][0], att[0][1], 0.0])) @ rot_z(slew)
-                pts = frame.points_sensor @ (R_tip @ T_ts[:3, :3]).T + R_tip @ T_ts[:3, 3]
             with times.stage("hook.track"):
                 p_pred, cov_pred = tracker.predict(t)
-            # Prior: the tracker's prediction when it is certain enough to associate a sparse
+            with times.stage("hook.level"):
+                # Level with the tracker's attitude (MRU and encoders filtered, boom deflection
+                # included), not one raw sample: see HookTracker.tip_attitude.
+                roll, pitch, heading = tracker.tip_attitude()
+                hoist = float(np.interp(t, enc["t"], enc["hoist"]))
+                R_tip = rpy_matrix(np.array([roll, pitch, 0.0])) @ rot_z(heading)
+                pts = frame.points_sensor @ (R_tip @ T_ts[:3, :3]).T + R_tip @ T_ts[:3, 3]
+            row["pred_x"], row["pred_y"], row["pred_z"] = p_pred
+            row["pred_sigma_across_m"] = _sigma_across(cov_pred)
+            if rope_cfg.enabled:
+                range_m = float(np.linalg.norm(p_pred))
+                rope = fit_rope(pts, p_pred / range_m, _sigma_across(cov_pred) / range_m, hoist, rope_cfg,
+                                np.random.default_rng([s.seed, 8, frame.index]), times)
+                row["rope_status"], row["rope_points"] = rope.status, rope.n_points
+                if rope.ok:
+                    row["rope_ux"], row["rope_uy"], row["rope_uz"] = rope.direction
+                    row["rope_sigma_across_m"] = hoist * math.sqrt(float(np.linalg.eigvalsh(rope.cov)[-1]))
+                    with times.stage("hook.track"):
+                        row["rope_accepted"] = tracker.correct_rope(rope.direction, rope.cov)
+                        p_pred, cov_pred = tracker.estimate()
+            # Prior: the tracker's estimate when it is certain enough to associate a sparse
             # block; else the last detection when recent (the hook moves < 1 m in 0.5 s), else
             # straight below the tip at the hoist length.
-            sig_across = float(np.sqrt(max(np.linalg.eigvalsh(cov_pred[:2, :2])[-1], 0.0)))
+            sig_across = _sigma_across(cov_pred)
             tracked = bool(np.all(np.isfinite(p_pred)) and sig_across <= cfg.sparse_max_prior_sigma_m)
-            row["pred_x"], row["pred_y"], row["pred_z"] = p_pred
-            row["pred_sigma_across_m"] = sig_across
             if tracked:
                 prior = p_pred
             else:
@@ -111,7 +141,7 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
             det = detect_hook(pts, prior, hoist, cfg, rng, times, sensor_position_m=R_tip @ T_ts[:3, 3],
                               prior_cov_m2=cov_pred if tracked else None)
             if logger is not None:
-                logger.log_frame(t, pts, det, prior, cfg.prior_radius_m)
+                logger.log_frame(t, pts, det, prior, cfg.prior_radius_m, rope=rope, hoist_m=hoist)
             row["status"] = det.status
             row["n_points"] = det.n_points
             row["fit_rms_m"] = det.fit_rms_m
@@ -129,16 +159,22 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
             if labels is not None:
                 p, r = segmentation_scores(det.points_mask, labels)
                 row["precision"], row["recall"] = p, r
-                row["hook_points_true"] = int(np.count_nonzero(labels == 30))
+                row["hook_points_true"] = int(np.count_nonzero(labels == Label.HOOK))
+                if rope is not None and rope.ok:
+                    row["rope_precision"] = float(np.mean(labels[rope.mask] == Label.ROPE))
         row["time_ms"] = times.total()
         rows.append(row)
         covs.append(cov)
+        rope_ok = rope is not None and rope.ok
+        rope_dirs.append(rope.direction if rope_ok else np.full(3, np.nan))
+        rope_covs.append(rope.cov if rope_ok else np.full((3, 3), np.nan))
     lid_t = np.array([r["t"] for r in rows])
     lid_p = np.array([[r["x"], r["y"], r["z"]] for r in rows]).reshape(-1, 3)
     meas = HookMeasurements(
         t_lidar=lid_t, lidar_p_rel_tip_world=lid_p,
         t_encoders=enc["t"], encoders=enc_table, t_mru=m.t_s, mru=mru_table,
         lidar_cov_m2=np.array(covs).reshape(-1, 3, 3),
+        rope_direction=np.array(rope_dirs).reshape(-1, 3), rope_cov=np.array(rope_covs).reshape(-1, 3, 3),
     )
     return rows, meas
 
@@ -169,7 +205,32 @@ def _errors(run: HookFilterRun, source: FrameSource, params) -> dict:
         "runtime_fraction": run.realtime_fraction,
         "lidar_accepted": run.n_lidar_accepted,
         "lidar_rejected": run.n_lidar_rejected,
+        "rope_accepted": run.n_rope_accepted,
+        "rope_rejected": run.n_rope_rejected,
     }
+
+
+def _rope_kpis(rows: list[dict], truth) -> dict:
+    """How often the rope was fitted, and (with a truth) its error: the angle between the fitted
+    and the true direction tip -> hook, and that angle times the rope length per axis (what it
+    means at the hook, the number comparable with a block fix's error)."""
+    fits = [r for r in rows if r["rope_status"] == "ok"]
+    out = {
+        "found_fraction": len(fits) / max(len(rows), 1),
+        "accepted_fraction": sum(bool(r["rope_accepted"]) for r in fits) / max(len(fits), 1),
+        "points_median": float(np.median([r["rope_points"] for r in fits])) if fits else 0.0,
+    }
+    if truth is not None and fits:
+        t = np.array([r["t"] for r in fits])
+        u = np.array([[r["rope_ux"], r["rope_uy"], r["rope_uz"]] for r in fits])
+        ref = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
+        length = np.linalg.norm(ref, axis=1, keepdims=True)
+        e = u - ref / length
+        out["rmse_angle_mrad"] = float(1e3 * np.sqrt(np.mean(np.einsum("ij,ij->i", e, e))))
+        out["rmse_at_hook_m"] = np.sqrt(np.mean((length * e) ** 2, axis=0)).tolist()
+        prec = [r["rope_precision"] for r in fits if np.isfinite(r["rope_precision"])]
+        out["precision"] = float(np.mean(prec)) if prec else float("nan")
+    return out
 
 
 def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = ESTIMATORS, progress=None,
@@ -213,6 +274,7 @@ def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = 
                 ref = np.column_stack([source.truth.at(f"hook_rel_{a}", t) for a in "xyz"])
                 seg[key] = np.sqrt(np.mean((det - ref) ** 2, axis=0)).tolist()
     hook["segmentation"] = seg
+    hook["rope"] = _rope_kpis(rows, source.truth)
     if source.truth is not None and runs:
         write_hook_report(out, s, hook, runs, source, params, rows)
     if logger is not None:
@@ -259,6 +321,17 @@ def _write_estimates(path: Path, runs: dict[str, HookFilterRun], params) -> None
     atomic_write_bytes(path, buf.getvalue().encode())
 
 
+def rope_summary(rope: dict) -> str:
+    """One line on the rope's direction (perception.rope) for the report and the CLI."""
+    text = (f"Rope direction fitted in {100 * rope['found_fraction']:.1f} % of the frames "
+            f"(median {rope['points_median']:.0f} points), {100 * rope['accepted_fraction']:.1f} % of them accepted by the tracker")
+    if "rmse_angle_mrad" in rope:
+        text += (f"; angle RMSE {rope['rmse_angle_mrad']:.3f} mrad, "
+                 f"{' / '.join(f'{100 * v:.1f}' for v in rope['rmse_at_hook_m'])} cm x/y/z at the hook, "
+                 f"precision {rope['precision']:.4f}")
+    return text + "."
+
+
 def write_hook_report(out: Path, s, hook: dict, runs, source, params, rows) -> None:
     import matplotlib
 
@@ -297,6 +370,8 @@ def write_hook_report(out: Path, s, hook: dict, runs, source, params, rows) -> N
         f"reference-point RMSE x/y/z {' / '.join(f'{100 * v:.1f}' for v in seg.get('rmse_m', [np.nan] * 3))} cm (model fits), "
         f"{' / '.join(f'{100 * v:.1f}' for v in seg.get('sparse_rmse_m', [np.nan] * 3))} cm (sparse fixes); "
         f"{seg['apt_ms']:.1f} ms per frame.",
+        "",
+        rope_summary(hook["rope"]),
         "",
         "![trajectory](hook_trajectory.png)",
         "![errors](hook_errors.png)",

@@ -154,13 +154,21 @@ class HookRerunLogger:
         )
         _start(self.rec, path, blueprint, tip_radius_m=0.3)
 
-    def log_frame(self, t_s: float, points_level: np.ndarray, det, prior: np.ndarray, gate_radius_m: float) -> None:
-        """One LiDAR frame: points in the levelled tip frame, the detection (perception.hook)."""
+    def log_frame(self, t_s: float, points_level: np.ndarray, det, prior: np.ndarray, gate_radius_m: float,
+                  rope=None, hoist_m: float | None = None) -> None:
+        """One LiDAR frame: points in the levelled tip frame, the detection (perception.hook) and
+        the rope's fitted points and axis (perception.rope), drawn to the hoist length."""
         rr, rec = self.rr, self.rec
         rec.set_time(TIMELINE, duration=t_s)
         if t_s - self._last_full >= self.full_cloud_dt - 1e-9:
             self._last_full = t_s
             rec.log("tip/cloud", rr.Points3D(points_level, colors=[[150, 150, 150]], radii=0.05))
+        if rope is not None and rope.ok and hoist_m is not None:
+            rec.log("tip/rope_fit/points", rr.Points3D(points_level[rope.mask], colors=[[255, 140, 0]], radii=0.04))
+            rec.log("tip/rope_fit/axis", rr.LineStrips3D([[[0.0, 0.0, 0.0], (hoist_m * rope.direction).tolist()]],
+                                                         colors=[[255, 140, 0]], radii=0.03))
+        else:
+            rec.log("tip/rope_fit", rr.Clear(recursive=True))
         near = np.einsum("ij,ij->i", points_level - prior, points_level - prior) < gate_radius_m**2
         block = det.points_mask
         other = near & ~block
