@@ -14,7 +14,7 @@ from data.scene import Label
 from fusion.hook_filter import HookFilter, measurements_from_truth, run_hook_filter
 from perception.rope import RopeConfig, fit_rope, tangent_basis
 from perception.timing import StageTimes
-from test_hook_segmentation import SENSOR_M, make_scene, scan
+from test_hook_segmentation import make_scene, scan
 
 DEG = math.pi / 180
 

@@ -3,8 +3,9 @@
 Per LiDAR frame: level the cloud into the boom tip's world-axes frame with the tracking
 filter's attitude (MRU and encoders filtered), fit the rope's direction (perception/rope),
 segment the lower block and fit its model (perception/hook), then run the multi-rate EKF/UKF
-(fusion/hook_filter) on the rope directions, the block fixes, the encoders and the MRU. Outputs in OUT: hook_measurements.csv, hook_estimates.csv, the `hook` section of
-kpis.json, and hook_report.md with document 002's Tables 6.1/6.4 layout and plots.
+(fusion/hook_filter) on the rope directions, the block fixes, the encoders and the MRU.
+Outputs in OUT: hook_measurements.csv, hook_estimates.csv, the `hook` section of kpis.json,
+and hook_report.md with document 002's Tables 6.1/6.4 layout and plots.
 """
 
 from __future__ import annotations
@@ -59,6 +60,21 @@ def detection_sigma_m(position_m: np.ndarray, n_points: int, lidar) -> float:
 def _sigma_across(cov_m2: np.ndarray) -> float:
     """Largest horizontal 1-sigma of a hook position covariance (m): across the rope."""
     return float(np.sqrt(max(np.linalg.eigvalsh(cov_m2[:2, :2])[-1], 0.0)))
+
+
+def _rope_step(tracker: HookTracker, pts: np.ndarray, p_pred: np.ndarray, cov_pred: np.ndarray, hoist_m: float,
+               cfg: RopeConfig, rng: np.random.Generator, times: StageTimes, row: dict) -> RopeFix:
+    """Fit the rope about the tracker's predicted direction, correct the tracker with it and fill
+    the frame's rope columns."""
+    range_m = float(np.linalg.norm(p_pred))
+    rope = fit_rope(pts, p_pred / range_m, _sigma_across(cov_pred) / range_m, hoist_m, cfg, rng, times)
+    row["rope_status"], row["rope_points"] = rope.status, rope.n_points
+    if rope.ok:
+        row["rope_ux"], row["rope_uy"], row["rope_uz"] = rope.direction
+        row["rope_sigma_across_m"] = hoist_m * math.sqrt(float(np.linalg.eigvalsh(rope.cov)[-1]))
+        with times.stage("hook.track"):
+            row["rope_accepted"] = tracker.correct_rope(rope.direction, rope.cov)
+    return rope
 
 
 def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progress=None, logger=None,
@@ -118,16 +134,10 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
             row["pred_x"], row["pred_y"], row["pred_z"] = p_pred
             row["pred_sigma_across_m"] = _sigma_across(cov_pred)
             if rope_cfg.enabled:
-                range_m = float(np.linalg.norm(p_pred))
-                rope = fit_rope(pts, p_pred / range_m, _sigma_across(cov_pred) / range_m, hoist, rope_cfg,
-                                np.random.default_rng([s.seed, 8, frame.index]), times)
-                row["rope_status"], row["rope_points"] = rope.status, rope.n_points
+                rope = _rope_step(tracker, pts, p_pred, cov_pred, hoist, rope_cfg,
+                                  np.random.default_rng([s.seed, 8, frame.index]), times, row)
                 if rope.ok:
-                    row["rope_ux"], row["rope_uy"], row["rope_uz"] = rope.direction
-                    row["rope_sigma_across_m"] = hoist * math.sqrt(float(np.linalg.eigvalsh(rope.cov)[-1]))
-                    with times.stage("hook.track"):
-                        row["rope_accepted"] = tracker.correct_rope(rope.direction, rope.cov)
-                        p_pred, cov_pred = tracker.estimate()
+                    p_pred, cov_pred = tracker.estimate()
             # Prior: the tracker's estimate when it is certain enough to associate a sparse
             # block; else the last detection when recent (the hook moves < 1 m in 0.5 s), else
             # straight below the tip at the hoist length.
