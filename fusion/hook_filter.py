@@ -93,6 +93,7 @@ __all__ = [
     "HookTracker",
     "measurements_from_truth",
     "run_hook_filter",
+    "sway_angles_from_direction",
     "truth_state_matrix",
     "rmse_per_axis",
     "world_hook_from_states",
@@ -605,6 +606,27 @@ def _hook_pos_vel_batch(X):
     return p, v, Hp, Hv
 
 
+def sway_angles_from_direction(direction, cov) -> tuple[np.ndarray, np.ndarray] | None:
+    """The sway angles (a, b) of a rope direction u = (-sin a, cos a sin b, -cos a cos b) (unit,
+    tip -> hook, world axes) and their 2x2 covariance J C J^T, J = d(a, b)/du, from the
+    direction's 3x3 covariance C (only its part across the rope counts: C is projected on the
+    plane normal to u first). None for a NaN or zero direction or a NaN covariance."""
+    u = np.asarray(direction, float).reshape(3)
+    C = np.asarray(cov, float).reshape(3, 3)
+    norm = float(np.linalg.norm(u))
+    if not (np.isfinite(norm) and norm > 0 and np.all(np.isfinite(C))):
+        return None
+    u = u / norm
+    a = math.asin(max(-1.0, min(1.0, -u[0])))
+    b = math.atan2(u[1], -u[2])
+    h2 = u[1] ** 2 + u[2] ** 2
+    if h2 < 1e-12:  # the rope horizontal along x: b undefined (never reached by a hanging load)
+        return None
+    J = np.array([[-1.0 / math.sqrt(h2), 0.0, 0.0], [0.0, -u[2] / h2, u[1] / h2]])  # cos a = sqrt(h2)
+    Pn = np.eye(3) - np.outer(u, u)
+    return np.array([a, b]), J @ (Pn @ C @ Pn) @ J.T
+
+
 # --------------------------------------------------------------------------------------
 # Helpers of the filter implementations
 # --------------------------------------------------------------------------------------
@@ -822,7 +844,8 @@ class HookFilter:
 
     def initialize_from_measurements(self, p_rel_tip_world, joints: Sequence[float],
                                      vessel: Sequence[float], t0: float = 0.0) -> None:
-        """joints = (slew, luff, hoist); vessel = (roll, pitch, roll_rate, pitch_rate)."""
+        """joints = (slew, luff, hoist); vessel = (roll, pitch, roll_rate, pitch_rate). Only the
+        direction of p_rel_tip_world counts (the sway angles); the rope length is the hoist's."""
         nu, mu, l = joints
         roll, pitch, roll_rate, pitch_rate = vessel
         a, b = self._angles_from_lidar(p_rel_tip_world)
@@ -1044,7 +1067,7 @@ class HookFilter:
             x_new, P_new = _kalman_correction(kf.x, kf.P, PHT, S, y)
         else:
             self.nis_history.append(nis)
-        self._consecutive_rejections = 0
+        self._consecutive_rejections = self._consecutive_rope_rejections = 0
         # K = P H^T S^-1 (EKF) or Pxz S^-1 (UKF); P - K S K^T (= filterpy's Joseph form
         # with the optimal gain, and its UKF update); symmetric by construction
         kf.x, kf.P = x_new, P_new
@@ -1064,31 +1087,33 @@ class HookFilter:
         """
         if t is not None:
             self.advance_to(t)
-        u = np.asarray(direction, float)
-        C = np.asarray(cov, float).reshape(3, 3)
-        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(C))):
+        zr = sway_angles_from_direction(direction, cov)
+        if zr is None:
             return False
-        u = u / np.linalg.norm(u)
-        a, b = self._angles_from_lidar(u)
-        h2 = u[1] ** 2 + u[2] ** 2
-        J = np.array([[-1.0 / math.cos(a), 0.0, 0.0], [0.0, -u[2] / h2, u[1] / h2]])
-        R = J @ C @ J.T
+        z, R = zr
         kf = self._kf
         ii = np.array([IA, IB], np.intp)
-        y = np.array([a, b]) - kf.x.take(ii)
-        y[1] = (y[1] + math.pi) % (2 * math.pi) - math.pi
-        W = kf.P.take(ii, 1)
-        x_new, P_new, nis = _kalman_correction(kf.x, kf.P, W, W.take(ii, 0) + R, y, True)
-        if nis > self._gate_rope:
+
+        def terms():
+            y = z - kf.x.take(ii)
+            y[1] = (y[1] + math.pi) % (2 * math.pi) - math.pi
+            W = kf.P.take(ii, 1)
+            return W, W.take(ii, 0) + R, y
+
+        W, S, y = terms()
+        x_new, P_new, nis = _kalman_correction(kf.x, kf.P, W, S, y, True)
+        if not nis <= self._gate_rope:  # (a NaN NIS is a rejection too)
             self._consecutive_rope_rejections += 1
             if self._consecutive_rope_rejections < self.cfg.reacquire_after_rejections:
                 self.n_rope_rejected += 1
                 return False
-            self._reacquire(u * kf.x[IL])
-            W = kf.P.take(ii, 1)
-            y = np.array([a, b]) - kf.x.take(ii)
-            x_new, P_new = _kalman_correction(kf.x, kf.P, W, W.take(ii, 0) + R, y)
-        self._consecutive_rope_rejections = 0
+            self._reacquire(np.asarray(direction, float))
+            W, S, y = terms()
+            x_new, P_new = _kalman_correction(kf.x, kf.P, W, S, y)
+        # Any accepted sway measurement clears both rejection runs: a rope fit locked on a wrong
+        # line (a tagline) must not re-initialise the sway while the block fixes agree with it,
+        # nor the block fixes while the rope does.
+        self._consecutive_rope_rejections = self._consecutive_rejections = 0
         kf.x, kf.P = x_new, P_new
         self.n_rope_accepted += 1
         return True
@@ -1250,8 +1275,10 @@ def run_hook_filter(
     params = params or CraneParams()
     filt = HookFilter(kind, model, params, config)
     n = filt.n
-    rope = meas.rope_direction
-    rope_ok = np.zeros(len(meas.t_lidar), bool) if rope is None else np.all(np.isfinite(rope), 1)
+    rope, rope_cov = meas.rope_direction, meas.rope_cov
+    rope_ok = np.zeros(len(meas.t_lidar), bool)
+    if rope is not None and rope_cov is not None:
+        rope_ok = np.all(np.isfinite(rope), 1) & np.all(np.isfinite(rope_cov.reshape(len(rope_cov), -1)), 1)
     valid = np.all(np.isfinite(meas.lidar_p_rel_tip_world), 1) | rope_ok
     has_fix = bool(valid.any())
     if has_fix:
@@ -1285,16 +1312,17 @@ def run_hook_filter(
     enc_ok = np.isfinite(enc[:, 2]).tolist() if len(enc) else []
 
     tic = time.perf_counter()
-    if has_fix and rope_ok[k0]:  # the rope's direction at the hoist length, then the frame's block fix
-        p0 = rope[k0] * float(enc[ie][2])
+    if has_fix and rope_ok[k0]:  # the sway from the rope's direction (updated by it), then the block fix
+        p0 = rope[k0]
     elif has_fix:
         p0 = lid[k0]
     else:
-        p0 = np.array([0.0, 0.0, -float(enc[ie][2])])
+        p0 = np.array([0.0, 0.0, -1.0])
     filt.initialize_from_measurements(p0, enc[ie], mru[im], t0)
     if has_fix and not rope_ok[k0]:
         lidar_ok[k0] = True
-    elif has_fix and np.all(np.isfinite(lid[k0])):
+    elif has_fix:
+        filt.update_rope(rope[k0], rope_cov[k0])
         lidar_ok[k0] = filt.update_lidar(lid[k0], sigma_m=None if lid_sigma is None else lid_sigma[k0],
                                          cov_m2=None if lid_cov is None else lid_cov[k0])
     kf = filt._kf
@@ -1316,7 +1344,7 @@ def run_hook_filter(
                 filt.update_encoders(e[0], e[1], e[2], t=te)
             else:
                 if rope_ok[i]:
-                    filt.update_rope(rope[i], meas.rope_cov[i], t=te)
+                    filt.update_rope(rope[i], rope_cov[i], t=te)
                 lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i],
                                                 cov_m2=None if lid_cov is None else lid_cov[i])
             j += 1
@@ -1341,12 +1369,17 @@ def run_hook_filter(
 
 
 class HookTracker:
-    """The hook filter run online, frame by frame, so the detector gets the filter's prediction
-    (and its covariance) as its prior: the association of a far, sparse block's few points
-    needs to know where the block should be (document 002 runs its filter the same way).
+    """The hook filter run online, frame by frame, so the perception gets the filter's state:
+    its attitude levels the frame, its prediction gates the rope, and its estimate after the
+    rope (with its covariance) is the block detector's prior: the association of a far, sparse
+    block's few points needs to know where the block should be (document 002 runs its filter
+    the same way).
 
     >>> tr = HookTracker(t_enc, enc, t_mru, mru, params=params)
     >>> p_pred, cov_pred = tr.predict(t)      # applies every encoder/MRU sample <= t first
+    >>> roll, pitch, heading = tr.tip_attitude()
+    >>> tr.correct_rope(u_rope, cov_rope)     # the rope's direction at t
+    >>> p_prior, cov_prior = tr.estimate()
     >>> tr.correct(p_fix, cov_fix)            # a detection at t (gated like any LiDAR fix)
 
     It starts at the first ``predict`` with the hook hanging straight down at the hoist length
@@ -1393,8 +1426,7 @@ class HookTracker:
                 f.update_encoders(e[0], e[1], e[2], t=te)
             self._j += 1
         f.advance_to(t)
-        p, _, cov_p, _ = f.hook_position_velocity_covariance()
-        return p, cov_p
+        return self.estimate()
 
     def tip_attitude(self) -> tuple[float, float, float]:
         """(roll, pitch, heading) of the boom-tip frame at the last :meth:`predict` (rad): the

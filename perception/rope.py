@@ -129,7 +129,13 @@ def fit_rope(
     times = times if times is not None else StageTimes()
     pts = np.asarray(points_level, dtype=np.float64).reshape(-1, 3)
     n_all = len(pts)
-    u = np.asarray(u_prior, float) / np.linalg.norm(u_prior)
+    u = np.asarray(u_prior, float).reshape(3)
+    norm = float(np.linalg.norm(u))
+    if not (np.isfinite(norm) and norm > 0):
+        return _fail(n_all, f"no predicted rope direction (got {u_prior})")
+    if not (np.isfinite(sigma_prior_rad) and np.isfinite(hoist_length_m)):
+        return _fail(n_all, f"prediction sigma {sigma_prior_rad} rad, hoist length {hoist_length_m} m: need finite values")
+    u = u / norm
     s = np.asarray(cfg.suspension_m, float)
     r = cfg.radius_m
     d_max = hoist_length_m - cfg.block_clearance_m
@@ -176,8 +182,11 @@ def fit_rope(
             return _fail(n_all, f"rope points span only {span[1] - span[0]:.1f} m of depth", k)
         E = tangent_basis(u)
         J = -d[m, None] * (n_off[m] @ E)
+        JtJ = J.T @ J
+        if np.linalg.cond(JtJ) > 1e12:  # every point on one side line: the tilt along it is unknown
+            return _fail(n_all, "the rope's points do not fix its tilt (degenerate geometry)", k)
         rms = float(np.sqrt(np.mean(res[m] ** 2)))
-        C = rms**2 * k / max(k - 2, 1) * np.linalg.inv(J.T @ J) + cfg.angle_sigma_floor_rad**2 * np.eye(2)
+        C = rms**2 * k / max(k - 2, 1) * np.linalg.inv(JtJ) + cfg.angle_sigma_floor_rad**2 * np.eye(2)
     mask = np.zeros(n_all, dtype=bool)
     mask[gate[m]] = True
     return RopeFix(u, E @ C @ E.T, mask, k, rms, span, "ok")

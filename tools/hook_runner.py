@@ -116,7 +116,7 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
                "rope_precision": np.nan}
         cov = np.full((3, 3), np.nan)
         rope: RopeFix | None = None
-        att = source.mru.attitude(t)
+        att = source.mru.attitude(t)  # only whether the log covers t: the tracker's attitude levels the frame
         if frame.error is not None:
             row["status"] = f"unreadable frame: {frame.error}"
         elif att is None or not (enc["t"][0] <= t <= enc["t"][-1]):
