@@ -83,3 +83,19 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
         for entity in ("/tip/cloud", "/tip/hook_points", "/tip/rope", "/tip/rope_fit/axis", "/tip/hook_estimate", "/tip/hook_estimate_trail",
                        "/tip/hook_truth", "/tip/hook_truth_trail", "/hook/error_cm/x"):
             assert entity in listing.stdout, entity
+
+
+def test_bench_fusion_writes_its_figures(tmp_path):
+    """`boomtip bench fusion` prints and writes the exact vs numeric Jacobian runtimes and the
+    chain's filter with the rope stream (the speed ratio itself is measured by the full bench)."""
+    path = tmp_path / "fusion.json"
+    r = CliRunner().invoke(app, ["bench", "fusion", "--duration", "8", "--json", str(path)])
+    assert r.exit_code == 0, r.output
+    figures = json.loads(path.read_text())
+    for label in ("analytic", "numeric", "analytic_rope"):
+        k = figures[label]
+        assert k["runtime_s"] > 0 and 0 < k["runtime_fraction"] < 1
+        assert all(np.isfinite(k["rmse_pos_m"])) and max(k["rmse_pos_m"]) < 0.1
+    assert figures["ratio"] > 0 and "ratio numeric / exact" in r.output
+    again = CliRunner().invoke(app, ["bench", "fusion", "--duration", "8", "--json", str(path)])
+    assert again.exit_code != 0 and "--force" in again.output  # an existing result is not overwritten

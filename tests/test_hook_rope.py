@@ -14,6 +14,7 @@ from data.scene import Label
 from fusion.hook_filter import (
     HookFilter,
     HookTracker,
+    SensorSimConfig,
     measurements_from_truth,
     run_hook_filter,
     sway_angles_from_direction,
@@ -118,28 +119,14 @@ def truth_200m():
     return simulate_crane(CraneParams(), joints, VesselWaves.regular(2.0, 8.0), 40.0)
 
 
-def _rope_stream(truth, t_lidar, sigma_rad, rng):
-    """Directions tip -> hook at the LiDAR times, tilted by isotropic noise sigma_rad, and their
-    covariances (rank 2, across the rope)."""
-    idx = np.searchsorted(truth.t, t_lidar - 1e-9)
-    u = truth.p_hook_rel_tip[idx] / np.linalg.norm(truth.p_hook_rel_tip[idx], axis=1, keepdims=True)
-    dirs, covs = [], []
-    for uk in u:
-        E = tangent_basis(uk)
-        d = uk + E @ rng.normal(0.0, sigma_rad, 2)
-        dirs.append(d / np.linalg.norm(d))
-        covs.append(sigma_rad**2 * E @ E.T)
-    return np.array(dirs), np.array(covs)
-
-
 def test_rope_only_filter_holds_a_200m_hook(truth_200m):
     """No block fix at all (the block gives no points at 200 m): the rope's direction at 20 Hz,
     0.1 mrad per frame (2 cm at the hook), with the encoders and the MRU keep the hook to a few
     cm, where without it the filter drifts by decimetres."""
     truth = truth_200m
-    meas = measurements_from_truth(truth, seed=5, lidar_dropouts=[(-1.0, 100.0)])
-    no_rope = run_hook_filter(meas, "ekf", "flexible")
-    meas.rope_direction, meas.rope_cov = _rope_stream(truth, meas.t_lidar, 1e-4, np.random.default_rng(1))
+    no_rope = run_hook_filter(measurements_from_truth(truth, seed=5, lidar_dropouts=[(-1.0, 100.0)]), "ekf", "flexible")
+    meas = measurements_from_truth(truth, SensorSimConfig(sigma_rope_rad=1e-4), seed=5, lidar_dropouts=[(-1.0, 100.0)])
+    assert np.isfinite(meas.rope_direction).all() and not np.isfinite(meas.lidar_p_rel_tip_world).any()
     run = run_hook_filter(meas, "ekf", "flexible")
     idx = np.searchsorted(truth.t, run.t - 1e-9)
     sel = run.t >= 5.0
@@ -158,15 +145,13 @@ def test_rope_only_filter_holds_a_200m_hook(truth_200m):
 
 def test_rope_outlier_gated_and_dropout_bridged(truth_200m):
     truth = truth_200m
-    meas = measurements_from_truth(truth, seed=6, lidar_dropouts=[(-1.0, 100.0)])
-    dirs, covs = _rope_stream(truth, meas.t_lidar, 1e-4, np.random.default_rng(2))
+    meas = measurements_from_truth(truth, SensorSimConfig(sigma_rope_rad=1e-4), seed=6,
+                                   lidar_dropouts=[(-1.0, 100.0)], rope_dropouts=[(25.0, 28.0)])
+    dirs = meas.rope_direction
     k_out = int(np.argmin(np.abs(meas.t_lidar - 20.0)))
     E = tangent_basis(dirs[k_out])
     dirs[k_out] = dirs[k_out] + E[:, 0] * 2 * DEG  # a wrong line (cargo edge): 7 m at the hook
     dirs[k_out] /= np.linalg.norm(dirs[k_out])
-    gap = (meas.t_lidar >= 25.0) & (meas.t_lidar < 28.0)
-    dirs[gap] = np.nan
-    meas.rope_direction, meas.rope_cov = dirs, covs
     run = run_hook_filter(meas, "ekf", "flexible")
     assert run.n_rope_rejected == 1 and run.n_reacquired == 0
     idx = np.searchsorted(truth.t, run.t - 1e-9)
@@ -218,8 +203,8 @@ def test_a_lost_filter_reacquires_from_the_rope(truth_200m):
     the sway is re-initialised from one (lost and found, as for block fixes), and the tracker
     follows the hook again."""
     truth = truth_200m
-    meas = measurements_from_truth(truth, seed=8)
-    dirs, covs = _rope_stream(truth, meas.t_lidar, 1e-4, np.random.default_rng(3))
+    meas = measurements_from_truth(truth, SensorSimConfig(sigma_rope_rad=1e-4), seed=8)
+    dirs, covs = meas.rope_direction, meas.rope_cov
     tr = HookTracker(meas.t_encoders, meas.encoders, meas.t_mru, meas.mru)
     accepted = []
     for k, t in enumerate(meas.t_lidar[meas.t_lidar <= 20.0]):
