@@ -57,6 +57,7 @@ def test_rope_direction_from_a_frame(length_m, sway_deg, cargo):
         assert np.abs(lateral).max() < 0.06, lateral
         assert np.mean(lab[fix.mask] == Label.ROPE) >= 0.99
         assert fix.n_points >= 100 and fix.depth_span_m[1] - fix.depth_span_m[0] > 5.0
+        assert abs(fix.radius_m - 0.04) < 1.5e-3, fix.radius_m  # the points' own radius (24-gon: 39.9 mm)
         assert {"rope.gate", "rope.ransac", "rope.fit"} <= set(times.ms)
         nees.append(z2)
     assert np.mean(nees) < 2 * 9.2  # within the 99 % bound of chi2(2), averaged over 3 frames
@@ -76,6 +77,19 @@ def test_rope_fit_covariance_matches_its_errors():
             fix = fit_rope(pts, u, DEG, length_m, RopeConfig(angle_sigma_floor_rad=0.0), np.random.default_rng(seed))
             z2.append(_lateral_error_m(fix, u, length_m)[1])
     assert 0.5 < np.mean(z2) < 4.0, z2
+
+
+def test_the_points_tell_a_wrong_configured_radius():
+    """Configured 45 mm for a 40 mm rope: the direction is off by decimetres at 200 m (the fit
+    moves the axis to keep the surface on the points), but the radius the points fit best says
+    40 mm: the check a user reads in kpis.json (rope.radius_median_m)."""
+    bodies, ref, _, _ = make_scene(200.0, sway_deg=(1.0, -0.6))
+    u = ref / np.linalg.norm(ref)
+    pts, _ = scan(bodies, seed=1)
+    fix = fit_rope(pts, u, DEG, 200.0, RopeConfig(radius_m=0.045), np.random.default_rng(0))
+    assert fix.ok
+    assert np.abs(_lateral_error_m(fix, u, 200.0)[0]).max() > 0.1
+    assert abs(fix.radius_m - 0.04) < 1.5e-3, fix.radius_m
 
 
 def test_rope_fit_beside_boom_structure_and_with_a_poor_prediction():

@@ -71,6 +71,7 @@ def _rope_step(tracker: HookTracker, pts: np.ndarray, p_pred: np.ndarray, cov_pr
     row["rope_status"], row["rope_points"] = rope.status, rope.n_points
     if rope.ok:
         row["rope_ux"], row["rope_uy"], row["rope_uz"] = rope.direction
+        row["rope_radius_m"] = rope.radius_m
         row["rope_sigma_across_m"] = hoist_m * math.sqrt(float(np.linalg.eigvalsh(rope.cov)[-1]))
         with times.stage("hook.track"):
             row["rope_accepted"] = tracker.correct_rope(rope.direction, rope.cov)
@@ -113,7 +114,7 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
                "hook_points_true": 0, "tracker_accepted": False, "pred_x": np.nan, "pred_y": np.nan, "pred_z": np.nan,
                "pred_sigma_across_m": np.nan, "rope_status": "", "rope_points": 0, "rope_ux": np.nan,
                "rope_uy": np.nan, "rope_uz": np.nan, "rope_sigma_across_m": np.nan, "rope_accepted": False,
-               "rope_precision": np.nan}
+               "rope_precision": np.nan, "rope_radius_m": np.nan}
         cov = np.full((3, 3), np.nan)
         rope: RopeFix | None = None
         att = source.mru.attitude(t)  # only whether the log covers t: the tracker's attitude levels the frame
@@ -229,6 +230,8 @@ def _rope_kpis(rows: list[dict], truth) -> dict:
         "found_fraction": len(fits) / max(len(rows), 1),
         "accepted_fraction": sum(bool(r["rope_accepted"]) for r in fits) / max(len(fits), 1),
         "points_median": float(np.median([r["rope_points"] for r in fits])) if fits else 0.0,
+        # what the points say the radius is, against the configured one the fit assumes
+        "radius_median_m": float(np.median([r["rope_radius_m"] for r in fits])) if fits else float("nan"),
     }
     if truth is not None and fits:
         t = np.array([r["t"] for r in fits])
@@ -334,7 +337,8 @@ def _write_estimates(path: Path, runs: dict[str, HookFilterRun], params) -> None
 def rope_summary(rope: dict) -> str:
     """One line on the rope's direction (perception.rope) for the report and the CLI."""
     text = (f"Rope direction fitted in {100 * rope['found_fraction']:.1f} % of the frames "
-            f"(median {rope['points_median']:.0f} points), {100 * rope['accepted_fraction']:.1f} % of them accepted by the tracker")
+            f"(median {rope['points_median']:.0f} points, radius from the points {1000 * rope['radius_median_m']:.1f} mm), "
+            f"{100 * rope['accepted_fraction']:.1f} % of them accepted by the tracker")
     if "rmse_angle_mrad" in rope:
         text += (f"; angle RMSE {rope['rmse_angle_mrad']:.3f} mrad, "
                  f"{' / '.join(f'{100 * v:.1f}' for v in rope['rmse_at_hook_m'])} cm x/y/z at the hook, "
