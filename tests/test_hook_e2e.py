@@ -62,7 +62,8 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
     assert r.exit_code == 0, r.output
     kpis = json.loads((out / "kpis.json").read_text())["hook"]
     for name in ("ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"):
-        assert {"rmse_pos_m", "rmse_vel_mps", "max_pos_m", "max_vel_mps", "runtime_fraction"} <= set(kpis[name])
+        assert {"rmse_pos_m", "rmse_vel_mps", "max_pos_m", "max_vel_mps", "runtime_fraction", "rmse_rel_pos_m",
+                "rmse_rel_vel_mps"} <= set(kpis[name])
         assert len(kpis[name]["rmse_pos_m"]) == 3
     seg = kpis["segmentation"]
     assert {"precision", "recall", "found_fraction", "rmse_m"} <= set(seg)

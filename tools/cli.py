@@ -114,12 +114,13 @@ def _print_kpis(kpis: dict) -> None:
             from tools.hook_runner import rope_summary
 
             print(rope_summary(h["rope"]))
-        print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}")
+        print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}"
+              f" {'rel. tip pos [cm]':>20s}")
         for name, k in h.items():
             if isinstance(k, dict) and "rmse_pos_m" in k:
                 f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
                 print(f"{name:14s} {f(k['rmse_pos_m']):>24s} {f(k['rmse_vel_mps']):>24s} {100 * k['runtime_fraction']:8.2f}% "
-                      f"{k.get('nees_pos_mean', float('nan')):9.2f}")
+                      f"{k.get('nees_pos_mean', float('nan')):9.2f} {f(k.get('rmse_rel_pos_m', [float('nan')] * 3)):>20s}")
         return
     print("Raw measurements (before any filter):")
     print(measurement_table(kpis))
