@@ -75,6 +75,15 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
     assert abs(rope["radius_median_m"] - 0.04) < 1e-3
     for name in ("hook_measurements.csv", "hook_estimates.csv", "hook_report.md", "hook_trajectory.png", "boomtip.rrd"):
         assert (out / name).is_file()
+    import csv
+
+    with open(out / "hook_measurements.csv", newline="") as fh:
+        frames = list(csv.DictReader(fh))
+    assert len(frames) == 160 and {"rope_status", "rope_ux", "rope_radius_m", "rope_accepted"} <= set(frames[0])
+    fitted = [f for f in frames if f["rope_status"] == "ok"]
+    assert len(fitted) > 150
+    u = np.array([[float(f[f"rope_u{a}"]) for a in "xyz"] for f in fitted])
+    assert np.allclose(np.linalg.norm(u, axis=1), 1.0, atol=1e-5) and np.all(u[:, 2] < -0.99)
     # The recording holds the cloud, the segmented block, the rope line, the estimated and the
     # true hook with their trails, and the errors (rerun's own reader lists its entities).
     rerun_cli = Path(sys.executable).with_name("rerun")

@@ -311,14 +311,16 @@ def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = 
 
 def _write_rows(path: Path, rows: list[dict]) -> None:
     cols = ("t", "status", "x", "y", "z", "sigma_x_m", "sigma_y_m", "sigma_z_m", "n_points", "fit_rms_m", "precision",
-            "recall", "hook_points_true", "tracker_accepted", "pred_x", "pred_y", "pred_z", "pred_sigma_across_m", "time_ms")
+            "recall", "hook_points_true", "tracker_accepted", "pred_x", "pred_y", "pred_z", "pred_sigma_across_m",
+            "rope_status", "rope_points", "rope_ux", "rope_uy", "rope_uz", "rope_sigma_across_m", "rope_radius_m",
+            "rope_accepted", "rope_precision", "time_ms")
     buf = io.StringIO()
     buf.write(",".join(cols) + "\n")
     for r in rows:
         vals = []
         for c in cols:
             v = r[c]
-            if c == "status":
+            if c in ("status", "rope_status"):
                 vals.append('"' + str(v).replace('"', "'") + '"')
             elif isinstance(v, float):
                 vals.append("" if not np.isfinite(v) else f"{v:.6g}")
