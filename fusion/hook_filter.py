@@ -1341,20 +1341,22 @@ def run_hook_filter(
     me_R = np.diag(np.concatenate([filt._R_mru, filt._R_enc]))
     enc_ok = np.isfinite(enc[:, 2]).tolist() if len(enc) else []
 
+    def lidar_frame(i: int, te: float | None = None) -> None:
+        """One LiDAR frame: its rope direction, then its block fix."""
+        if rope_ok[i]:
+            filt.update_rope(rope[i], rope_cov[i], t=te)
+        lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i],
+                                        cov_m2=None if lid_cov is None else lid_cov[i])
+
     tic = time.perf_counter()
-    if has_fix and rope_ok[k0]:  # the sway from the rope's direction (updated by it), then the block fix
-        p0 = rope[k0]
-    elif has_fix:
-        p0 = lid[k0]
-    else:
-        p0 = np.array([0.0, 0.0, -1.0])
-    filt.initialize_from_measurements(p0, enc[ie], mru[im], t0)
-    if has_fix and not rope_ok[k0]:
+    if not has_fix:
+        filt.initialize_from_measurements(np.array([0.0, 0.0, -1.0]), enc[ie], mru[im], t0)
+    elif rope_ok[k0]:  # the sway from the rope's direction, then the whole frame as any other
+        filt.initialize_from_measurements(rope[k0], enc[ie], mru[im], t0)
+        lidar_frame(k0)
+    else:  # the sway from the block fix, which is then used
+        filt.initialize_from_measurements(lid[k0], enc[ie], mru[im], t0)
         lidar_ok[k0] = True
-    elif has_fix:
-        filt.update_rope(rope[k0], rope_cov[k0])
-        lidar_ok[k0] = filt.update_lidar(lid[k0], sigma_m=None if lid_sigma is None else lid_sigma[k0],
-                                         cov_m2=None if lid_cov is None else lid_cov[k0])
     kf = filt._kf
     j = 0
     n_ev = len(ev_t)
@@ -1373,10 +1375,7 @@ def run_hook_filter(
                 e = enc[i]
                 filt.update_encoders(e[0], e[1], e[2], t=te)
             else:
-                if rope_ok[i]:
-                    filt.update_rope(rope[i], rope_cov[i], t=te)
-                lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i],
-                                                cov_m2=None if lid_cov is None else lid_cov[i])
+                lidar_frame(i, te)
             j += 1
         filt.advance_to(tk)
         x_out[k] = kf.x

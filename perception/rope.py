@@ -104,6 +104,14 @@ def _surface_residuals(q: np.ndarray, u: np.ndarray, radius_m: float) -> tuple[n
     return d, perp - radius_m, off / np.maximum(perp, 1e-9)[:, None]
 
 
+def _tilt_jacobian(d: np.ndarray, n_off: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobian (N, 2) of the surface residuals with respect to tilting u along the tangent basis
+    E (3, 2) of u, and E: d res / d(tilt along e_k) = -depth (n_off . e_k), since tilting u
+    moves the axis at depth d by d e_k."""
+    E = tangent_basis(u)
+    return -d[:, None] * (n_off @ E), E
+
+
 def _fail(n: int, status: str, n_points: int = 0) -> RopeFix:
     return RopeFix(np.full(3, np.nan), np.full((3, 3), np.nan), np.zeros(n, dtype=bool), n_points, float("nan"),
                    (float("nan"), float("nan")), status)
@@ -166,9 +174,7 @@ def fit_rope(
             if np.count_nonzero(m) < cfg.min_points:
                 return _fail(n_all, f"{np.count_nonzero(m)} points on the rope's surface (need {cfg.min_points})",
                              int(np.count_nonzero(m)))
-            E = tangent_basis(u)
-            # d res / d(tilt along e_k) = -depth (n_off . e_k): tilting u moves the axis at depth d by d e_k.
-            J = -d[m, None] * (n_off[m] @ E)
+            J, E = _tilt_jacobian(d[m], n_off[m], u)
             step, *_ = np.linalg.lstsq(J, -res[m], rcond=None)
             u = u + E @ step
             u /= np.linalg.norm(u)
@@ -181,8 +187,7 @@ def fit_rope(
         span = (float(d[m].min()), float(d[m].max()))
         if span[1] - span[0] < cfg.min_span_m:
             return _fail(n_all, f"rope points span only {span[1] - span[0]:.1f} m of depth", k)
-        E = tangent_basis(u)
-        J = -d[m, None] * (n_off[m] @ E)
+        J, E = _tilt_jacobian(d[m], n_off[m], u)
         JtJ = J.T @ J
         if np.linalg.cond(JtJ) > 1e12:  # every point on one side line: the tilt along it is unknown
             return _fail(n_all, "the rope's points do not fix its tilt (degenerate geometry)", k)
@@ -201,8 +206,8 @@ def _free_radius(q: np.ndarray, u: np.ndarray, radius_m: float, iterations: int 
     1 mm of radius error is ~4 cm at a 200 m hook."""
     for _ in range(iterations):
         d, res, n_off = _surface_residuals(q, u, radius_m)
-        E = tangent_basis(u)
-        J = np.column_stack([-d[:, None] * (n_off @ E), -np.ones(len(q))])
+        J_tilt, E = _tilt_jacobian(d, n_off, u)
+        J = np.column_stack([J_tilt, -np.ones(len(q))])
         step, *_ = np.linalg.lstsq(J, -res, rcond=None)
         u = u + E @ step[:2]
         u /= np.linalg.norm(u)

@@ -62,12 +62,12 @@ def _sigma_across(cov_m2: np.ndarray) -> float:
     return float(np.sqrt(max(np.linalg.eigvalsh(cov_m2[:2, :2])[-1], 0.0)))
 
 
-def _rope_step(tracker: HookTracker, pts: np.ndarray, p_pred: np.ndarray, cov_pred: np.ndarray, hoist_m: float,
+def _rope_step(tracker: HookTracker, pts: np.ndarray, p_pred: np.ndarray, sigma_across_m: float, hoist_m: float,
                cfg: RopeConfig, rng: np.random.Generator, times: StageTimes, row: dict) -> RopeFix:
     """Fit the rope about the tracker's predicted direction, correct the tracker with it and fill
     the frame's rope columns."""
     range_m = float(np.linalg.norm(p_pred))
-    rope = fit_rope(pts, p_pred / range_m, _sigma_across(cov_pred) / range_m, hoist_m, cfg, rng, times)
+    rope = fit_rope(pts, p_pred / range_m, sigma_across_m / range_m, hoist_m, cfg, rng, times)
     row["rope_status"], row["rope_points"] = rope.status, rope.n_points
     if rope.ok:
         row["rope_ux"], row["rope_uy"], row["rope_uz"] = rope.direction
@@ -117,10 +117,10 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
                "rope_precision": np.nan, "rope_radius_m": np.nan}
         cov = np.full((3, 3), np.nan)
         rope: RopeFix | None = None
-        att = source.mru.attitude(t)  # only whether the log covers t: the tracker's attitude levels the frame
         if frame.error is not None:
             row["status"] = f"unreadable frame: {frame.error}"
-        elif att is None or not (enc["t"][0] <= t <= enc["t"][-1]):
+        # (the MRU log must cover t, gaps included; the tracker's filtered attitude levels the frame)
+        elif source.mru.attitude(t) is None or not (enc["t"][0] <= t <= enc["t"][-1]):
             row["status"] = f"no MRU attitude or encoder reading at t={t:.3f} s"
         else:
             with times.stage("hook.track"):
@@ -135,7 +135,7 @@ def hook_measurements(source: FrameSource, cfg: HookConfig | None = None, progre
             row["pred_x"], row["pred_y"], row["pred_z"] = p_pred
             row["pred_sigma_across_m"] = _sigma_across(cov_pred)
             if rope_cfg.enabled:
-                rope = _rope_step(tracker, pts, p_pred, cov_pred, hoist, rope_cfg,
+                rope = _rope_step(tracker, pts, p_pred, row["pred_sigma_across_m"], hoist, rope_cfg,
                                   np.random.default_rng([s.seed, 8, frame.index]), times, row)
                 if rope.ok:
                     p_pred, cov_pred = tracker.estimate()
