@@ -15,7 +15,7 @@ from typing import Iterator
 
 import numpy as np
 
-from data.scenario import Scenario
+from boomtip.data.scenario import Scenario
 
 SENSORS = ("lidar", "radar")
 LIDAR_FIELDS = ("intensity", "t", "label")

@@ -4,21 +4,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from data.frames import FrameSource
-from data.scenario import Scenario
+from boomtip.data.frames import FrameSource
+from boomtip.data.scenario import Scenario
 
 
 def simulation_for(scenario: Scenario) -> FrameSource:
     if scenario.hook.enabled:
-        from data.hook_world import HookSimulation
+        from boomtip.data.sim.hook_world import HookSimulation
 
         return HookSimulation(scenario)
-    from data.simulator import Simulation
+    from boomtip.data.sim.simulator import Simulation
 
     return Simulation(scenario)
 
 
 def open_recording(path: str | Path) -> FrameSource:
-    from data.recording import Recording
+    from boomtip.data.io.recording import Recording
 
     return Recording(path)

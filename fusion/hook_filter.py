@@ -70,7 +70,7 @@ from pydantic import BaseModel, Field
 from scipy.linalg.lapack import dpotrf, dtrtri
 from scipy.stats import chi2
 
-from data.crane import (
+from boomtip.data.sim.crane import (
     CraneParams,
     CraneTruth,
     JointStates,

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from data.scenario import Scenario
-from fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement, jerk_psd_from_sea_state
-from fusion.tuning import relative_heave_components
-from perception.pipeline import SENSOR_OF, Measurement as Row
+from boomtip.data.scenario import Scenario
+from boomtip.fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement, jerk_psd_from_sea_state
+from boomtip.fusion.tuning import relative_heave_components
+from boomtip.perception.pipeline import SENSOR_OF, Measurement as Row
 
 SOLUTIONS: dict[str, tuple[str, ...]] = {
     "deck_lidar": ("deck_lidar",),

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from data.motion import jonswap
-from data.scenario import IrregularSea, Scenario
+from boomtip.data.sim.motion import jonswap
+from boomtip.data.scenario import IrregularSea, Scenario
 
 
 def relative_heave_components(s: Scenario) -> list[tuple[float, float]]:

@@ -8,12 +8,12 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from perception.geometry import heave_distance, plane_sigma_at
+from boomtip.perception.geometry import heave_distance, plane_sigma_at
 from typing import Literal
 
-from perception.plane import MultiPlaneConfig, PlaneFit, RansacConfig, multi_plane_deck, ransac_plane
-from perception.preprocess import PreprocessConfig, preprocess
-from perception.timing import StageTimes
+from boomtip.perception.plane import MultiPlaneConfig, PlaneFit, RansacConfig, multi_plane_deck, ransac_plane
+from boomtip.perception.preprocess import PreprocessConfig, preprocess
+from boomtip.perception.timing import StageTimes
 
 
 class DeckConfig(BaseModel):

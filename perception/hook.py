@@ -53,7 +53,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from data.hook_block import (
+from boomtip.data.block_model import (
     AMBIGUOUS_SHIFTS_M,
     BODY_TOP_Z_M,
     BODY_XY_M,
@@ -61,9 +61,9 @@ from data.hook_block import (
     lower_block_mesh,
     visible_model_points,
 )
-from data.scene import Label
-from perception.plane import RansacConfig, ransac_plane
-from perception.timing import StageTimes
+from boomtip.data.meshes import Label
+from boomtip.perception.plane import RansacConfig, ransac_plane
+from boomtip.perception.timing import StageTimes
 
 __all__ = [
     "HookConfig",

@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from data.frames import Frame, MruLog, SourceMeta
-from perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck
-from perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
-from perception.geometry import (
+from boomtip.data.frames import Frame, MruLog, SourceMeta
+from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck
+from boomtip.perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
+from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
     heave_rate_exact,
@@ -29,9 +29,9 @@ from perception.geometry import (
     tip_in_sensor,
     wire_dir_sensor,
 )
-from perception.preprocess import PreprocessConfig
-from perception.reflectors import ReflectorConfig, ReflectorResult, detect_reflectors
-from perception.timing import StageTimes
+from boomtip.perception.preprocess import PreprocessConfig
+from boomtip.perception.reflectors import ReflectorConfig, ReflectorResult, detect_reflectors
+from boomtip.perception.timing import StageTimes
 
 METHODS = ("deck_lidar", "deck_radar", "reflectors_lidar", "doppler_radar", "doppler_radar_rot")
 QUANTITY = {"deck_lidar": "D", "deck_radar": "D", "reflectors_lidar": "D", "doppler_radar": "D_dot", "doppler_radar_rot": "D_dot"}

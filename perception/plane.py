@@ -236,7 +236,7 @@ def wire_plane_distance(
     and independent of the plane's sign convention. Returns NaN when |n . wire_dir| < 1e-6
     (wire parallel to the plane).
     """
-    from perception.geometry import heave_distance  # the one implementation of eq. 4.8
+    from boomtip.perception.geometry import heave_distance  # the one implementation of eq. 4.8
 
     plane = np.asarray(plane, dtype=np.float64)
     w = np.asarray(wire_dir, dtype=np.float64)

@@ -35,7 +35,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial import cKDTree
 
-from perception.plane import (
+from boomtip.perception.plane import (
     MultiPlaneConfig,
     MultiPlaneResult,
     PlaneFit,

@@ -19,8 +19,8 @@ from itertools import combinations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from perception.geometry import fit_plane_heave, sym3_eigvals
-from perception.timing import StageTimes
+from boomtip.perception.geometry import fit_plane_heave, sym3_eigvals
+from boomtip.perception.timing import StageTimes
 
 INTENSITY_REFERENCE_RANGE_M = 50.0  # the simulator's (and a calibrated sensor's) 1.0 = white diffuse here
 

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from perception.timing import StageTimes
+from boomtip.perception.timing import StageTimes
 
 __all__ = ["RopeConfig", "RopeFix", "fit_rope", "tangent_basis"]
 

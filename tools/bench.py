@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from data.scenario import Scenario
+from boomtip.data.scenario import Scenario
 
 
 def bench_raycast(scenario: Scenario, frames: int = 20, simulate_s: float = 60.0) -> dict:
@@ -17,8 +17,8 @@ def bench_raycast(scenario: Scenario, frames: int = 20, simulate_s: float = 60.0
     pose the meshes, concatenate them, `ray.intersects_first` with embreex, per frame."""
     import trimesh
 
-    from data.recording import write_recording
-    from data.simulator import Simulation
+    from boomtip.data.io.recording import write_recording
+    from boomtip.data.sim.simulator import Simulation
 
     sim = Simulation(scenario)
     w = sim.world
@@ -105,12 +105,12 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
     (ours as configured in the pipeline; baseline: Open3D preprocessing + repeated
     segment_plane), with D's error against the truth for both.
     """
-    from data.simulator import Simulation
-    from perception.deck import LIDAR_DECK, detect_deck, lowest_large_plane
-    from perception.geometry import heave_distance, rotation_level_sensor, tip_in_sensor, wire_dir_sensor
-    from perception.pipeline import HeavePipeline
-    from perception.preprocess import PreprocessConfig, open3d_baseline_multi_plane, open3d_baseline_preprocess, preprocess
-    from perception.timing import StageTimes
+    from boomtip.data.sim.simulator import Simulation
+    from boomtip.perception.deck import LIDAR_DECK, detect_deck, lowest_large_plane
+    from boomtip.perception.geometry import heave_distance, rotation_level_sensor, tip_in_sensor, wire_dir_sensor
+    from boomtip.perception.pipeline import HeavePipeline
+    from boomtip.perception.preprocess import PreprocessConfig, open3d_baseline_multi_plane, open3d_baseline_preprocess, preprocess
+    from boomtip.perception.timing import StageTimes
 
     sim = Simulation(scenario)
     meta = sim.meta
@@ -205,8 +205,8 @@ def bench_fusion(program: str = "hook-2", duration_s: float = 60.0, seed: int = 
     same measurement streams (truth + document 002's sensor noise), plus its accuracy; and the
     exact-Jacobian filter as boomtip's chain runs it, with the rope's direction in every LiDAR
     frame as well (0.1 mrad, what perception.rope measures)."""
-    from data.crane import HOOK_SCENARIOS, CraneParams, simulate_crane
-    from fusion.hook_filter import (
+    from boomtip.data.sim.crane import HOOK_SCENARIOS, CraneParams, simulate_crane
+    from boomtip.fusion.hook_filter import (
         HookFilterConfig,
         SensorSimConfig,
         measurements_from_truth,

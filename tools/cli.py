@@ -12,9 +12,9 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from data.pcd import PcdError
-from data.recording import RecordingError
-from data.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
+from boomtip.data.io.pcd import PcdError
+from boomtip.data.io.recording import RecordingError
+from boomtip.data.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: each prints a ratio against a baseline measured in the same run.")
@@ -82,8 +82,8 @@ def simulate(
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
 ) -> None:
     """Simulate a scenario and write a recording (PCD frames, MRU log, ground truth)."""
-    from data.recording import write_recording
-    from data.sources import simulation_for
+    from boomtip.data.io.recording import write_recording
+    from boomtip.data.sources import simulation_for
 
     with user_errors():
         s = resolve_scenario(scenario, set_, duration, seed)
@@ -100,7 +100,7 @@ def simulate(
 
 
 def _print_kpis(kpis: dict) -> None:
-    from tools.report import kpi_table, measurement_table
+    from boomtip.tools.report import kpi_table, measurement_table
 
     print(f"\n{kpis['scenario']} (seed {kpis['seed']}, {kpis['duration_s']:.0f} s)\n")
     if "hook" in kpis:
@@ -111,7 +111,7 @@ def _print_kpis(kpis: dict) -> None:
               f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
               f"{seg['apt_ms']:.1f} ms/frame")
         if "rope" in h:
-            from tools.hook_runner import rope_summary
+            from boomtip.tools.hook_runner import rope_summary
 
             print(rope_summary(h["rope"]))
         print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}"
@@ -130,7 +130,7 @@ def _print_kpis(kpis: dict) -> None:
 
 
 def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> None:
-    from tools.runner import run_heave
+    from boomtip.tools.runner import run_heave
 
     with progress_bar(len(source), "processing") as advance:
         result = run_heave(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance)
@@ -153,7 +153,7 @@ def run(
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
 ) -> None:
     """Simulate a scenario in memory and run perception + fusion on it (no recording on disk)."""
-    from data.sources import simulation_for
+    from boomtip.data.sources import simulation_for
 
     with user_errors():
         s = resolve_scenario(scenario, set_, duration, seed)
@@ -168,7 +168,7 @@ def process(
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
 ) -> None:
     """Run perception + fusion on a recording."""
-    from data.recording import Recording
+    from boomtip.data.io.recording import Recording
 
     with user_errors():
         _run_and_report(Recording(recording), out, force, rerun, inputs=(recording,))
@@ -203,7 +203,7 @@ def sweep(
     force: bool = typer.Option(False, "--force"),
 ) -> None:
     """Sensitivity study: KPIs over a grid of one parameter (document 000, 5.3.2)."""
-    from tools.sweep import PARAMS, run_sweep
+    from boomtip.tools.sweep import PARAMS, run_sweep
 
     with user_errors():
         if param not in PARAMS:
@@ -226,7 +226,7 @@ def sweep(
 def write_bench_json(path: Optional[Path], result: dict, force: bool) -> None:
     if path is None:
         return
-    from data.recording import RecordingError, write_json
+    from boomtip.data.io.recording import RecordingError, write_json
 
     if path.exists() and not force:
         raise RecordingError(f"--json {path} exists; pass --force to replace it")
@@ -248,7 +248,7 @@ def bench_raycast_cmd(
     force: bool = ForceOpt,
 ) -> None:
     """LiDAR frames/s vs the trimesh route on the same frames; simulate vs real time."""
-    from tools.bench import bench_raycast
+    from boomtip.tools.bench import bench_raycast
 
     with user_errors():
         s = resolve_scenario(scenario, set_)
@@ -272,7 +272,7 @@ def bench_perception_cmd(
     force: bool = ForceOpt,
 ) -> None:
     """Deck detection and its stages vs Open3D's own calls on the same frames; every method's APT and MAE."""
-    from tools.bench import bench_perception
+    from boomtip.tools.bench import bench_perception
 
     with user_errors():
         s = resolve_scenario(scenario, set_)
@@ -302,7 +302,7 @@ def bench_fusion_cmd(
     force: bool = ForceOpt,
 ) -> None:
     """Hook EKF (flexible) runtime vs the same filter with numerically differenced Jacobians."""
-    from tools.bench import bench_fusion
+    from boomtip.tools.bench import bench_fusion
 
     with user_errors():
         if program not in ("hook-1", "hook-2", "hook-3", "hook-4"):

@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from data.frames import FrameSource
-from data.hook_world import crane_params, rot_z
-from data.pcd import atomic_write_bytes
-from data.scene import Label
-from fusion.hook_filter import HookFilterRun, HookMeasurements, HookTracker, run_hook_filter, world_hook_from_states
-from perception.geometry import rpy_matrix
-from perception.hook import HookConfig, detect_hook, segmentation_scores
-from perception.rope import RopeConfig, RopeFix, fit_rope
-from perception.timing import StageTimes
+from boomtip.data.frames import FrameSource
+from boomtip.data.sim.hook_world import crane_params, rot_z
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.meshes import Label
+from boomtip.fusion.hook_filter import HookFilterRun, HookMeasurements, HookTracker, run_hook_filter, world_hook_from_states
+from boomtip.perception.geometry import rpy_matrix
+from boomtip.perception.hook import HookConfig, detect_hook, segmentation_scores
+from boomtip.perception.rope import RopeConfig, RopeFix, fit_rope
+from boomtip.perception.timing import StageTimes
 
 WARMUP_S = 5.0
 CHI2_3_95 = 7.8147  # chi-square, 3 degrees of freedom, 95 %
@@ -257,7 +257,7 @@ def run_hook_into(source: FrameSource, out: Path, estimators: tuple[str, ...] = 
     params = crane_params(s)
     logger = None
     if rerun:
-        from tools.visualise import HookRerunLogger
+        from boomtip.tools.visualise import HookRerunLogger
 
         logger = HookRerunLogger(out / "boomtip.rrd", source)
     rows, meas = hook_measurements(source, progress=progress, logger=logger)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from data.frames import Truth
-from fusion.solutions import Estimates
-from perception.pipeline import METHODS, Measurement
+from boomtip.data.frames import Truth
+from boomtip.fusion.solutions import Estimates
+from boomtip.perception.pipeline import METHODS, Measurement
 
 WARMUP_S = 5.0  # solutions: the first seconds are filter convergence and are not scored
 

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
-from data.frames import Truth
-from data.pcd import atomic_write_bytes
-from fusion.solutions import Estimates
-from perception.pipeline import Measurement
-from tools.kpis import WARMUP_S
+from boomtip.data.frames import Truth
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.fusion.solutions import Estimates
+from boomtip.perception.pipeline import Measurement
+from boomtip.tools.kpis import WARMUP_S
 
 # Document 000, Table 5.4 (after its Kalman filter) and its truth amplitudes (section 5.1.2).
 DOC000 = {

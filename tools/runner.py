@@ -18,12 +18,12 @@ from typing import Callable
 
 import numpy as np
 
-from data.frames import FrameSource
-from data.pcd import atomic_write_bytes
-from data.recording import commit_output, prepare_output, write_json
-from fusion.solutions import SOLUTIONS, Estimates, FusionConfig, run_solution
-from perception.pipeline import HeavePipeline, Measurement, PipelineConfig
-from tools.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
+from boomtip.data.frames import FrameSource
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.io.recording import commit_output, prepare_output, write_json
+from boomtip.fusion.solutions import SOLUTIONS, Estimates, FusionConfig, run_solution
+from boomtip.perception.pipeline import HeavePipeline, Measurement, PipelineConfig
+from boomtip.tools.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
 
 MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
 
@@ -81,7 +81,7 @@ def run_heave(
 def run_into(source, staging: Path, pipeline_cfg, fusion_cfg: FusionConfig, rerun: bool, report: bool, progress) -> RunResult:
     s = source.meta.scenario
     if s.hook.enabled:
-        from tools.hook_runner import run_hook_into
+        from boomtip.tools.hook_runner import run_hook_into
 
         hook = run_hook_into(source, staging, progress=progress, rerun=rerun)
         kpis = {"scenario": s.name, "seed": s.seed, "duration_s": s.duration_s, "hook": hook}
@@ -90,7 +90,7 @@ def run_into(source, staging: Path, pipeline_cfg, fusion_cfg: FusionConfig, reru
     pipeline = HeavePipeline(source.meta, source.mru, pipeline_cfg)
     logger = None
     if rerun:
-        from tools.visualise import RerunLogger
+        from boomtip.tools.visualise import RerunLogger
 
         logger = RerunLogger(staging / "boomtip.rrd", source)
     rows: list[Measurement] = []
@@ -113,7 +113,7 @@ def run_into(source, staging: Path, pipeline_cfg, fusion_cfg: FusionConfig, reru
     write_json(staging / "kpis.json", kpis)
     if source.truth is not None:
         if report:
-            from tools.report import write_report
+            from boomtip.tools.report import write_report
 
             write_report(staging, kpis, estimates, source.truth, rows)
     if logger:

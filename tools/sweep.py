@@ -7,7 +7,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 
-from data.recording import commit_output, prepare_output, write_json
+from boomtip.data.io.recording import commit_output, prepare_output, write_json
 
 # parameter -> (scenario overrides for a value, default grid, axis label)
 PARAMS: dict[str, tuple] = {
@@ -24,10 +24,10 @@ def _one(args: tuple) -> dict:
     scenario, overrides, duration, value = args
     import tempfile
 
-    from data.scenario import load_scenario
-    from data.simulator import Simulation
-    from fusion.solutions import FusionConfig
-    from tools.runner import run_into
+    from boomtip.data.scenario import load_scenario
+    from boomtip.data.sim.simulator import Simulation
+    from boomtip.fusion.solutions import FusionConfig
+    from boomtip.tools.runner import run_into
 
     s = load_scenario(scenario, overrides + [f"duration_s={duration}"])
     with tempfile.TemporaryDirectory() as tmp:
@@ -68,7 +68,7 @@ def plot_sweep(path: Path, summary: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tools.report import COLORS
+    from boomtip.tools.report import COLORS
 
     x = [r["value"] for r in summary["runs"]]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))

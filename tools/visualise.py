@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from data.frames import FrameSource, Truth
-from fusion.solutions import Estimates
-from perception.geometry import tip_in_sensor
-from perception.pipeline import FrameResult
-from tools.report import COLORS
+from boomtip.data.frames import FrameSource, Truth
+from boomtip.fusion.solutions import Estimates
+from boomtip.perception.geometry import tip_in_sensor
+from boomtip.perception.pipeline import FrameResult
+from boomtip.tools.report import COLORS
 
 TIMELINE = "sensor_time"
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from data.crane import (
+from boomtip.data.sim.crane import (
     HOOK_SCENARIOS,
     CallableVesselMotion,
     CraneJointProfiles,
@@ -147,7 +147,7 @@ def test_core_uses_same_tip_acceleration_as_kinematics():
     rng = np.random.default_rng(3)
     n = 50
     J = JointStates(*(rng.normal(0, 0.3, n) for _ in range(6)), np.full(n, 60.0), rng.normal(0, 0.5, n), rng.normal(0, 0.1, n))
-    from data.crane import VesselState
+    from boomtip.data.sim.crane import VesselState
     V = VesselState(*(rng.normal(0, 0.03, n) for _ in range(6)))
     z = np.zeros(n)
     add, bdd, _ = crane_accelerations(CraneParams(flexible=False), z, z, z, z, J, V)
@@ -193,7 +193,7 @@ def test_scenarios():
 
 
 def _zero_vessel(t):
-    from data.crane import StaticVessel
+    from boomtip.data.sim.crane import StaticVessel
 
     return StaticVessel().evaluate(t)
 

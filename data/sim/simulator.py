@@ -12,13 +12,13 @@ from typing import Iterator
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
-from data.motion import BodyStates, ShipMotion
-from data.raycast import RayCaster
-from data.scenario import Mount, Scenario
-from data.scene import Body, build_bodies, feeder_deck_plane_body
-from data.sensors import FaceLookup, lidar_measure, lidar_pattern, radar_measure, radar_pattern
-from data.truth import relative_heave, tip_states
+from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.sim.motion import BodyStates, ShipMotion
+from boomtip.data.sim.raycast import RayCaster
+from boomtip.data.scenario import Mount, Scenario
+from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
+from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, radar_measure, radar_pattern
+from boomtip.data.sim.truth import relative_heave, tip_states
 
 SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3}
 

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from data.recording import write_recording
-from data.scenario import load_scenario
-from data.simulator import Simulation
-from fusion.solutions import FusionConfig, run_solution
-from fusion.tuning import relative_heave_components
-from fusion.heave_filter import jerk_psd_from_sea_state
-from perception.pipeline import HeavePipeline
-from tools.cli import app
-from tools.kpis import error_stats
+from boomtip.data.io.recording import write_recording
+from boomtip.data.scenario import load_scenario
+from boomtip.data.sim.simulator import Simulation
+from boomtip.fusion.solutions import FusionConfig, run_solution
+from boomtip.fusion.tuning import relative_heave_components
+from boomtip.fusion.heave_filter import jerk_psd_from_sea_state
+from boomtip.perception.pipeline import HeavePipeline
+from boomtip.tools.cli import app
+from boomtip.tools.kpis import error_stats
 
 runner = CliRunner()
 

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from data.crane import CraneJointProfiles, CraneParams, VesselWaves, simulate_crane
-from data.scene import Label
-from fusion.hook_filter import (
+from boomtip.data.sim.crane import CraneJointProfiles, CraneParams, VesselWaves, simulate_crane
+from boomtip.data.meshes import Label
+from boomtip.fusion.hook_filter import (
     HookFilter,
     HookTracker,
     SensorSimConfig,
@@ -19,8 +19,8 @@ from fusion.hook_filter import (
     run_hook_filter,
     sway_angles_from_direction,
 )
-from perception.rope import RopeConfig, fit_rope, tangent_basis
-from perception.timing import StageTimes
+from boomtip.perception.rope import RopeConfig, fit_rope, tangent_basis
+from boomtip.perception.timing import StageTimes
 from test_hook_segmentation import make_scene, scan
 
 DEG = math.pi / 180

@@ -7,7 +7,7 @@ from functools import reduce
 import pytest
 import yaml
 
-from data.scenario import (
+from boomtip.data.scenario import (
     DOFS,
     Scenario,
     ScenarioError,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from data.scene import Body
+from boomtip.data.meshes import Body
 
 
 @dataclass

@@ -25,7 +25,7 @@ import numpy as np
 import open3d as o3d
 import trimesh
 
-from data.scene import Label, Part, box, cylinder
+from boomtip.data.meshes import Label, Part, box, cylinder
 
 __all__ = [
     "AMBIGUOUS_SHIFTS_M",

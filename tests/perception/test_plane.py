@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from perception.plane import (
+from boomtip.perception.plane import (
     MultiPlaneConfig,
     RansacConfig,
     fit_plane_lsq,
@@ -303,7 +303,7 @@ def test_ransac_refit_modes_agree():
 
 def test_select_deck_plane_rules():
     """The selection metric on hand-made candidates (levelled sensor frame, up = +z)."""
-    from perception.plane import PlaneFit, select_deck_plane
+    from boomtip.perception.plane import PlaneFit, select_deck_plane
 
     rng = np.random.default_rng(9)
     up = np.array([0.0, 0.0, 1.0])

@@ -9,14 +9,14 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from perception.doppler import (
+from boomtip.perception.doppler import (
     DopplerConfig,
     d_dot_document,
     d_dot_rotation_aware,
     deck_angular_velocity,
     doppler_velocity,
 )
-from perception.plane import fit_plane_lsq, wire_plane_distance
+from boomtip.perception.plane import fit_plane_lsq, wire_plane_distance
 
 DOWN = np.array([0.0, 0.0, -1.0])  # wire direction in a levelled frame
 E_Z = -DOWN

@@ -15,10 +15,10 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from data.scenario import DOFS, load_scenario
-from data.scene import Label, build_bodies
-from data.sensors import lidar_pattern, radar_pattern
-from data.simulator import Simulation, World
+from boomtip.data.scenario import DOFS, load_scenario
+from boomtip.data.sim.scene import Label, build_bodies
+from boomtip.data.sim.sensors import lidar_pattern, radar_pattern
+from boomtip.data.sim.simulator import Simulation, World
 
 ALL_ZERO = [f"{ship}.motion.{dof}.amplitude=0" for ship in ("crane", "feeder") for dof in DOFS]
 CRANE_LABELS = {int(Label.CRANE_HULL), int(Label.CRANE_DECK), int(Label.CRANE_STRUCTURE)}

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.plane import MultiPlaneConfig, multi_plane_deck
-from perception.preprocess import (
+from boomtip.perception.plane import MultiPlaneConfig, multi_plane_deck
+from boomtip.perception.preprocess import (
     PreprocessConfig,
     open3d_baseline_multi_plane,
     open3d_baseline_preprocess,

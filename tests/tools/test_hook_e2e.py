@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from data.hook_world import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, HookSimulation
-from data.recording import Recording, write_recording
-from data.scenario import load_scenario
-from data.scene import Label
-from tools.cli import app
+from boomtip.data.sim.hook_world import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, HookSimulation
+from boomtip.data.io.recording import Recording, write_recording
+from boomtip.data.scenario import load_scenario
+from boomtip.data.meshes import Label
+from boomtip.tools.cli import app
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from data.scenario import DOFS, IrregularSea, Motion
+from boomtip.data.scenario import DOFS, IrregularSea, Motion
 
 G = 9.81
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from data.motion import BodyStates
+from boomtip.data.sim.motion import BodyStates
 
 E_Z = np.array([0.0, 0.0, 1.0])
 

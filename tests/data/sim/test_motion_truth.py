@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from data.motion import ShipMotion, euler_rates_to_omega_world
-from data.scenario import DOFS, IrregularSea, Motion, load_scenario
-from data.scene import feeder_deck_plane_body
-from data.scene import build_bodies
-from data.simulator import Simulation, World
-from data.truth import plane_to_world, relative_heave, tip_states
+from boomtip.data.sim.motion import ShipMotion, euler_rates_to_omega_world
+from boomtip.data.scenario import DOFS, IrregularSea, Motion, load_scenario
+from boomtip.data.sim.scene import feeder_deck_plane_body
+from boomtip.data.sim.scene import build_bodies
+from boomtip.data.sim.simulator import Simulation, World
+from boomtip.data.sim.truth import plane_to_world, relative_heave, tip_states
 
 PERIOD = 10.0
 W = 2 * np.pi / PERIOD

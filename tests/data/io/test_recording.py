@@ -10,12 +10,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from data.frames import MRU_COLUMNS, TRUTH_COLUMNS
-from data.pcd import PcdError, read_pcd, write_pcd
-from data.recording import FORMAT_VERSION, Recording, RecordingError, frame_file_name, write_recording
-from data.scenario import load_scenario
-from data.simulator import Simulation
-from tools.cli import app
+from boomtip.data.frames import MRU_COLUMNS, TRUTH_COLUMNS
+from boomtip.data.io.pcd import PcdError, read_pcd, write_pcd
+from boomtip.data.io.recording import FORMAT_VERSION, Recording, RecordingError, frame_file_name, write_recording
+from boomtip.data.scenario import load_scenario
+from boomtip.data.sim.simulator import Simulation
+from boomtip.tools.cli import app
 
 
 @pytest.fixture(scope="module")
@@ -384,7 +384,7 @@ def test_mru_log_is_the_crane_attitude_plus_configured_noise(sim, scenario):
 
 
 def test_mru_attitude_interpolates_and_refuses_gaps_and_outside():
-    from data.frames import MruLog
+    from boomtip.data.frames import MruLog
     t = np.array([0.0, 0.01, 0.02, 0.5, 0.51])
     rpy = np.array([[0, 0, 0], [0.01, -0.02, 3.13], [0.02, -0.04, -3.13], [0.0, 0.0, 0.0], [0.0, 0.0, 0.1]])
     log = MruLog(t, rpy, rpy * 10, max_gap_s=0.1)

@@ -21,9 +21,9 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from data.frames import MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
-from data.pcd import PcdError, atomic_write_bytes, read_pcd, write_pcd
-from data.scenario import ScenarioError, scenario_from_dict
+from boomtip.data.frames import MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.io.pcd import PcdError, atomic_write_bytes, read_pcd, write_pcd
+from boomtip.data.scenario import ScenarioError, scenario_from_dict
 
 FORMAT_VERSION = 1
 
@@ -172,7 +172,7 @@ def write_recording(
 
 
 def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict:
-    from data.frames import LIDAR_FIELDS, RADAR_FIELDS
+    from boomtip.data.frames import LIDAR_FIELDS, RADAR_FIELDS
 
     return {
         "format_version": FORMAT_VERSION,
@@ -255,7 +255,7 @@ class Recording(FrameSource):
         )
         hook = scenario.hook.enabled
         if hook:
-            from data.hook_world import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS
+            from boomtip.data.sim.hook_world import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS
 
             self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS)
         truth_path = self.root / "truth.csv"

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from data.pcd import read_pcd, write_pcd
-from data.recording import Recording, RecordingError, write_recording
-from data.scenario import ScenarioError, load_scenario
-from data.simulator import Simulation
-from tools.cli import app
+from boomtip.data.io.pcd import read_pcd, write_pcd
+from boomtip.data.io.recording import Recording, RecordingError, write_recording
+from boomtip.data.scenario import ScenarioError, load_scenario
+from boomtip.data.sim.simulator import Simulation
+from boomtip.tools.cli import app
 
 runner = CliRunner()
 

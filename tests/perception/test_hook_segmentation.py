@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from data.hook_block import (
+from boomtip.data.block_model import (
     BODY_TOP_Z_M,
     SHEAVE_CROWN_Z_M,
     lower_block_mesh,
@@ -24,12 +24,12 @@ from data.hook_block import (
     rope_mesh,
     visible_model_points,
 )
-from data.raycast import RayCaster
-from data.scenario import Lidar
-from data.scene import Body, Label, Part, box
-from data.sensors import FaceLookup, lidar_pattern, lidar_measure
-from perception.hook import HookConfig, block_footprint, detect_hook, rotation_hanging, segmentation_scores
-from perception.timing import StageTimes
+from boomtip.data.sim.raycast import RayCaster
+from boomtip.data.scenario import Lidar
+from boomtip.data.meshes import Body, Label, Part, box
+from boomtip.data.sim.sensors import FaceLookup, lidar_pattern, lidar_measure
+from boomtip.perception.hook import HookConfig, block_footprint, detect_hook, rotation_hanging, segmentation_scores
+from boomtip.perception.timing import StageTimes
 
 SENSOR_M = np.array([0.8, 0.0, 0.3])  # LiDAR origin in the levelled tip frame
 # Sensor x (boresight) straight down, y along levelled +x, z = x cross y (levelled -y): the

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from data.crane import CraneJointProfiles, CraneParams, VesselWaves, simulate_crane
-from fusion.hook_filter import (
+from boomtip.data.sim.crane import CraneJointProfiles, CraneParams, VesselWaves, simulate_crane
+from boomtip.fusion.hook_filter import (
     HookFilter,
     HookFilterConfig,
     HookTracker,
@@ -196,7 +196,7 @@ def _random_states(n, count, seed=0):
 
 @pytest.mark.parametrize("model", ["flexible", "rigid"])
 def test_autodiff_jacobian_equals_complex_step(model):
-    from fusion.hook_filter import _accel_jacobian
+    from boomtip.fusion.hook_filter import _accel_jacobian
 
     f = HookFilter("ekf", model)
     assert _accel_jacobian(f._prm, f.flex) is not None  # _accel_core is traceable
@@ -211,7 +211,7 @@ def test_autodiff_jacobian_equals_complex_step(model):
 
 @pytest.mark.parametrize("flex", [True, False])
 def test_rk4_variants_equal_generic_step(flex):
-    from fusion.hook_filter import _rk4_batch, _rk4_float, _rk4_step
+    from boomtip.fusion.hook_filter import _rk4_batch, _rk4_float, _rk4_step
 
     prm = CraneParams().as_tuple()
     n = 21 if flex else 19
@@ -246,7 +246,7 @@ def test_linear_update_equals_sequential_scalar_updates():
 
 
 def test_batched_hook_outputs_equal_per_state():
-    from fusion.hook_filter import _hook_pos_vel_batch, _hook_pos_vel_small
+    from boomtip.fusion.hook_filter import _hook_pos_vel_batch, _hook_pos_vel_small
 
     X = _random_states(21, 30, seed=3)
     X[:, 11] = np.random.default_rng(4).normal(0, 0.5, 30)

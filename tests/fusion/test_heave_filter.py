@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from fusion.heave_filter import (
+from boomtip.fusion.heave_filter import (
     HeaveFilter,
     HeaveFilterConfig,
     Measurement,
@@ -352,7 +352,7 @@ def test_sixty_seconds_run_well_under_a_second():
 
 
 def test_inconsistent_garbage_does_not_reinitialise_but_a_real_jump_does():
-    from fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement
+    from boomtip.fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement
 
     rng = np.random.default_rng(42)
     f = HeaveFilter(HeaveFilterConfig(jerk_psd=0.2))

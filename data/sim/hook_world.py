@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from data.crane import HOOK_SCENARIOS, CallableVesselMotion, CraneParams, CraneTruth, simulate_crane
-from data.frames import Frame, Truth
-from data.hook_block import lower_block_parts, rope_mesh
-from data.scenario import Scenario
-from data.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
-from data.simulator import SENSOR_IDS, Simulation, World, frame_times
+from boomtip.data.sim.crane import HOOK_SCENARIOS, CallableVesselMotion, CraneParams, CraneTruth, simulate_crane
+from boomtip.data.frames import Frame, Truth
+from boomtip.data.block_model import lower_block_parts, rope_mesh
+from boomtip.data.scenario import Scenario
+from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
+from boomtip.data.sim.simulator import SENSOR_IDS, Simulation, World, frame_times
 
 HOOK_TRUTH_COLUMNS = (
     "t",

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data.frames import Frame, MruLog
-from data.scenario import load_scenario
-from data.simulator import Simulation
-from perception.deck import LIDAR_DECK, RADAR_DECK, detect_deck
-from perception.doppler import doppler_velocity
-from perception.geometry import (
+from boomtip.data.frames import Frame, MruLog
+from boomtip.data.scenario import load_scenario
+from boomtip.data.sim.simulator import Simulation
+from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, detect_deck
+from boomtip.perception.doppler import doppler_velocity
+from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
     heave_rate_exact,
@@ -19,9 +19,9 @@ from perception.geometry import (
     rpy_matrix,
     tip_in_sensor,
 )
-from perception.pipeline import HeavePipeline
-from perception.reflectors import ReflectorConfig, detect_reflectors
-from perception.timing import StageTimes
+from boomtip.perception.pipeline import HeavePipeline
+from boomtip.perception.reflectors import ReflectorConfig, detect_reflectors
+from boomtip.perception.timing import StageTimes
 
 
 def _deck_scene(rng, tilt_deg=3.0, depth=40.0, cargo=True, n=20000):
@@ -208,7 +208,7 @@ def test_mru_gap_is_reported(short_sim):
 
 
 def test_unknown_method_is_refused(short_sim):
-    from perception.pipeline import PipelineConfig
+    from boomtip.perception.pipeline import PipelineConfig
 
     with pytest.raises(ValueError, match="unknown method"):
         HeavePipeline(short_sim.meta, short_sim.mru, PipelineConfig(methods=("deck_lidar", "decklidar")))
