@@ -4,14 +4,15 @@ by intersecting the wire (straight down from the boom tip) with it (eq. 4.8)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import heave_distance, plane_sigma_at
-from typing import Literal
-
-from boomtip.perception.plane import MultiPlaneConfig, PlaneFit, RansacConfig, multi_plane_deck, ransac_plane
+from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
+from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes
 
@@ -54,10 +55,12 @@ RADAR_DECK = DeckConfig(
 
 @dataclass
 class DeckResult:
-    D_m: float
-    plane_sensor: np.ndarray | None
-    fit: PlaneFit | None
-    points_used: np.ndarray
+    """Result of :func:`detect_deck` (sensor frame, metres)."""
+
+    D_m: float  # distance from the tip down the wire to the deck, NaN without a measurement
+    plane_sensor: np.ndarray | None  # [a, b, c, d], unit normal towards the sensor
+    fit: PlaneFit | None  # the deck plane's fit, inlier mask over points_used
+    points_used: np.ndarray  # the points after preprocessing
     status: str  # "ok" or why there is no measurement
     sigma_m: float = float("nan")  # 1-sigma of D from the fit (plane prediction error at the wire)
 
@@ -66,11 +69,28 @@ def detect_deck(
     points_sensor: np.ndarray,
     wire_dir_sensor: np.ndarray,
     p_tip_sensor: np.ndarray,
-    cfg: DeckConfig,
-    rng: np.random.Generator,
-    times: StageTimes,
+    cfg: DeckConfig | None = None,
+    rng: np.random.Generator | None = None,
+    times: StageTimes | None = None,
     prefix: str = "deck",
 ) -> DeckResult:
+    """The feeder deck plane in one frame and D, the distance from the tip down the wire to it.
+
+    points_sensor: (N, 3) sensor frame, metres (or an Open3D point cloud); non-finite points are
+        dropped by the preprocessing.
+    wire_dir_sensor: (3,) unit direction of the wire (gravity, pointing down) in the sensor frame.
+    p_tip_sensor: (3,) the boom tip (where the wire leaves it) in the sensor frame.
+    cfg: default :class:`DeckConfig` (``LIDAR_DECK`` / ``RADAR_DECK`` are tuned per sensor).
+    rng: drives the RANSAC (default: seeded, the same result every call).
+    times: collects the stages' times under ``prefix``.
+    Returns a :class:`DeckResult`; without a measurement D_m is NaN and status says why.
+    """
+    points_sensor = as_points(points_sensor)
+    wire_dir_sensor = np.asarray(wire_dir_sensor, dtype=np.float64)
+    p_tip_sensor = np.asarray(p_tip_sensor, dtype=np.float64)
+    cfg = cfg or DeckConfig()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    times = times if times is not None else StageTimes()
     with times.stage(f"{prefix}.preprocess"):
         pts, _, _ = preprocess(points_sensor, None, cfg.preprocess, rng)
     if len(pts) < cfg.min_points:

@@ -33,8 +33,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-
 from pydantic import BaseModel, ConfigDict, Field
+
+from boomtip.perception.cloud import as_points
 
 __all__ = [
     "DopplerConfig",
@@ -92,10 +93,6 @@ class DopplerFit:
     covariance: np.ndarray
     condition_number: float
     iterations: int
-
-
-def _unit_rows(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
 def _lsq(b: np.ndarray, r: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
@@ -211,16 +208,18 @@ def doppler_velocity(
 ) -> DopplerFit | None:
     """Fit u with ``range_rate_i = b_i . u`` (sensor frame, m/s), robust to outliers.
 
-    ``beam_dirs`` (N, 3) are normalised here; ``range_rate_mps`` (N,) positive when receding.
+    ``beam_dirs`` (N, 3) are normalised here, so the detections' points will do (also as an Open3D
+    point cloud); ``range_rate_mps`` (N,) positive when receding.
     ``u_prior`` (e.g. the previous scan's velocity) lets the trimmed start skip its first pass.
+    ``rng`` draws the RANSAC triplets (default: seeded, the same result every call).
     Steps: vectorised RANSAC over minimal 3-detection sets (batched 3x3 solves, one (N x batch)
     residual matrix per batch, adaptive stop from the best inlier ratio), least-squares refits on the
     inliers with re-selection, optional Huber IRLS, covariance ``sigma^2 (B^T B)^-1``.
     Returns None with fewer than 3 (finite) detections, fewer than ``cfg.min_inliers`` inliers, or a
     degenerate geometry (cond(B) > ``cfg.max_condition``, e.g. all beams nearly parallel).
     """
+    b_all = as_points(beam_dirs)
     cfg = cfg or DopplerConfig()
-    b_all = np.asarray(beam_dirs, dtype=np.float64).reshape(-1, 3)
     r_all = np.asarray(range_rate_mps, dtype=np.float64).reshape(-1)
     if len(b_all) != len(r_all):
         raise ValueError("beam_dirs and range_rate_mps must have the same length")
@@ -244,7 +243,7 @@ def doppler_velocity(
             fit = _trimmed_fit(bT, r, cfg, valid_sel, n_all)
         if fit is not None:
             return fit
-    rng = rng if rng is not None else np.random.default_rng()  # only RANSAC draws: built here, not per call
+    rng = rng if rng is not None else np.random.default_rng(0)  # only RANSAC draws: built here, not per call
     b = np.ascontiguousarray(bT.T)
     vidx = np.flatnonzero(valid)
     best_count, best_u, drawn = -1, None, 0

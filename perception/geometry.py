@@ -51,11 +51,12 @@ def heave_distance(plane_sensor: np.ndarray, wire_dir: np.ndarray, p_tip_sensor:
     """D: distance from the tip along the wire to the plane n.x + d = 0 (eq. 4.8, from the tip).
     Expects a unit normal and a unit wire direction (perception.plane.wire_plane_distance
     normalises arbitrary inputs first); NaN when the wire is parallel to the plane."""
+    plane_sensor = np.asarray(plane_sensor, dtype=np.float64)
     n, d = plane_sensor[:3], plane_sensor[3]
-    denom = float(n @ wire_dir)
+    denom = float(n @ np.asarray(wire_dir, dtype=np.float64))
     if abs(denom) < 1e-6:
         return float("nan")
-    return -(float(n @ p_tip_sensor) + d) / denom
+    return -(float(n @ np.asarray(p_tip_sensor, dtype=np.float64)) + d) / denom
 
 
 def heave_rate_document(u_level: np.ndarray) -> float:
@@ -182,11 +183,6 @@ class NormalRate:
         return self.n[-1]
 
 
-def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of two 3-vectors (np.cross's broadcasting costs ~10x more for one pair)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
 def omega_from_euler_rates(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:
     """Angular velocity (world axes) of R = Rz(yaw) Ry(pitch) Rx(roll) from Euler rates;
     one-sample form of data.motion.euler_rates_to_omega_world."""
@@ -239,14 +235,9 @@ def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray,
     return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
 
 
-def solve3(a: np.ndarray, y: np.ndarray) -> np.ndarray | None:
-    """x = a^-1 y for a 3x3 system by the adjugate: ~10x cheaper than np.linalg.solve's
-    per-call overhead for one tiny system. None when singular."""
-    inv = inv3(a)
-    return None if inv is None else inv @ y
-
-
 def inv3(a: np.ndarray) -> np.ndarray | None:
+    """a^-1 for a 3x3 matrix by the adjugate: ~10x cheaper than np.linalg.inv's per-call
+    overhead for one tiny matrix. None when singular."""
     (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = a.tolist()
     adj = np.array([
         [b1 * c2 - b2 * c1, a2 * c1 - a1 * c2, a1 * b2 - a2 * b1],

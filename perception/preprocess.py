@@ -33,16 +33,10 @@ from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from scipy.spatial import cKDTree
 
-from boomtip.perception.plane import (
-    MultiPlaneConfig,
-    MultiPlaneResult,
-    PlaneFit,
-    RansacConfig,
-    orient_plane_towards,
-    select_deck_plane,
-)
+from boomtip.perception.cloud import as_points
+from boomtip.perception.multi_plane import MultiPlaneConfig, MultiPlaneResult, select_deck_plane
+from boomtip.perception.plane import PlaneFit, RansacConfig, orient_plane_towards
 
 __all__ = [
     "PreprocessConfig",
@@ -170,6 +164,8 @@ def statistical_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: f
     (Difference to Open3D: Open3D also drops points whose mean distance is exactly 0, i.e. exact
     duplicates; this filter keeps them.)
     """
+    from scipy.spatial import cKDTree  # only this filter needs it, and it takes 0.2 s to import
+
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = len(pts)
     if n < 2:
@@ -194,15 +190,15 @@ def preprocess(
 ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, int]]:
     """Clean and thin a sensor-frame point cloud; attributes stay aligned with the points.
 
-    ``points`` (N, 3) float, sensor frame, metres; ``attributes`` maps names to arrays of first
-    dimension N. ``rng`` drives the random downsampling (default: ``default_rng(cfg.seed)``).
+    ``points`` (N, 3) float or an Open3D point cloud, sensor frame, metres; ``attributes`` maps names
+    to arrays of first dimension N. ``rng`` drives the random downsampling (default: ``default_rng(cfg.seed)``).
     Returns ``(points_out, attributes_out, stats)`` where ``stats`` holds the point count after each
     step: input, finite, range, box, random, voxel, outlier (a skipped step repeats the previous count).
     Empty (or all-invalid) input gives empty output, never an exception.
     """
+    pts = as_points(points)
     cfg = cfg or PreprocessConfig()
     attributes = attributes or {}
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n0 = len(pts)
     for name, a in attributes.items():
         if len(a) != n0:
@@ -286,7 +282,7 @@ def open3d_baseline_multi_plane(
 ) -> MultiPlaneResult | None:
     """Benchmark baseline: document 000's Algorithm 3 with Open3D's ``segment_plane`` called
     ``n_planes`` times (removing inliers each time), then the SAME selection metric as
-    :func:`perception.plane.multi_plane_deck` (:func:`perception.plane.select_deck_plane`).
+    :func:`perception.multi_plane.multi_plane_deck` (:func:`perception.multi_plane.select_deck_plane`).
     Sensor frame, metres. ``seed`` seeds Open3D's global RNG (None leaves it alone)."""
     import open3d as o3d
 

@@ -19,6 +19,7 @@ from itertools import combinations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import fit_plane_heave, sym3_eigvals
 from boomtip.perception.timing import StageTimes
 
@@ -53,13 +54,15 @@ class ReflectorConfig(BaseModel):
 
 @dataclass
 class ReflectorResult:
-    D_m: float
-    plane_sensor: np.ndarray | None
+    """Result of :func:`detect_reflectors` (sensor frame, metres)."""
+
+    D_m: float  # distance from the tip down the wire to the deck, NaN without a measurement
+    plane_sensor: np.ndarray | None  # the deck plane [a, b, c, d], unit normal towards the sensor
     marker_centroids: np.ndarray  # (M,3) markers on the plane
     bright_points: np.ndarray  # (B,3) all points above the threshold
     threshold: float
-    status: str
-    sigma_m: float = float("nan")
+    status: str  # "ok" or why there is no measurement
+    sigma_m: float = float("nan")  # 1-sigma of D from the fit
 
 
 def intensity_threshold(intensity_comp: np.ndarray, cfg: ReflectorConfig) -> float:
@@ -139,10 +142,26 @@ def detect_reflectors(
     intensity: np.ndarray,
     wire_dir_sensor: np.ndarray,
     p_tip_sensor: np.ndarray,
-    cfg: ReflectorConfig,
-    rng: np.random.Generator,
-    times: StageTimes,
+    cfg: ReflectorConfig | None = None,
+    rng: np.random.Generator | None = None,
+    times: StageTimes | None = None,
 ) -> ReflectorResult:
+    """The deck plane through the retro-reflective markers in one frame, and D along the wire.
+
+    points_sensor: (N, 3) sensor frame, metres (or an Open3D point cloud); intensity: (N,) per
+    point, 1.0 = white diffuse at 50 m (the range compensation scales it). wire_dir_sensor: (3,)
+    unit wire direction (down) and p_tip_sensor: (3,) the boom tip, both in the sensor frame.
+    rng is not used (the marker search is deterministic); it keeps the stages' signature.
+    Returns a :class:`ReflectorResult`; without a measurement D_m is NaN and status says why.
+    """
+    points_sensor = as_points(points_sensor)
+    intensity = np.asarray(intensity).reshape(-1)  # dtype kept: the threshold compares in it
+    if len(intensity) != len(points_sensor):
+        raise ValueError(f"intensity has {len(intensity)} values, points have {len(points_sensor)}")
+    wire_dir_sensor = np.asarray(wire_dir_sensor, dtype=np.float64)
+    p_tip_sensor = np.asarray(p_tip_sensor, dtype=np.float64)
+    cfg = cfg or ReflectorConfig()
+    times = times if times is not None else StageTimes()
     empty = np.zeros((0, 3))
     with times.stage("reflectors.threshold"):
         # Squared range by columns (einsum costs ~3x more here); the range compensation is only

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from boomtip.perception.cloud import as_points
 from boomtip.perception.timing import StageTimes
 
 __all__ = ["RopeConfig", "RopeFix", "fit_rope", "tangent_basis"]
@@ -128,15 +129,16 @@ def fit_rope(
 ) -> RopeFix:
     """Fit the rope's direction in one levelled frame.
 
-    points_level: (N, 3) levelled frame, origin at the boom tip, z up.
+    points_level: (N, 3) levelled frame, origin at the boom tip, z up (or an Open3D point cloud).
     u_prior: (3,) predicted direction from the suspension point to the block.
     sigma_prior_rad: its angular uncertainty (the gate's width grows with it and the depth).
     hoist_length_m: rope length (encoder): returns beyond it minus the clearance are the block's.
+    rng: draws the line hypotheses (default: seeded, the same result every call).
     """
+    pts = as_points(points_level)
     cfg = cfg or RopeConfig()
-    rng = rng if rng is not None else np.random.default_rng()
+    rng = rng if rng is not None else np.random.default_rng(0)
     times = times if times is not None else StageTimes()
-    pts = np.asarray(points_level, dtype=np.float64).reshape(-1, 3)
     n_all = len(pts)
     u = np.asarray(u_prior, float).reshape(3)
     norm = float(np.linalg.norm(u))

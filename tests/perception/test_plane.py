@@ -1,4 +1,5 @@
-"""Tests for perception.plane: LSQ / RANSAC planes, multi-plane deck selection, wire distance."""
+"""Tests for perception.plane (LSQ / RANSAC planes, wire distance) and perception.multi_plane
+(multi-plane deck selection)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
 from boomtip.perception.plane import (
-    MultiPlaneConfig,
     RansacConfig,
     fit_plane_lsq,
-    multi_plane_deck,
     orient_plane_towards,
     ransac_plane,
     transform_plane,
@@ -303,7 +303,8 @@ def test_ransac_refit_modes_agree():
 
 def test_select_deck_plane_rules():
     """The selection metric on hand-made candidates (levelled sensor frame, up = +z)."""
-    from boomtip.perception.plane import PlaneFit, select_deck_plane
+    from boomtip.perception.multi_plane import select_deck_plane
+    from boomtip.perception.plane import PlaneFit
 
     rng = np.random.default_rng(9)
     up = np.array([0.0, 0.0, 1.0])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from boomtip.perception.plane import MultiPlaneConfig, multi_plane_deck
+from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
 from boomtip.perception.preprocess import (
     PreprocessConfig,
     open3d_baseline_multi_plane,
