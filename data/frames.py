@@ -1,7 +1,7 @@
 """The one interface every frame source implements: recordings on disk and live simulation.
 
-A source exposes its metadata (scenario, mount transforms, deck plane), the MRU log, the
-ground truth when it has one, and iterates frames of both sensors in acquisition order.
+A source exposes its metadata (the installation: sensors and mounts as surveyed), the MRU
+log, the encoders when it has them, the ground truth when it has one, and iterates frames of both sensors in acquisition order.
 A frame that could not be read still comes out, with `error` set, so a long run records
 it as missing and goes on.
 """
@@ -15,7 +15,7 @@ from typing import Iterator
 
 import numpy as np
 
-from boomtip.data.scenario import Scenario
+from boomtip.data.installation import Installation
 
 SENSORS = ("lidar", "radar")
 LIDAR_FIELDS = ("intensity", "t", "label")
@@ -24,6 +24,14 @@ BODIES = ("crane", "feeder")
 BODY_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
 TRUTH_COLUMNS = ("t", "D", "D_dot") + tuple(f"{b}_{c}" for b in BODIES for c in BODY_COLUMNS)
 MRU_COLUMNS = ("t", "roll", "pitch", "yaw", "roll_rate", "pitch_rate", "yaw_rate")
+HOOK_TRUTH_COLUMNS = (
+    "t",
+    "hook_x", "hook_y", "hook_z", "hook_vx", "hook_vy", "hook_vz",
+    "hook_rel_x", "hook_rel_y", "hook_rel_z", "hook_rel_vx", "hook_rel_vy", "hook_rel_vz",
+    "tip_x", "tip_y", "tip_z", "slew", "luff", "hoist", "boom_deflection", "sway_a", "sway_b",
+    "crane_roll", "crane_pitch",
+)
+ENCODER_COLUMNS = ("t", "slew", "luff", "hoist")
 
 
 @dataclass
@@ -88,10 +96,25 @@ class Truth:
 
 @dataclass
 class SourceMeta:
-    scenario: Scenario
-    T_crane_boomtip: np.ndarray  # 4x4, boom tip in the crane-vessel body frame
-    T_boomtip_sensor: dict[str, np.ndarray]  # sensor name -> 4x4
-    feeder_deck_plane_body: np.ndarray  # [a,b,c,d] in the feeder body frame
+    """What a source says about itself. Processing is built from `installation` and
+    `processing` alone; `provenance` (the full simulated scenario, world included) is for
+    reproducibility and scoring only and never reaches perception or fusion."""
+
+    installation: Installation
+    duration_s: float
+    name: str = "recording"
+    processing: dict = field(default_factory=dict)  # processing settings the source asks for (raw keys)
+    provenance: dict | None = None
+
+    @property
+    def T_crane_boomtip(self) -> np.ndarray:
+        """4x4, boom tip in the crane-vessel body frame (as surveyed)."""
+        return self.installation.T_crane_boomtip()
+
+    @property
+    def T_boomtip_sensor(self) -> dict[str, np.ndarray]:
+        """Sensor name -> 4x4 mount as surveyed."""
+        return self.installation.T_boomtip_sensor()
 
 
 class FrameSource(ABC):
@@ -100,6 +123,9 @@ class FrameSource(ABC):
     meta: SourceMeta
     mru: MruLog
     truth: Truth | None
+    # Crane joint encoders, a stream like the MRU log: t, slew, luff (rad), hoist (m); None
+    # when the source has none (ship-to-ship runs).
+    encoders: dict[str, np.ndarray] | None = None
 
     @abstractmethod
     def __iter__(self) -> Iterator[Frame]: ...
@@ -109,4 +135,4 @@ class FrameSource(ABC):
 
     @property
     def duration_s(self) -> float:
-        return self.meta.scenario.duration_s
+        return self.meta.duration_s

@@ -9,16 +9,10 @@ from boomtip.data.scenario import Scenario
 
 
 def simulation_for(scenario: Scenario) -> FrameSource:
-    if scenario.hook.enabled:
+    if scenario.world.hook.enabled:
         from boomtip.data.sim.hook_world import HookSimulation
 
         return HookSimulation(scenario)
     from boomtip.data.sim.simulator import Simulation
 
     return Simulation(scenario)
-
-
-def open_recording(path: str | Path) -> FrameSource:
-    from boomtip.data.io.recording import Recording
-
-    return Recording(path)

@@ -1,46 +1,43 @@
-"""Filter tuning from the scenario: sea state and sensor noise, never from the truth."""
+"""Process noise of the heave filters without an oracle: from a sea state, never from the
+simulated world.
+
+The filters' white-jerk PSD q follows the relative heave's spectrum. With no forecast, the
+default is the worst sea the crane works in (Hs 4 m, a steep Tp of 7 s): too large a q only
+costs a little smoothing (the filter's bandwidth grows as q^(1/6)), too small a q lags a
+rough sea by centimetres. A user with a forecast gives `processing.sea_state` and gets the q
+of that sea.
+"""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from boomtip.data.sim.motion import jonswap
-from boomtip.data.scenario import IrregularSea, Scenario
+from boomtip.data.sea_spectrum import jonswap
+
+WORKING_LIMIT_HS_M = 4.0
+WORKING_LIMIT_TP_S = 7.0
 
 
-def relative_heave_components(s: Scenario) -> list[tuple[float, float]]:
-    """(amplitude m, period s) of every motion component that moves D.
+def relative_heave_jerk_psd(hs_m: float, tp_s: float, gamma: float = 3.3) -> float:
+    """White-jerk PSD q [m^2/s^5] for the relative heave in a JONSWAP sea.
 
-    Heave enters directly; roll and pitch enter through their lever arm: the horizontal
-    distance from the rotation centre to the boom tip (crane) or to the deck point below it
-    (feeder). Irregular seas add their spectrum's components scaled by the DOF response.
+    Both vessels are taken to follow the wave elevation one to one and independently (the
+    relative heave's spectrum is twice the wave's): an upper bound for ships longer than the
+    waves, whose response falls below one at short periods. The rule is
+    `heave_filter.jerk_psd_from_sea_state`'s (q_k = A_k^2 w_k^5 / 2 per component) over the
+    spectrum from 0.4 to 3 times the peak frequency, beyond which ships do not respond.
     """
-    tip = np.asarray(s.crane.geometry.boom_tip_m)
-    feeder_pos = np.asarray(s.feeder.geometry.position_m)
-    levers = {
-        "crane": {"heave": 1.0, "roll": abs(tip[1]), "pitch": abs(tip[0])},
-        "feeder": {"heave": 1.0, "roll": abs(tip[1] - feeder_pos[1]) + 1.0, "pitch": abs(tip[0] - feeder_pos[0]) + 1.0},
-    }
-    out: list[tuple[float, float]] = []
-    for name, vessel in (("crane", s.crane), ("feeder", s.feeder)):
-        for dof, lever in levers[name].items():
-            sine = getattr(vessel.motion, dof)
-            scale = np.deg2rad(1.0) * lever if dof != "heave" else 1.0
-            if sine.amplitude:
-                out.append((abs(sine.amplitude) * scale, sine.period_s))
-        out += _irregular_components(vessel.irregular, levers[name])
-    return out
-
-
-def _irregular_components(irr: IrregularSea, levers: dict[str, float]) -> list[tuple[float, float]]:
-    if not irr.enabled:
-        return []
-    wp = 2 * np.pi / irr.tp_s
-    edges = np.linspace(0.4 * wp, 3.0 * wp, 33)
+    if not (math.isfinite(hs_m) and math.isfinite(tp_s)) or hs_m <= 0 or tp_s <= 0:
+        raise ValueError(f"a sea state needs hs_m > 0 and tp_s > 0, got {hs_m!r}, {tp_s!r}")
+    wp = 2 * np.pi / tp_s
+    edges = np.linspace(0.4 * wp, 3.0 * wp, 65)
     w = (edges[:-1] + edges[1:]) / 2
-    a = np.sqrt(2 * jonswap(w, irr.hs_m, irr.tp_s, irr.gamma) * np.diff(edges))
-    out = []
-    for dof, lever in levers.items():
-        gain = irr.response.get(dof, 0.0) * (np.deg2rad(1.0) * lever if dof != "heave" else 1.0)
-        out += [(float(gain * ak), float(2 * np.pi / wk)) for ak, wk in zip(a, w) if gain * ak > 0]
-    return out
+    var_D = 2.0 * jonswap(w, hs_m, tp_s, gamma) * np.diff(edges)  # A_k^2 / 2 of the relative heave
+    return float(np.sum(var_D * w**5))
+
+
+def default_jerk_psd() -> float:
+    """q for the working limit, Hs 4 m at Tp 7 s: holds for any sea up to it."""
+    return relative_heave_jerk_psd(WORKING_LIMIT_HS_M, WORKING_LIMIT_TP_S)

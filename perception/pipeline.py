@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from boomtip.data.frames import Frame, MruLog, SourceMeta
+from boomtip.data.frames import Frame, MruLog
+from boomtip.data.installation import Installation
 from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck
 from boomtip.perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
 from boomtip.perception.geometry import (
@@ -57,7 +58,6 @@ class PipelineConfig(BaseModel):
     doppler_preprocess: PreprocessConfig = PreprocessConfig(min_range_m=2.0, max_range_m=150.0)
     normal_window_s: float = Field(1.0, gt=0, description="window of deck normals used for the deck's spin")
     max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
-    seed: int = 0
 
 
 @dataclass
@@ -87,25 +87,37 @@ class FrameResult:
     extras: dict = field(default_factory=dict)
 
 
-class HeavePipeline:
-    """Composes the stages; `process(frame)` returns that frame's measurements."""
+def attitude_sigma_D(D_m: float, plane_sensor: np.ndarray, wire_sensor: np.ndarray, sigma_rad: float) -> float:
+    """1-sigma of D from the wire direction's error (the MRU's stated angle noise): tilting the
+    wire by a small angle moves where it meets a plane tilted by theta from it by
+    D tan(theta) per radian."""
+    cos_t = min(abs(float(plane_sensor[:3] @ wire_sensor)), 1.0)
+    tan_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0)) / max(cos_t, 1e-6)
+    return abs(D_m) * tan_t * sigma_rad
 
-    def __init__(self, meta: SourceMeta, mru: MruLog, cfg: PipelineConfig | None = None) -> None:
-        self.meta, self.mru = meta, mru
+
+class HeavePipeline:
+    """Composes the stages; `process(frame)` returns that frame's measurements. Built from
+    the installation (mounts, tip, MRU spec, marker height) and the processing settings."""
+
+    def __init__(self, installation: Installation, mru: MruLog, cfg: PipelineConfig | None = None, seed: int = 0) -> None:
+        self.installation, self.mru = installation, mru
         self.cfg = cfg or PipelineConfig()
+        self.seed = seed
+        T_crane_boomtip, T_boomtip_sensor = installation.T_crane_boomtip(), installation.T_boomtip_sensor()
         unknown = set(self.cfg.methods) - set(METHODS)
         if unknown:
             raise ValueError(f"unknown method(s) {sorted(unknown)}; expected some of {', '.join(METHODS)}")
-        self.p_tip = {s: tip_in_sensor(meta.T_boomtip_sensor[s]) for s in ("lidar", "radar")}
+        self.p_tip = {s: tip_in_sensor(T_boomtip_sensor[s]) for s in ("lidar", "radar")}
         # The mount is fixed: sensor axes -> crane-vessel axes once, the MRU attitude per frame.
-        self.R_crane_sensor = {s: mount_rotation(meta.T_crane_boomtip, meta.T_boomtip_sensor[s]) for s in ("lidar", "radar")}
+        self.R_crane_sensor = {s: mount_rotation(T_crane_boomtip, T_boomtip_sensor[s]) for s in ("lidar", "radar")}
         self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
-        self.mru_sigma_rad = float(np.deg2rad(meta.scenario.mru.angle_noise_deg))  # the MRU's stated noise
-        if self.cfg.reflectors.marker_height_m == 0.0:  # installation knowledge from the scenario
+        self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
+        if "marker_height_m" not in self.cfg.reflectors.model_fields_set:  # the markers as the crew laid them
             self.cfg = self.cfg.model_copy(update={"reflectors": self.cfg.reflectors.model_copy(
-                update={"marker_height_m": meta.scenario.feeder.reflectors.height_m})})
+                update={"marker_height_m": installation.markers.height_m})})
 
     def _wants(self, sensor: str) -> list[str]:
         return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor]
@@ -132,7 +144,7 @@ class HeavePipeline:
             return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, status) for m in wanted}, times), times)
         if len(frame) == 0:
             return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, "empty frame") for m in wanted}, times), times)
-        rng = np.random.default_rng([self.cfg.seed, SENSOR_IDS[frame.sensor], frame.index])
+        rng = np.random.default_rng([self.seed, SENSOR_IDS[frame.sensor], frame.index])
         out = FrameResult(frame, [], times, extras={"R_level_sensor": R_ls, "wire_dir_sensor": wire})
         results: dict[str, tuple[float, float, str]] = {}
         p_tip = self.p_tip[frame.sensor]
@@ -146,7 +158,10 @@ class HeavePipeline:
                     results["reflectors_lidar"] = (np.nan, np.nan, "frame has no intensity field")
                 else:
                     out.reflectors = ref = detect_reflectors(frame.points_sensor, intensity, wire, p_tip, self.cfg.reflectors, rng, times)
-                    results["reflectors_lidar"] = (ref.D_m, ref.sigma_m, ref.status)
+                    sigma = ref.sigma_m
+                    if ref.status == "ok":
+                        sigma = math.hypot(sigma, attitude_sigma_D(ref.D_m, ref.plane_sensor, wire, self.mru_sigma_rad))
+                    results["reflectors_lidar"] = (ref.D_m, sigma, ref.status)
         else:
             if "deck_radar" in wanted:
                 out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck")
@@ -161,7 +176,8 @@ class HeavePipeline:
             return (np.nan, np.nan, deck.status)
         self.normals[sensor].add(t_s, R_ls @ deck.plane_sensor[:3])
         self.last_deck[sensor] = (t_s, deck.D_m)
-        return (deck.D_m, deck.sigma_m, "ok")
+        sigma = math.hypot(deck.sigma_m, attitude_sigma_D(deck.D_m, deck.plane_sensor, wire, self.mru_sigma_rad))
+        return (deck.D_m, sigma, "ok")
 
     def _doppler(self, frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out) -> dict:
         res: dict[str, tuple[float, float, str]] = {}

@@ -27,7 +27,7 @@ amount at every depth, which a free radius can only separate from a tilt through
 depth spread (3.6 cm worse at 200 m in simulation).
 
 Returns the direction and its covariance (3x3, rank 2, across the rope), so the filter can
-turn it into its own angles (fusion.hook_filter.HookFilter.update_rope).
+turn it into its own angles (fusion.hook_kalman.HookFilter.update_rope).
 """
 
 from __future__ import annotations

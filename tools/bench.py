@@ -22,7 +22,7 @@ def bench_raycast(scenario: Scenario, frames: int = 20, simulate_s: float = 60.0
 
     sim = Simulation(scenario)
     w = sim.world
-    times = np.arange(frames) / scenario.lidar.rate_hz
+    times = np.arange(frames) / scenario.installation.lidar.rate_hz
     meshes = [b.trimesh() for b in w.bodies]
 
     # The two routes alternate frame by frame, so a slow spell of a shared machine hits both.
@@ -122,7 +122,7 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
     t_deck = {"boomtip": 0.0, "open3d": 0.0}
     err = {"boomtip": [], "open3d": []}
     for i in range(frames):
-        t = i / scenario.lidar.rate_hz
+        t = i / scenario.installation.lidar.rate_hz
         f = sim.lidar_frame(i, t)
         rpy, _ = sim.mru.attitude(t)
         wire = wire_dir_sensor(rotation_level_sensor(rpy, meta.T_crane_boomtip, meta.T_boomtip_sensor["lidar"]))
@@ -161,12 +161,12 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
     mae = {k: float(np.nanmean(np.abs(v))) for k, v in err.items()}
     mx = {k: float(np.nanmax(np.abs(v))) for k, v in err.items()}
     # The other methods' figures from the pipeline itself (its own stage timing), same scenario.
-    pipe = HeavePipeline(meta, sim.mru)
+    pipe = HeavePipeline(meta.installation, sim.mru)
     per_method: dict[str, dict] = {}
-    n_radar = int(frames * scenario.radar.rate_hz / scenario.lidar.rate_hz)
+    n_radar = int(frames * scenario.installation.radar.rate_hz / scenario.installation.lidar.rate_hz)
     # In acquisition order, as a run feeds them: the rotation-aware Doppler uses the latest deck.
-    schedule = sorted([(i / scenario.lidar.rate_hz, "lidar", i) for i in range(frames)]
-                      + [(i / scenario.radar.rate_hz, "radar", i) for i in range(n_radar)])
+    schedule = sorted([(i / scenario.installation.lidar.rate_hz, "lidar", i) for i in range(frames)]
+                      + [(i / scenario.installation.radar.rate_hz, "radar", i) for i in range(n_radar)])
     for t, sensor, i in schedule:
         fr = sim.lidar_frame(i, t) if sensor == "lidar" else sim.radar_frame(i, t)
         for m in pipe.process(fr).measurements:
@@ -205,15 +205,13 @@ def bench_fusion(program: str = "hook-2", duration_s: float = 60.0, seed: int = 
     same measurement streams (truth + document 002's sensor noise), plus its accuracy; and the
     exact-Jacobian filter as boomtip's chain runs it, with the rope's direction in every LiDAR
     frame as well (0.1 mrad, what perception.rope measures)."""
-    from boomtip.data.sim.crane import HOOK_SCENARIOS, CraneParams, simulate_crane
-    from boomtip.fusion.hook_filter import (
-        HookFilterConfig,
-        SensorSimConfig,
-        measurements_from_truth,
-        rmse_per_axis,
-        run_hook_filter,
-        world_hook_from_states,
-    )
+    from boomtip.data.crane_model import CraneParams
+    from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
+    from boomtip.data.sim.crane_truth import simulate_crane
+    from boomtip.data.sim.hook_measurements import SensorSimConfig, measurements_from_truth
+    from boomtip.fusion.hook_config import HookFilterConfig
+    from boomtip.fusion.hook_run import run_hook_filter
+    from boomtip.tools.hook_eval import rmse_per_axis, world_hook_from_states
 
     params = CraneParams()
     spec = HOOK_SCENARIOS[program](params)

@@ -111,7 +111,7 @@ def _print_kpis(kpis: dict) -> None:
               f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
               f"{seg['apt_ms']:.1f} ms/frame")
         if "rope" in h:
-            from boomtip.tools.hook_runner import rope_summary
+            from boomtip.tools.hook_outputs import rope_summary
 
             print(rope_summary(h["rope"]))
         print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}"
@@ -130,16 +130,12 @@ def _print_kpis(kpis: dict) -> None:
 
 
 def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> None:
-    from boomtip.tools.runner import run_heave
+    from boomtip.tools.runner import run
 
     with progress_bar(len(source), "processing") as advance:
-        result = run_heave(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance)
+        result = run(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance)
     _print_kpis(result.kpis)
-    if "hook" in result.kpis:
-        console.print(f"\nwrote {out}: hook_measurements.csv, hook_estimates.csv, kpis.json, hook_report.md, plots")
-        return
-    console.print(f"\nwrote {out}: measurements.csv, estimates.csv" + (", kpis.json, report.md, plots" if "solutions" in result.kpis else "")
-                  + (", boomtip.rrd" if rerun else ""))
+    console.print(f"\nwrote {out}: " + ", ".join(result.written))
 
 
 @app.command()

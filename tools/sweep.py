@@ -25,13 +25,12 @@ def _one(args: tuple) -> dict:
     import tempfile
 
     from boomtip.data.scenario import load_scenario
-    from boomtip.data.sim.simulator import Simulation
-    from boomtip.fusion.solutions import FusionConfig
+    from boomtip.data.sources import simulation_for
     from boomtip.tools.runner import run_into
 
     s = load_scenario(scenario, overrides + [f"duration_s={duration}"])
     with tempfile.TemporaryDirectory() as tmp:
-        res = run_into(Simulation(s), Path(tmp), None, FusionConfig(), rerun=False, report=False, progress=None)
+        res = run_into(simulation_for(s), Path(tmp), rerun=False, report=False)
     return {"value": value, "overrides": overrides, "kpis": res.kpis}
 
 

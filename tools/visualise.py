@@ -132,11 +132,13 @@ class HookRerunLogger:
     which keeps a recording of a whole transfer to a few hundred MB.
     """
 
-    def __init__(self, path: Path, source: FrameSource, full_cloud_hz: float = 2.0, trail_s: float = 10.0) -> None:
+    def __init__(self, path: Path, source: FrameSource, gate_radius_m: float = 6.0, full_cloud_hz: float = 2.0,
+                 trail_s: float = 10.0) -> None:
         import rerun as rr
         import rerun.blueprint as rrb
 
         self.rr = rr
+        self.gate_radius_m = gate_radius_m
         self.full_cloud_dt = 1.0 / full_cloud_hz
         self.trail_s = trail_s
         self._last_full = -np.inf
@@ -154,10 +156,15 @@ class HookRerunLogger:
         )
         _start(self.rec, path, blueprint, tip_radius_m=0.3)
 
-    def log_frame(self, t_s: float, points_level: np.ndarray, det, prior: np.ndarray, gate_radius_m: float,
-                  rope=None, hoist_m: float | None = None) -> None:
-        """One LiDAR frame: points in the levelled tip frame, the detection (perception.hook) and
-        the rope's fitted points and axis (perception.rope), drawn to the hoist length."""
+    def log_frame(self, res) -> None:
+        """One LiDAR frame (tools.hook_chain.HookFrameResult): points in the levelled tip frame,
+        the detection (perception.hook) and the rope's fitted points and axis (perception.rope),
+        drawn to the hoist length."""
+        if res is None or res.detection is None:
+            return
+        t_s, points_level, det, prior, rope, hoist_m = (res.row["t"], res.points_level, res.detection, res.prior,
+                                                        res.rope, res.hoist_m)
+        gate_radius_m = self.gate_radius_m
         rr, rec = self.rr, self.rec
         rec.set_time(TIMELINE, duration=t_s)
         if t_s - self._last_full >= self.full_cloud_dt - 1e-9:

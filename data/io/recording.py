@@ -1,6 +1,6 @@
 """Recordings on disk: the layout `boomtip simulate` writes and `boomtip process` reads.
 
-    meta.json            format version, resolved scenario, mount transforms, deck plane
+    meta.json            format version, installation, processing settings, provenance (the scenario)
     lidar/<t_ns>.pcd     x y z intensity t label          (sensor frame)
     radar/<t_ns>.pcd     x y z range azimuth elevation range_rate label (sensor frame)
     mru.csv              t, roll, pitch, yaw, roll_rate, pitch_rate, yaw_rate
@@ -14,18 +14,21 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
+from pydantic import ValidationError
 
-from boomtip.data.frames import MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.frames import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.io.pcd import PcdError, atomic_write_bytes, read_pcd, write_pcd
-from boomtip.data.scenario import ScenarioError, scenario_from_dict
+from boomtip.data.installation import Installation
+from boomtip.data.keys import format_validation, leaf_keys
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 
 class RecordingError(ValueError):
@@ -174,16 +177,15 @@ def write_recording(
 def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict:
     from boomtip.data.frames import LIDAR_FIELDS, RADAR_FIELDS
 
-    return {
+    out = {
         "format_version": FORMAT_VERSION,
         "generator": "boomtip",
-        "scenario": meta.scenario.model_dump(mode="json"),
-        "T_crane_boomtip": meta.T_crane_boomtip,
-        "sensors": {
-            "lidar": {"T_boomtip_sensor": meta.T_boomtip_sensor["lidar"], "fields": ["x", "y", "z", *LIDAR_FIELDS]},
-            "radar": {"T_boomtip_sensor": meta.T_boomtip_sensor["radar"], "fields": ["x", "y", "z", *RADAR_FIELDS]},
-        },
-        "feeder_deck_plane_body": meta.feeder_deck_plane_body,
+        "name": meta.name,
+        "duration_s": meta.duration_s,
+        # What processing is built from: the installation as documented and its own settings.
+        "installation": meta.installation.model_dump(mode="json"),
+        "processing": meta.processing,
+        "sensors": {"lidar": {"fields": ["x", "y", "z", *LIDAR_FIELDS]}, "radar": {"fields": ["x", "y", "z", *RADAR_FIELDS]}},
         "frames": counts or {},
         "conventions": {
             "angles": "radians; R = Rz(yaw) Ry(pitch) Rx(roll) = Rotation.from_euler('xyz', [roll, pitch, yaw])",
@@ -191,19 +193,17 @@ def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict
             "truth_twist": "velocity of the body origin and angular velocity, both in world axes",
             "radar_range_rate": "d(range)/dt in m/s, positive when the range grows",
             "lidar_t": "time offset of the point from the frame's acquisition time (s)",
+            "mounts": "installation.<sensor>.mount as surveyed; the simulated world may deviate (provenance)",
         },
     }
+    if meta.provenance is not None:
+        # The full scenario, world included, for reproducibility only: processing never reads it.
+        out["provenance"] = {"scenario": meta.provenance}
+    return out
 
 
 # ---------------------------------------------------------------------------------------
 # Reading
-
-
-def _matrix(value, where: str) -> np.ndarray:
-    m = np.asarray(value, dtype=float)
-    if m.shape != (4, 4):
-        raise RecordingError(f"{where}: expected a 4x4 matrix, got shape {m.shape}")
-    return m
 
 
 class Recording(FrameSource):
@@ -225,43 +225,44 @@ class Recording(FrameSource):
         version = meta.get("format_version")
         if version != FORMAT_VERSION:
             raise RecordingError(f"{meta_path}: format_version {version!r}; this boomtip reads version {FORMAT_VERSION}")
-        try:
-            scenario = scenario_from_dict(meta["scenario"], source=f"{meta_path} (scenario)")
-            self.meta = SourceMeta(
-                scenario=scenario,
-                T_crane_boomtip=_matrix(meta["T_crane_boomtip"], f"{meta_path}: T_crane_boomtip"),
-                T_boomtip_sensor={
-                    s: _matrix(meta["sensors"][s]["T_boomtip_sensor"], f"{meta_path}: sensors.{s}.T_boomtip_sensor")
-                    for s in ("lidar", "radar")
-                },
-                feeder_deck_plane_body=np.asarray(meta["feeder_deck_plane_body"], dtype=float),
-            )
-        except KeyError as exc:
-            raise RecordingError(f"{meta_path}: missing key {exc}") from None
-        except (TypeError, ValueError) as exc:
-            raise RecordingError(f"{meta_path}: a value has the wrong shape or type ({exc}); expected 4x4 numeric "
-                                 "matrices under T_crane_boomtip and sensors.<name>.T_boomtip_sensor") from None
-        except ScenarioError as exc:
-            raise RecordingError(str(exc)) from None
+        self.meta = self._read_meta(meta, meta_path)
         mru = read_csv(self.root / "mru.csv", MRU_COLUMNS)
         if len(mru["t"]) < 2:
             raise RecordingError(f"{self.root / 'mru.csv'}: {len(mru['t'])} samples; the attitude needs at least 2")
-        rate = scenario.mru.rate_hz
+        rate = self.meta.installation.mru.rate_hz
         self.mru = MruLog(
             mru["t"],
             np.column_stack([mru["roll"], mru["pitch"], mru["yaw"]]),
             np.column_stack([mru["roll_rate"], mru["pitch_rate"], mru["yaw_rate"]]),
             max_gap_s=max(0.1, 5.0 / rate),
         )
-        hook = scenario.hook.enabled
+        hook = (self.root / "encoders.csv").exists()
         if hook:
-            from boomtip.data.sim.hook_world import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS
-
             self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS)
         truth_path = self.root / "truth.csv"
         expected = HOOK_TRUTH_COLUMNS if hook else TRUTH_COLUMNS
         self.truth = Truth(read_csv(truth_path, expected)) if truth_path.exists() else None
         self._files = self._list_frames()
+
+    @staticmethod
+    def _read_meta(meta: dict, meta_path: Path) -> SourceMeta:
+        if "installation" not in meta:
+            raise RecordingError(f"{meta_path}: missing key 'installation' (the sensors, mounts and crane as "
+                                 "documented; `boomtip installation --template` prints one)")
+        try:
+            installation = Installation.model_validate(meta["installation"])
+        except ValidationError as exc:
+            raise RecordingError(format_validation(exc, f"{meta_path}", "installation.",
+                                                   keys=leaf_keys(Installation(), "installation"))) from None
+        processing = meta.get("processing") or {}
+        if not isinstance(processing, dict):
+            raise RecordingError(f"{meta_path}: 'processing' must be a mapping of processing settings")
+        duration = meta.get("duration_s")
+        if not isinstance(duration, (int, float)) or not math.isfinite(duration) or duration < 0:
+            raise RecordingError(f"{meta_path}: 'duration_s' must be a finite number of seconds >= 0, got {duration!r}")
+        prov = meta.get("provenance")
+        return SourceMeta(installation=installation, duration_s=float(duration), name=str(meta.get("name", "recording")),
+                          processing=processing, provenance=prov.get("scenario") if isinstance(prov, dict) else None)
 
     def _list_frames(self) -> list[tuple[int, str, Path]]:
         items = []
@@ -302,7 +303,7 @@ class Recording(FrameSource):
         data behind a valid header (a few NaN or dropped points are normal and kept)."""
         if len(points) == 0:
             return None
-        cfg = getattr(self.meta.scenario, sensor)
+        cfg = getattr(self.meta.installation, sensor)
         with np.errstate(invalid="ignore", over="ignore"):
             r = np.sqrt(np.einsum("ij,ij->i", points, points))
         ok = np.count_nonzero(np.isfinite(r) & (r <= cfg.max_range_m * 1.05))

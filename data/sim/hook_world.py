@@ -1,7 +1,7 @@
 """The hook scene (document 002): a crane vessel whose boom, rope and lower block move with
 the crane's joints and the pendulum, seen by a spinning LiDAR at the boom tip.
 
-The crane and hook truth is integrated once (data/crane.py, DOP853 or RK4 at 1 kHz) over
+The crane and hook truth is integrated once (data/sim/crane_truth.py, DOP853 or RK4 at 1 kHz) over
 the whole run; frames then pose the bodies from it. The vessel's waves are the scenario's
 `crane.motion.roll` and `crane.motion.pitch` about the vessel origin, as in data/motion.py.
 
@@ -15,46 +15,44 @@ from __future__ import annotations
 
 import numpy as np
 
-from boomtip.data.sim.crane import HOOK_SCENARIOS, CallableVesselMotion, CraneParams, CraneTruth, simulate_crane
-from boomtip.data.frames import Frame, Truth
+from boomtip.data.crane_model import CraneParams
+from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
+from boomtip.data.sim.crane_truth import CraneTruth, simulate_crane
+from boomtip.data.sim.vessel_waves import CallableVesselMotion
+from boomtip.data.frames import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, Frame, Truth
 from boomtip.data.block_model import lower_block_parts, rope_mesh
 from boomtip.data.scenario import Scenario
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
-from boomtip.data.sim.simulator import SENSOR_IDS, Simulation, World, frame_times
+from boomtip.data.sim.simulator import SENSOR_IDS, SimScene, Simulation, frame_times
 
-HOOK_TRUTH_COLUMNS = (
-    "t",
-    "hook_x", "hook_y", "hook_z", "hook_vx", "hook_vy", "hook_vz",
-    "hook_rel_x", "hook_rel_y", "hook_rel_z", "hook_rel_vx", "hook_rel_vy", "hook_rel_vz",
-    "tip_x", "tip_y", "tip_z", "slew", "luff", "hoist", "boom_deflection", "sway_a", "sway_b",
-    "crane_roll", "crane_pitch",
-)
-ENCODER_COLUMNS = ("t", "slew", "luff", "hoist")
 BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
 
 
 def crane_params(s: Scenario) -> CraneParams:
-    h = s.hook
+    """The crane as it really is: the installation's nominal parameters times the world's
+    mismatch factors (geometry as surveyed)."""
+    c, mm = s.installation.crane, s.world.mismatch
     return CraneParams(
-        m=h.hook_mass_kg, m_b=h.boom_mass_kg, L=h.boom_length_m, b=h.boom_foot_offset_m, h=h.boom_foot_height_m,
-        c=h.crane_base_m, k_f=h.boom_stiffness_nm_per_rad, c_f=h.boom_damping, flexible=h.flexible,
+        m=c.dynamics.hook_mass_kg * mm.hook_mass, m_b=c.dynamics.boom_mass_kg * mm.boom_mass, L=c.geometry.boom_length_m, b=c.geometry.boom_foot_offset_m,
+        h=c.geometry.boom_foot_height_m, c=c.geometry.crane_base_m, k_f=c.dynamics.boom_stiffness_nm_per_rad * mm.boom_stiffness,
+        c_f=c.dynamics.boom_damping * mm.boom_damping, flexible=s.world.hook.flexible,
     )
 
 
 def _hook_vessel(s: Scenario) -> Body:
     """The crane vessel: hull, deck, accommodation, pedestal and crane house (no boom: the
     boom is its own moving body), and cargo on deck for the hook to pass over."""
-    g = s.crane.geometry
+    g = s.world.crane.geometry
     deck_z = g.freeboard_m
     hull, is_deck = lofted_hull(g.length_m, g.beam_m, -g.draft_m, deck_z, bow_length_m=0.15 * g.length_m, n_stations=90)
-    cx, cy, cz = s.hook.crane_base_m
+    cx, cy, cz = s.installation.crane.geometry.crane_base_m
     x_acc = -0.38 * g.length_m  # accommodation aft, out of the way of the boom
     parts = [
         Part(hull, Label.CRANE_HULL, 0.25, face_label=np.where(is_deck, int(Label.CRANE_DECK), int(Label.CRANE_HULL))),
         Part(box([x_acc, 0, deck_z + 10], [24, 0.8 * g.beam_m, 20]), Label.CRANE_STRUCTURE, 0.6),
-        Part(cylinder(6.0, s.hook.boom_foot_height_m, [cx, cy, cz + s.hook.boom_foot_height_m / 2]), Label.CRANE_STRUCTURE, 0.5),
+        Part(cylinder(6.0, s.installation.crane.geometry.boom_foot_height_m, [cx, cy, cz + s.installation.crane.geometry.boom_foot_height_m / 2]), Label.CRANE_STRUCTURE, 0.5),
     ]
-    if s.hook.deck_cargo:
+    if s.world.hook.deck_cargo:
         for x, y in ((-10.0, 8.0), (5.0, -10.0), (20.0, 10.0), (80.0, 0.0)):
             parts.append(Part(box([x, y, deck_z + 1.3], [12.2, 2.44, 2.6]), Label.CARGO, 0.4))
         parts.append(Part(cylinder(3.0, 9.0, [-40.0, -8.0, deck_z + 4.5]), Label.CARGO, 0.55))
@@ -62,13 +60,13 @@ def _hook_vessel(s: Scenario) -> Body:
 
 
 def hook_bodies(s: Scenario) -> list[Body]:
-    L = s.hook.boom_length_m
+    L = s.installation.crane.geometry.boom_length_m
     boom = lattice_boom([0.0, 0.0, 0.0], [L - BOOM_SHORT_OF_TIP_M, 0.0, 0.0], 6.0, 2.0, panels=48, member=0.5)
     return [
         _hook_vessel(s),
         Body.from_parts("boom", [Part(boom, Label.CRANE_STRUCTURE, 0.5)]),
-        Body.from_parts("block", lower_block_parts(s.hook.block_height_m)),
-        Body.from_parts("rope", [Part(rope_mesh(s.hook.rope_radius_m), Label.ROPE, 0.3)]),
+        Body.from_parts("block", lower_block_parts(s.installation.crane.block_height_m)),
+        Body.from_parts("rope", [Part(rope_mesh(s.installation.crane.rope_radius_m), Label.ROPE, 0.3)]),
     ]
 
 
@@ -101,11 +99,11 @@ class HookSimulation(Simulation):
     """A hook scenario simulated in memory: LiDAR frames, MRU and encoder logs, hook truth."""
 
     def __init__(self, scenario: Scenario) -> None:
-        if not scenario.hook.enabled:
-            raise ValueError(f"scenario '{scenario.name}': hook.enabled is false; use Simulation")
+        if not scenario.world.hook.enabled:
+            raise ValueError(f"scenario '{scenario.name}': world.hook.enabled is false; use Simulation")
         self.params = crane_params(scenario)
-        world = World(scenario, hook_bodies(scenario))
-        spec = HOOK_SCENARIOS[scenario.hook.program](self.params)
+        world = SimScene(scenario, hook_bodies(scenario))
+        spec = HOOK_SCENARIOS[scenario.world.hook.program](self.params)
         bank = world.crane_motion.bank  # DOF order: surge sway heave roll pitch yaw
 
         def dof(i):
@@ -115,7 +113,10 @@ class HookSimulation(Simulation):
 
         self.crane: CraneTruth = simulate_crane(
             self.params, spec.joints, CallableVesselMotion(dof(3), dof(4)),
-            duration_s=scenario.duration_s + 0.5, record_rate_hz=max(scenario.truth_rate_hz, 200.0),
+            duration_s=scenario.duration_s + 0.5, record_rate_hz=max(scenario.world.truth_rate_hz, 200.0),
+            # richer than the filter's model: an elastic reeving and the wind on block and load
+            rope_ea_n=scenario.world.mismatch.rope_ea_n, wind_mps=scenario.world.mismatch.wind_mps,
+            drag_area_m2=scenario.world.hook.drag_area_m2,
         )
         super().__init__(scenario, world)
         self.encoders = self._encoder_log()
@@ -157,21 +158,22 @@ class HookSimulation(Simulation):
 
     # -- logs ----------------------------------------------------------------------------
     def _encoder_log(self) -> dict[str, np.ndarray]:
-        cfg = self.scenario.hook.encoders
+        """The encoders as they are: specified noise plus the world's unstated biases."""
+        cfg, bias = self.scenario.installation.encoders, self.scenario.world.mismatch.encoder_bias_deg
         t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
         rng = np.random.default_rng([self.scenario.seed, SENSOR_IDS["mru"] + 10, 0])
         n = len(t)
         ang = np.deg2rad(cfg.angle_noise_deg)
         return {
             "t": t,
-            "slew": self._interp("nu", t) + ang * rng.standard_normal(n),
-            "luff": self._interp("mu", t) + ang * rng.standard_normal(n),
+            "slew": self._interp("nu", t) + np.deg2rad(bias.slew) + ang * rng.standard_normal(n),
+            "luff": self._interp("mu", t) + np.deg2rad(bias.luff) + ang * rng.standard_normal(n),
             "hoist": self._interp("l", t) + cfg.hoist_noise_m * rng.standard_normal(n),
         }
 
     def _truth(self) -> Truth:
         s = self.scenario
-        t = frame_times(s.truth_rate_hz, s.duration_s + 1.0 / s.truth_rate_hz)
+        t = frame_times(s.world.truth_rate_hz, s.duration_s + 1.0 / s.world.truth_rate_hz)
         cols = {"t": t}
         for prefix, name in (("hook_", "p_hook_world"), ("hook_v", "v_hook_world"), ("hook_rel_", "p_hook_rel_tip"),
                              ("hook_rel_v", "v_hook_rel_tip"), ("tip_", "p_tip_world")):

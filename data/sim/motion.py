@@ -15,7 +15,8 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from boomtip.data.scenario import DOFS, IrregularSea, Motion
+from boomtip.data.sea_spectrum import jonswap
+from boomtip.data.sim.world import DOFS, IrregularSea, Motion
 
 G = 9.81
 
@@ -33,16 +34,6 @@ class SineBank:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         arg = t[:, None, None] * self.omega[None] + self.phase[None] + derivative * np.pi / 2
         return np.sum(self.amplitude[None] * self.omega[None] ** derivative * np.sin(arg), axis=2)
-
-
-def jonswap(omega: np.ndarray, hs_m: float, tp_s: float, gamma: float) -> np.ndarray:
-    """JONSWAP wave-elevation spectrum S(w) in m^2 s/rad, scaled so that 4 sqrt(m0) = Hs."""
-    wp = 2 * np.pi / tp_s
-    sigma = np.where(omega <= wp, 0.07, 0.09)
-    shape = omega**-5 * np.exp(-1.25 * (wp / omega) ** 4) * gamma ** np.exp(-((omega - wp) ** 2) / (2 * sigma**2 * wp**2))
-    dw = np.gradient(omega)
-    m0 = np.sum(shape * dw)
-    return shape * (hs_m / 4) ** 2 / m0
 
 
 def sine_bank(motion: Motion, irregular: IrregularSea, seed: int) -> SineBank:

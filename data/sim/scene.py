@@ -122,12 +122,12 @@ def beam_between(p0, p1, width: float) -> trimesh.Trimesh:
 
 
 def crane_vessel(s: Scenario) -> Body:
-    g = s.crane.geometry
+    g = s.world.crane.geometry
     deck_z = g.freeboard_m
     h, is_deck = lofted_hull(g.length_m, g.beam_m, -g.draft_m, deck_z, bow_length_m=0.15 * g.length_m, n_stations=90)
     px, py = g.pedestal_m
     pedestal_top = deck_z + 20.0
-    tip = np.asarray(g.boom_tip_m)
+    tip = np.asarray(s.installation.crane.geometry.boom_tip_m)
     foot = np.array([px, py, pedestal_top + 2.0])
     # The boom stops short of the tip so the sensors sit in free space below its end.
     boom_end = tip + np.array([0.0, 0.0, 2.0]) + 1.5 * (foot - tip) / np.linalg.norm(foot - tip)
@@ -169,7 +169,7 @@ def _blade(length_m: float, root_chord_m: float, tip_chord_m: float, center, sta
 
 def _cargo_parts(s: Scenario) -> list[Part]:
     """Wind-turbine parts and containers on the feeder deck (body frame)."""
-    g = s.feeder.geometry
+    g = s.world.feeder.geometry
     z = g.freeboard_m
     half_b = g.beam_m / 2
     parts: list[Part] = []
@@ -196,12 +196,12 @@ def _cargo_parts(s: Scenario) -> list[Part]:
 
 def _cargo_deck_x(s: Scenario) -> tuple[float, float]:
     """Fore and aft limits of the open cargo deck (between accommodation and forecastle)."""
-    g = s.feeder.geometry
+    g = s.world.feeder.geometry
     return -g.length_m / 2 + 0.16 * g.length_m, g.length_m / 2 - 0.15 * g.length_m
 
 
 def _marker_centers(s: Scenario) -> np.ndarray:
-    g, r = s.feeder.geometry, s.feeder.reflectors
+    g, r = s.world.feeder.geometry, s.world.feeder.reflectors
     x0, x1 = _cargo_deck_x(s)
     xs = np.arange(x0 + r.size_m, x1 - r.size_m / 2, r.spacing_m)
     y = g.beam_m / 2 - r.inset_m - r.size_m / 2
@@ -209,7 +209,7 @@ def _marker_centers(s: Scenario) -> np.ndarray:
 
 
 def feeder_vessel(s: Scenario) -> Body:
-    g = s.feeder.geometry
+    g = s.world.feeder.geometry
     z = g.freeboard_m
     h, is_deck = lofted_hull(g.length_m, g.beam_m, -g.draft_m, z, bow_length_m=0.15 * g.length_m)
     parts = [Part(h, Label.FEEDER_HULL, 0.3, face_label=np.where(is_deck, int(Label.FEEDER_DECK), int(Label.FEEDER_HULL)))]
@@ -225,13 +225,13 @@ def feeder_vessel(s: Scenario) -> Body:
     for x in np.arange(x0 + 4, x1, 15.0):  # mooring bollards along both edges
         for sy in (-1, 1):
             parts.append(Part(cylinder(0.3, 0.8, [x, sy * (g.beam_m / 2 - 0.9), z + 0.4], sections=24), Label.FEEDER_BULWARK, 0.4))
-    r = s.feeder.reflectors
+    r = s.world.feeder.reflectors
     if r.enabled:
         # Retro-reflective tape, reflectors.height_m proud of the deck.
         for cx, cy in _marker_centers(s):
             parts.append(Part(patch([cx, cy, z + r.height_m], r.size_m, r.size_m), Label.REFLECTOR, 0.9, retro=True,
                               rcs=RcsClass.CORNER))
-    if s.feeder.cargo:
+    if s.world.feeder.cargo:
         parts += _cargo_parts(s)
     if r.false_bright_points > 0:
         # Bright patches that are not deck markers: on bulwark tops, seeded.
@@ -248,16 +248,16 @@ def feeder_vessel(s: Scenario) -> Body:
 
 def sea_surface(s: Scenario, half_size_m: float = 2000.0) -> Body:
     m = box([0, 0, -0.05], [2 * half_size_m, 2 * half_size_m, 0.1])
-    return Body.from_parts("sea", [Part(m, Label.SEA, s.sea.reflectivity, rcs=RcsClass.WEAK)], static_in_world=True)
+    return Body.from_parts("sea", [Part(m, Label.SEA, s.world.sea.reflectivity, rcs=RcsClass.WEAK)], static_in_world=True)
 
 
 def feeder_deck_plane_body(s: Scenario) -> np.ndarray:
     """The feeder's cargo deck plane [a, b, c, d] (n.x + d = 0) in the feeder body frame."""
-    return np.array([0.0, 0.0, 1.0, -s.feeder.geometry.freeboard_m])
+    return np.array([0.0, 0.0, 1.0, -s.world.feeder.geometry.freeboard_m])
 
 
 def build_bodies(s: Scenario) -> list[Body]:
     bodies = [crane_vessel(s), feeder_vessel(s)]
-    if s.sea.clutter:
+    if s.world.sea.clutter:
         bodies.append(sea_surface(s))
     return bodies

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from boomtip.data.sim.raycast import Hits
-from boomtip.data.scenario import Lidar, Radar
+from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
 
 INTENSITY_REFERENCE_RANGE_M = 50.0  # a white diffuse target at normal incidence here reads 1.0

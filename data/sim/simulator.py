@@ -10,12 +10,12 @@ from __future__ import annotations
 from typing import Iterator
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.sim.motion import BodyStates, ShipMotion
 from boomtip.data.sim.raycast import RayCaster
-from boomtip.data.scenario import Mount, Scenario
+from boomtip.data.scenario import Scenario
+from boomtip.data.sim.world import true_lidar, true_radar, true_T_boomtip_sensor
 from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
 from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, radar_measure, radar_pattern
 from boomtip.data.sim.truth import relative_heave, tip_states
@@ -23,32 +23,30 @@ from boomtip.data.sim.truth import relative_heave, tip_states
 SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3}
 
 
-def mount_matrix(m: Mount) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("xyz", m.rpy_deg, degrees=True).as_matrix()
-    T[:3, 3] = m.xyz_m
-    return T
-
-
 def frame_times(rate_hz: float, duration_s: float) -> np.ndarray:
     n = int(np.floor(duration_s * rate_hz + 1e-9))
     return np.arange(n) / rate_hz
 
 
-class World:
-    """Bodies, their motion, and the mount chain crane -> boom tip -> sensor."""
+class SimScene:
+    """Bodies, their motion, and the TRUE mount chain crane -> boom tip -> sensor (the
+    installation's surveyed mounts rotated by the world's mount errors)."""
 
     def __init__(self, scenario: Scenario, bodies: list[Body] | None = None) -> None:
         s = scenario
+        w, inst = s.world, s.installation
         self.scenario = s
         self.bodies = bodies if bodies is not None else build_bodies(s)
         self.caster = RayCaster(self.bodies)
         self.faces = FaceLookup.from_bodies(self.bodies)
-        self.crane_motion = ShipMotion(s.crane.motion, s.crane.irregular, (0.0, 0.0, 0.0), seed=s.seed * 7 + 11)
-        self.feeder_motion = ShipMotion(s.feeder.motion, s.feeder.irregular, s.feeder.geometry.position_m, seed=s.seed * 7 + 13)
-        self.T_crane_boomtip = np.eye(4)
-        self.T_crane_boomtip[:3, 3] = s.crane.geometry.boom_tip_m
-        self.T_boomtip_sensor = {"lidar": mount_matrix(s.lidar.mount), "radar": mount_matrix(s.radar.mount)}
+        self.crane_motion = ShipMotion(w.crane.motion, w.crane.irregular, (0.0, 0.0, 0.0), seed=s.seed * 7 + 11)
+        self.feeder_motion = ShipMotion(w.feeder.motion, w.feeder.irregular, w.feeder.geometry.position_m, seed=s.seed * 7 + 13)
+        self.T_crane_boomtip = inst.T_crane_boomtip()
+        self.lidar = true_lidar(inst.lidar, w)
+        self.radar = true_radar(inst.radar, w)
+        mm = w.mismatch
+        self.T_boomtip_sensor = {"lidar": true_T_boomtip_sensor(inst.lidar.mount, mm.lidar_mount_rpy_deg),
+                                 "radar": true_T_boomtip_sensor(inst.radar.mount, mm.radar_mount_rpy_deg)}
         self.deck_plane_body = feeder_deck_plane_body(s)
         self.sea_index = next((i for i, b in enumerate(self.bodies) if b.name == "sea"), None)
 
@@ -81,27 +79,42 @@ class World:
         return R_wc @ T_cs[:3, :3], R_wc @ T_cs[:3, 3] + crane.position_m
 
 
+def source_meta(scenario: Scenario) -> SourceMeta:
+    """What a simulated source tells processing: the installation and the scenario's own
+    processing settings; the full scenario only as provenance."""
+    return SourceMeta(
+        installation=scenario.installation,
+        duration_s=scenario.duration_s,
+        name=scenario.name,
+        processing=scenario.processing.model_dump(mode="json", exclude_unset=True),
+        provenance=scenario.model_dump(mode="json"),
+    )
+
+
 class Simulation(FrameSource):
     """A scenario simulated in memory, frame by frame."""
 
-    def __init__(self, scenario: Scenario, world: World | None = None) -> None:
+    def __init__(self, scenario: Scenario, world: SimScene | None = None) -> None:
         self.scenario = scenario
-        self.world = world or World(scenario)
-        w = self.world
-        self.meta = SourceMeta(scenario, w.T_crane_boomtip, dict(w.T_boomtip_sensor), w.deck_plane_body)
-        self.lidar_pattern = lidar_pattern(scenario.lidar)
-        self.radar_pattern = radar_pattern(scenario.radar)
+        self.world = world or SimScene(scenario)
+        self.meta = source_meta(scenario)
+        self.lidar_pattern = lidar_pattern(self.world.lidar)
+        self.radar_pattern = radar_pattern(self.world.radar)
+        mm = scenario.world.mismatch
+        self.clock_offset_s = {"lidar": mm.lidar_clock_offset_s, "radar": mm.radar_clock_offset_s}
         self._schedule = self._frame_schedule()
         self.mru = self._mru_log()
         self.truth = self._truth()
 
     # -- schedule ------------------------------------------------------------------------
     def _frame_schedule(self) -> list[tuple[float, str, int]]:
+        """(time stamp, sensor, index): each sensor fires on the ticks of its own clock, which
+        runs `clock_offset_s` ahead of true time (the frame is cast at stamp - offset)."""
         s = self.scenario
         items = []
-        for sensor, cfg in (("lidar", s.lidar), ("radar", s.radar)):
-            if cfg.enabled:
-                items += [(float(t), sensor, i) for i, t in enumerate(frame_times(cfg.rate_hz, s.duration_s))]
+        for sensor in s.installation.sensors():
+            rate = getattr(s.installation, sensor).rate_hz
+            items += [(float(t), sensor, i) for i, t in enumerate(frame_times(rate, s.duration_s))]
         return sorted(items)
 
     def __len__(self) -> int:
@@ -109,7 +122,10 @@ class Simulation(FrameSource):
 
     def __iter__(self) -> Iterator[Frame]:
         for t, sensor, i in self._schedule:
-            yield self.lidar_frame(i, t) if sensor == "lidar" else self.radar_frame(i, t)
+            t_true = t - self.clock_offset_s[sensor]
+            frame = self.lidar_frame(i, t_true) if sensor == "lidar" else self.radar_frame(i, t_true)
+            frame.t_s = t
+            yield frame
 
     def _rng(self, sensor: str, index: int) -> np.random.Generator:
         return np.random.default_rng([self.scenario.seed, SENSOR_IDS[sensor], index])
@@ -142,7 +158,8 @@ class Simulation(FrameSource):
         return cache[sensor]
 
     def _lidar_frame_from(self, index: int, t_s: float, scene_poses, fixed_hits=None) -> Frame:
-        cfg, pat, w = self.scenario.lidar, self.lidar_pattern, self.world
+        w = self.world
+        cfg, pat = w.lidar, self.lidar_pattern
         if cfg.motion_during_sweep:
             times = t_s + pat.column_time_s
             pose_index = pat.column
@@ -158,12 +175,13 @@ class Simulation(FrameSource):
             origins_w = p_ws[pose_index]
         hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index, scales, fixed_hits)
         points, fields = lidar_measure(
-            cfg, hits, pat, dirs_w, w.faces, w.sea_index, self.scenario.sea.clutter_probability, self._rng("lidar", index)
+            cfg, hits, pat, dirs_w, w.faces, w.sea_index, self.scenario.world.sea.clutter_probability, self._rng("lidar", index)
         )
         return Frame("lidar", index, t_s, points, fields)
 
     def radar_frame(self, index: int, t_s: float) -> Frame:
-        cfg, pat, w = self.scenario.radar, self.radar_pattern, self.world
+        w = self.world
+        cfg, pat = w.radar, self.radar_pattern
         states = w.body_states(np.array([t_s]))
         R_ws, p_ws = w.sensor_pose(states[0], "radar")
         dirs_w = pat.dirs_sensor @ R_ws[0].T
@@ -172,7 +190,7 @@ class Simulation(FrameSource):
         hits = w.caster.cast(origins_w, dirs_w, Rs, ps)
         range_rate = self._range_rate(hits, dirs_w, origins_w, states)
         points, fields = radar_measure(
-            cfg, hits, pat, range_rate, w.faces, w.sea_index, self.scenario.sea.clutter_probability, self._rng("radar", index)
+            cfg, hits, pat, range_rate, w.faces, w.sea_index, self.scenario.world.sea.clutter_probability, self._rng("radar", index)
         )
         return Frame("radar", index, t_s, points, fields)
 
@@ -194,20 +212,22 @@ class Simulation(FrameSource):
 
     # -- MRU and truth -------------------------------------------------------------------
     def _mru_log(self) -> MruLog:
-        cfg = self.scenario.mru
+        """The MRU as it really is: its specified noise, plus the world's unstated bias and lag
+        (a sample stamped t holds the attitude of t - lag)."""
+        cfg, mm = self.scenario.installation.mru, self.scenario.world.mismatch
         t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
-        st = self.world.crane_motion.states(t)
+        st = self.world.crane_motion.states(t - mm.mru_lag_s)
         rng = self._rng("mru", 0)
-        rpy = st.rpy_rad + np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(st.rpy_rad.shape)
+        rpy = st.rpy_rad + np.deg2rad(mm.mru_bias_deg) + np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(st.rpy_rad.shape)
         rate = st.rpy_rate_radps + np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(st.rpy_rad.shape)
         return MruLog(t, rpy, rate, max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
 
     def _truth(self) -> Truth:
         s = self.scenario
-        t = frame_times(s.truth_rate_hz, s.duration_s + 1.0 / s.truth_rate_hz)
+        t = frame_times(s.world.truth_rate_hz, s.duration_s + 1.0 / s.world.truth_rate_hz)
         crane = self.world.crane_motion.states(t)
         feeder = self.world.feeder_motion.states(t)
-        p_tip, v_tip = tip_states(crane, np.asarray(s.crane.geometry.boom_tip_m))
+        p_tip, v_tip = tip_states(crane, np.asarray(s.installation.crane.geometry.boom_tip_m))
         D, D_dot = relative_heave(p_tip, v_tip, self.world.deck_plane_body, feeder)
         cols: dict[str, np.ndarray] = {"t": t, "D": D, "D_dot": D_dot}
         for name, st in zip(BODIES, (crane, feeder)):

@@ -14,17 +14,21 @@ from boomtip.data.scenario import (
     available_scenarios,
     load_scenario,
     parse_override,
+    resolve_key,
     scenario_to_yaml,
     valid_keys,
 )
 
 BUILTINS = ("sts-empty", "sts-loaded")
 
+# Full keys (as valid_keys() lists them); each is also settable by its short form, without
+# the section (`world.feeder.cargo` -> `feeder.cargo`), which resolve_key maps back.
 REQUIRED_KEYS = (
-    ["seed", "duration_s", "feeder.cargo"]
-    + [f"{ship}.motion.{dof}.{leaf}" for ship in ("crane", "feeder") for dof in DOFS
+    ["seed", "duration_s", "world.feeder.cargo"]
+    + [f"world.{ship}.motion.{dof}.{leaf}" for ship in ("crane", "feeder") for dof in DOFS
        for leaf in ("amplitude", "period_s", "phase_deg")]
-    + ["lidar.rate_hz", "lidar.range_noise_m", "lidar.latency_s", "radar.rate_hz", "radar.latency_s", "mru.rate_hz"]
+    + [f"installation.{k}" for k in ("lidar.rate_hz", "lidar.range_noise_m", "lidar.latency_s", "radar.rate_hz",
+                                      "radar.latency_s", "mru.rate_hz")]
 )
 
 # A value for each required key that differs from both built-ins, to prove the key is wired.
@@ -42,6 +46,12 @@ PROBE_VALUES = {
     "radar.latency_s": 0.017,
     "mru.rate_hz": 150.0,
 }
+
+
+def short(key: str) -> str:
+    """The key without its section: `installation.lidar.rate_hz` -> `lidar.rate_hz`."""
+    head, _, rest = key.partition(".")
+    return rest if head in ("world", "installation", "processing") else key
 
 
 def get(obj, dotted: str):
@@ -63,31 +73,33 @@ def test_builtins_listed_and_load(name):
 @pytest.mark.parametrize("key", REQUIRED_KEYS)
 def test_required_key_exists_and_is_settable(key):
     assert key in valid_keys(), f"{key} missing from valid_keys()"
+    assert resolve_key(short(key)) == key
     for name in BUILTINS:
         get(load_scenario(name), key)  # present in the loaded model
-    value = PROBE_VALUES.get(key, PROBE_VALUES.get(key.rsplit(".", 1)[-1]))
+    value = PROBE_VALUES.get(short(key), PROBE_VALUES.get(key.rsplit(".", 1)[-1]))
     text = "true" if value is True else repr(value)
-    s = load_scenario("sts-empty", [f"{key}={text}"])
-    assert get(s, key) == value
+    for written in {key, short(key)}:  # in full and without the section
+        s = load_scenario("sts-empty", [f"{written}={text}"])
+        assert get(s, key) == value
 
 
 def test_override_only_changes_its_key():
     base = load_scenario("sts-empty").model_dump()
     s = load_scenario("sts-empty", ["feeder.motion.roll.amplitude=3.5"]).model_dump()
-    assert s["feeder"]["motion"]["roll"]["amplitude"] == 3.5
-    s["feeder"]["motion"]["roll"]["amplitude"] = base["feeder"]["motion"]["roll"]["amplitude"]
+    assert s["world"]["feeder"]["motion"]["roll"]["amplitude"] == 3.5
+    s["world"]["feeder"]["motion"]["roll"]["amplitude"] = base["world"]["feeder"]["motion"]["roll"]["amplitude"]
     assert s == base
 
 
 def test_builtin_sensor_profiles():
     empty, loaded = load_scenario("sts-empty"), load_scenario("sts-loaded")
     # sts-empty is the ideal-sensor verification case.
-    assert empty.lidar.range_noise_m == 0 and empty.lidar.range_resolution_m == 0
-    assert empty.lidar.dropout_probability == 0 and empty.lidar.intensity_noise == 0
-    assert empty.radar.range_noise_m == 0 and empty.radar.range_rate_noise_mps == 0
-    assert empty.radar.detection_probability == 1 and empty.radar.false_alarms_per_scan == 0
-    assert empty.feeder.cargo is False and loaded.feeder.cargo is True
-    assert loaded.lidar.range_noise_m > 0
+    assert empty.installation.lidar.range_noise_m == 0 and empty.installation.lidar.range_resolution_m == 0
+    assert empty.world.lidar.dropout_probability == 0 and empty.world.lidar.intensity_noise == 0
+    assert empty.installation.radar.range_noise_m == 0 and empty.installation.radar.range_rate_noise_mps == 0
+    assert empty.installation.radar.detection_probability == 1 and empty.installation.radar.false_alarms_per_scan == 0
+    assert empty.world.feeder.cargo is False and loaded.world.feeder.cargo is True
+    assert loaded.installation.lidar.range_noise_m > 0
 
 
 # ---------------------------------------------------------------------------------------
@@ -126,14 +138,14 @@ def test_set_without_equals_is_refused():
 def test_non_positive_rate_names_the_key(key, value):
     with pytest.raises(ScenarioError) as exc:
         load_scenario("sts-empty", [f"{key}={value}"])
-    assert f"'{key}'" in str(exc.value)
+    assert f"'installation.{key}'" in str(exc.value)  # the full key the short one resolved to
 
 
 @pytest.mark.parametrize("key", ["lidar.fov_h_deg", "radar.fov_az_deg"])
 def test_fov_over_360_names_the_key(key):
     with pytest.raises(ScenarioError) as exc:
         load_scenario("sts-empty", [f"{key}=400"])
-    assert f"'{key}'" in str(exc.value)
+    assert f"'installation.{key}'" in str(exc.value)
     load_scenario("sts-empty", [f"{key}=360"])  # the bound itself is allowed
 
 
@@ -154,7 +166,7 @@ def test_min_range_above_max_range_is_an_error():
 def test_wrong_type_names_the_key_and_the_value():
     with pytest.raises(ScenarioError) as exc:
         load_scenario("sts-empty", ["lidar.rate_hz=fast"])
-    assert "'lidar.rate_hz'" in str(exc.value) and "fast" in str(exc.value)
+    assert "'installation.lidar.rate_hz'" in str(exc.value) and "fast" in str(exc.value)
 
 
 def test_unknown_scenario_name_errors():
@@ -175,17 +187,17 @@ def test_yaml_file_path_works(tmp_path):
         "seed": 5,
         "duration_s": 2.0,
         "feeder": {"cargo": True, "motion": {"heave": {"amplitude": 1.25, "period_s": 8.0, "phase_deg": 10}}},
-        "lidar": {"rate_hz": 5},
+        "lidar": {"rate_hz": 5, "dropout_probability": 0.1},  # the layout before sections: split leaf by leaf
     }))
     for arg in (path, str(path)):
         s = load_scenario(arg)
         assert s.name == "my-case"  # defaults to the file stem
-        assert s.seed == 5 and s.duration_s == 2.0 and s.feeder.cargo is True
-        assert s.feeder.motion.heave.amplitude == 1.25 and s.feeder.motion.heave.period_s == 8.0
-        assert s.lidar.rate_hz == 5.0
-        assert s.radar.rate_hz == Scenario().radar.rate_hz  # unspecified keys take defaults
+        assert s.seed == 5 and s.duration_s == 2.0 and s.world.feeder.cargo is True
+        assert s.world.feeder.motion.heave.amplitude == 1.25 and s.world.feeder.motion.heave.period_s == 8.0
+        assert s.installation.lidar.rate_hz == 5.0 and s.world.lidar.dropout_probability == 0.1
+        assert s.installation.radar.rate_hz == Scenario().installation.radar.rate_hz  # unspecified keys take defaults
     s = load_scenario(path, ["lidar.rate_hz=20", "name=renamed"])
-    assert s.lidar.rate_hz == 20.0 and s.name == "renamed"
+    assert s.installation.lidar.rate_hz == 20.0 and s.name == "renamed"
 
 
 def test_yaml_round_trip(tmp_path):
@@ -244,20 +256,34 @@ def test_overrides_apply_yaml_values():
         "feeder.irregular.response={heave: 0.7}",
         "feeder.irregular.response.roll=0.2",
     ])
-    assert s.crane.geometry.boom_tip_m == (12.0, -38.5, 50.0)
-    assert s.feeder.cargo is True and s.lidar.enabled is False and s.lidar.motion_during_sweep is True
-    assert s.feeder.irregular.response == {"heave": 0.7, "roll": 0.2}
+    assert s.installation.crane.geometry.boom_tip_m == (12.0, -38.5, 50.0)
+    assert s.world.feeder.cargo is True and s.installation.lidar.enabled is False and s.world.lidar.motion_during_sweep is True
+    assert s.world.feeder.irregular.response == {"heave": 0.7, "roll": 0.2}
 
 
 def test_exponent_without_sign_still_loads_as_a_number():
     # PyYAML (YAML 1.1) reads "2.5e1" as a string; the typed model must still coerce it.
-    assert load_scenario("sts-empty", ["lidar.rate_hz=2.5e1"]).lidar.rate_hz == 25.0
-    assert load_scenario("sts-empty", ["lidar.range_noise_m=2e-2"]).lidar.range_noise_m == 0.02
+    assert load_scenario("sts-empty", ["lidar.rate_hz=2.5e1"]).installation.lidar.rate_hz == 25.0
+    assert load_scenario("sts-empty", ["lidar.range_noise_m=2e-2"]).installation.lidar.range_noise_m == 0.02
+
+
+def test_short_key_in_two_sections_is_refused_with_both():
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario("sts-empty", ["lidar={}"])
+    assert "more than one section" in str(exc.value)
+    assert "world.lidar" in str(exc.value) and "installation.lidar" in str(exc.value)
+
+
+def test_empty_mismatch_resets_it_to_none():
+    s = load_scenario("sts-loaded")
+    assert s.world.mismatch != type(s.world.mismatch)()  # the built-in carries one
+    for text in ("mismatch={}", "world.mismatch={}"):
+        assert load_scenario("sts-loaded", [text]).world.mismatch == type(s.world.mismatch)()
 
 
 def test_later_override_wins():
     s = load_scenario("sts-empty", ["lidar.rate_hz=5", "lidar.rate_hz=15"])
-    assert s.lidar.rate_hz == 15.0
+    assert s.installation.lidar.rate_hz == 15.0
 
 
 def test_list_of_wrong_length_is_an_error():

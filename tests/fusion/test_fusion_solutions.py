@@ -12,12 +12,14 @@ from typer.testing import CliRunner
 from boomtip.data.io.recording import write_recording
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.simulator import Simulation
-from boomtip.fusion.solutions import FusionConfig, run_solution
-from boomtip.fusion.tuning import relative_heave_components
-from boomtip.fusion.heave_filter import jerk_psd_from_sea_state
+from boomtip.fusion.solutions import FusionConfig, jerk_psd, run_solution
+from boomtip.fusion.tuning import default_jerk_psd, relative_heave_jerk_psd
 from boomtip.perception.pipeline import HeavePipeline
 from boomtip.tools.cli import app
+from boomtip.tools.heave_chain import to_fusion
 from boomtip.tools.kpis import error_stats
+
+NO_LATENCY = {"lidar": 0.0, "radar": 0.0}
 
 runner = CliRunner()
 
@@ -26,9 +28,13 @@ runner = CliRunner()
 def loaded_rows():
     s = load_scenario("sts-loaded", ["duration_s=12"])
     sim = Simulation(s)
-    pipe = HeavePipeline(sim.meta, sim.mru)
+    pipe = HeavePipeline(sim.meta.installation, sim.mru)
     rows = [m for f in sim for m in pipe.process(f).measurements]
     return s, sim.truth, rows
+
+
+def _fusion_inputs(rows, latency=NO_LATENCY):
+    return [to_fusion(r, latency) for r in rows if r.ok]
 
 
 def test_error_stats_on_a_known_series():
@@ -37,12 +43,20 @@ def test_error_stats_on_a_known_series():
     assert st["rmse"] == pytest.approx(np.sqrt(14 / 3)) and st["n"] == 3
 
 
-def test_sea_state_tuning_comes_from_the_scenario():
-    calm = load_scenario("sts-loaded", ["feeder.motion.heave.amplitude=0.5", "crane.motion.heave.amplitude=0.3"])
-    rough = load_scenario("sts-loaded", ["feeder.motion.heave.amplitude=3.0"])
-    assert jerk_psd_from_sea_state(relative_heave_components(rough)) > jerk_psd_from_sea_state(relative_heave_components(calm))
-    irregular = load_scenario("sts-loaded", ["feeder.irregular.enabled=true"])
-    assert len(relative_heave_components(irregular)) > len(relative_heave_components(rough))
+def test_process_noise_comes_from_a_sea_state_never_from_the_world():
+    # grows with the wave height (as Hs^2) and falls with the period
+    assert relative_heave_jerk_psd(4.0, 8.0) == pytest.approx(4 * relative_heave_jerk_psd(2.0, 8.0), rel=1e-9)
+    assert relative_heave_jerk_psd(2.0, 7.0) > relative_heave_jerk_psd(2.0, 12.0)
+    # the default holds for every sea up to the working limit (Hs 4 m, Tp >= 7 s)
+    for hs in (0.5, 2.0, 4.0):
+        for tp in (7.0, 9.0, 14.0):
+            assert relative_heave_jerk_psd(hs, tp) <= default_jerk_psd() * (1 + 1e-12)
+    cfg = FusionConfig()
+    assert jerk_psd(cfg) == default_jerk_psd()
+    assert jerk_psd(cfg, (1.0, 10.0)) == relative_heave_jerk_psd(1.0, 10.0)
+    assert jerk_psd(FusionConfig(jerk_psd=0.5), (1.0, 10.0)) == 0.5
+    with pytest.raises(ValueError):
+        relative_heave_jerk_psd(0.0, 10.0)
 
 
 def _mae(est, truth, col):
@@ -52,17 +66,17 @@ def _mae(est, truth, col):
 
 def test_fused_solution_meets_its_targets(loaded_rows):
     s, truth, rows = loaded_rows
-    est = run_solution("fused", rows, s, FusionConfig(), 12.0)
+    est = run_solution("fused", _fusion_inputs(rows), FusionConfig(), 12.0)
     assert _mae(est, truth, 0) < 0.005
     assert _mae(est, truth, 1) < 0.008
 
 
 def test_known_latency_does_not_bias_the_fused_estimate(loaded_rows):
     s, truth, rows = loaded_rows
-    late = s.model_copy(update={"lidar": s.lidar.model_copy(update={"latency_s": 0.1}),
-                                "radar": s.radar.model_copy(update={"latency_s": 0.1})})
-    est = run_solution("fused", rows, late, FusionConfig(), 12.0)
-    assert _mae(est, truth, 0) < 0.010
+    late = _fusion_inputs(rows, {"lidar": 0.1, "radar": 0.1})
+    assert all(m.t_arrival_s == pytest.approx(m.t_acq_s + 0.1) for m in late)
+    est = run_solution("fused", late, FusionConfig(), 12.0)
+    assert _mae(est, truth, 0) < 0.005
 
 
 def test_outliers_are_gated_not_followed(loaded_rows):
@@ -73,9 +87,17 @@ def test_outliers_are_gated_not_followed(loaded_rows):
     for r in bad[200::40]:
         if r.method == "deck_lidar" and r.ok:
             r.value += 5.0
-    est = run_solution("deck_lidar", bad, s, FusionConfig(), 12.0)
+    est = run_solution("deck_lidar", _fusion_inputs(bad), FusionConfig(), 12.0)
     assert est.statuses.get("gated", 0) >= 1
     assert _mae(est, truth, 0) < 0.005
+
+
+def test_estimates_cover_every_tick_of_the_output_grid(loaded_rows):
+    _, _, rows = loaded_rows
+    est = run_solution("fused", _fusion_inputs(rows), FusionConfig(), 12.0)
+    first = int(np.argmax(np.isfinite(est.x[:, 0])))
+    assert np.all(np.isfinite(est.x[first:, 0])) and len(est.t_s) == 1201
+    np.testing.assert_array_equal(est.t_s, np.arange(1201) / 100.0)
 
 
 def test_run_and_process_write_their_outputs(tmp_path):

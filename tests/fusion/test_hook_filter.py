@@ -1,4 +1,4 @@
-"""Multi-rate EKF / UKF for the hook (fusion/hook_filter.py) on simulated truth."""
+"""Multi-rate EKF / UKF for the hook (fusion/hook_kalman.py, hook_run.py, hook_tracker.py) on simulated truth."""
 
 from __future__ import annotations
 
@@ -8,16 +8,18 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from boomtip.data.sim.crane import CraneJointProfiles, CraneParams, VesselWaves, simulate_crane
-from boomtip.fusion.hook_filter import (
-    HookFilter,
-    HookFilterConfig,
-    HookTracker,
-    measurements_from_truth,
-    rmse_per_axis,
-    run_hook_filter,
-    world_hook_from_states,
-)
+from boomtip.data.crane_model import CraneParams
+from boomtip.data.sim.crane_joints import CraneJointProfiles
+from boomtip.data.sim.crane_truth import simulate_crane
+from boomtip.data.sim.hook_measurements import measurements_from_truth
+from boomtip.data.sim.vessel_waves import VesselWaves
+from boomtip.fusion.hook_config import HookFilterConfig
+from boomtip.fusion.hook_kalman import HookFilter
+from boomtip.fusion.hook_run import run_hook_filter
+from boomtip.fusion.hook_tracker import HookTracker
+from boomtip.fusion.models.autodiff import accel_jacobian
+from boomtip.fusion.models.crane_pendulum import hook_pos_vel, hook_pos_vel_batch, rk4_batch, rk4_float, rk4_step
+from boomtip.tools.hook_eval import rmse_per_axis, world_hook_from_states
 
 DEG = math.pi / 180
 T_CONVERGE = 5.0  # document 002 6.2: the first 5 s are excluded from the metrics
@@ -196,10 +198,8 @@ def _random_states(n, count, seed=0):
 
 @pytest.mark.parametrize("model", ["flexible", "rigid"])
 def test_autodiff_jacobian_equals_complex_step(model):
-    from boomtip.fusion.hook_filter import _accel_jacobian
-
     f = HookFilter("ekf", model)
-    assert _accel_jacobian(f._prm, f.flex) is not None  # _accel_core is traceable
+    assert accel_jacobian(f._prm, f.flex) is not None  # the core is traceable
     rows = [1, 3, 20] if f.flex else [1, 3]
     for x in _random_states(f.n, 50):
         A_ad = f.continuous_jacobian(x, "autodiff")
@@ -211,16 +211,14 @@ def test_autodiff_jacobian_equals_complex_step(model):
 
 @pytest.mark.parametrize("flex", [True, False])
 def test_rk4_variants_equal_generic_step(flex):
-    from boomtip.fusion.hook_filter import _rk4_batch, _rk4_float, _rk4_step
-
     prm = CraneParams().as_tuple()
     n = 21 if flex else 19
     X = _random_states(n, 20, seed=1)
     for x in X:
-        ref = _rk4_step(math.sin, math.cos, prm, flex, x.tolist(), 0.005)
-        assert _rk4_float(prm, flex, x.tolist(), 0.005) == ref  # the same operations
-    ref = np.array([_rk4_step(math.sin, math.cos, prm, flex, x.tolist(), 0.005) for x in X])
-    np.testing.assert_allclose(_rk4_batch(prm, flex, X.T, 0.005).T, ref, rtol=1e-13, atol=1e-15)
+        ref = rk4_step(math.sin, math.cos, prm, flex, x.tolist(), 0.005)
+        assert rk4_float(prm, flex, x.tolist(), 0.005) == ref  # the same operations
+    ref = np.array([rk4_step(math.sin, math.cos, prm, flex, x.tolist(), 0.005) for x in X])
+    np.testing.assert_allclose(rk4_batch(prm, flex, X.T, 0.005).T, ref, rtol=1e-13, atol=1e-15)
 
 
 def test_linear_update_equals_sequential_scalar_updates():
@@ -246,13 +244,11 @@ def test_linear_update_equals_sequential_scalar_updates():
 
 
 def test_batched_hook_outputs_equal_per_state():
-    from boomtip.fusion.hook_filter import _hook_pos_vel_batch, _hook_pos_vel_small
-
     X = _random_states(21, 30, seed=3)
     X[:, 11] = np.random.default_rng(4).normal(0, 0.5, 30)
-    p, v, Hp, Hv = _hook_pos_vel_batch(X)
+    p, v, Hp, Hv = hook_pos_vel_batch(X)
     for k, x in enumerate(X):
-        for a, b in zip((p[k], v[k], Hp[k], Hv[k]), _hook_pos_vel_small(x)):
+        for a, b in zip((p[k], v[k], Hp[k], Hv[k]), hook_pos_vel(x)):
             np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-15)
 
 

@@ -9,16 +9,16 @@ import math
 import numpy as np
 import pytest
 
-from boomtip.data.sim.crane import CraneJointProfiles, CraneParams, VesselWaves, simulate_crane
+from boomtip.data.crane_model import CraneParams
+from boomtip.data.sim.crane_joints import CraneJointProfiles
+from boomtip.data.sim.crane_truth import simulate_crane
+from boomtip.data.sim.hook_measurements import SensorSimConfig, measurements_from_truth
+from boomtip.data.sim.vessel_waves import VesselWaves
 from boomtip.data.meshes import Label
-from boomtip.fusion.hook_filter import (
-    HookFilter,
-    HookTracker,
-    SensorSimConfig,
-    measurements_from_truth,
-    run_hook_filter,
-    sway_angles_from_direction,
-)
+from boomtip.fusion.hook_kalman import HookFilter
+from boomtip.fusion.hook_run import run_hook_filter
+from boomtip.fusion.hook_tracker import HookTracker
+from boomtip.fusion.models.crane_pendulum import sway_angles_from_direction
 from boomtip.perception.rope import RopeConfig, fit_rope, tangent_basis
 from boomtip.perception.timing import StageTimes
 from test_hook_segmentation import make_scene, scan

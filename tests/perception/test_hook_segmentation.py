@@ -25,7 +25,7 @@ from boomtip.data.block_model import (
     visible_model_points,
 )
 from boomtip.data.sim.raycast import RayCaster
-from boomtip.data.scenario import Lidar
+from boomtip.data.sim.world import Lidar
 from boomtip.data.meshes import Body, Label, Part, box
 from boomtip.data.sim.sensors import FaceLookup, lidar_pattern, lidar_measure
 from boomtip.perception.hook import HookConfig, block_footprint, detect_hook, rotation_hanging, segmentation_scores

@@ -132,7 +132,9 @@ def test_rpy_matrix_matches_scipy():
 
 def test_rotation_aware_doppler_is_exact_where_the_document_is_not():
     """A radar scan of the ideal scenario: with the deck's true normal and spin, the
-    rotation-aware D-dot equals the truth; document 000's formula misses by cm/s."""
+    rotation-aware D-dot equals the truth; document 000's formula misses by cm/s. Frames are
+    cast at true times and levelled with the TRUE attitude and mount (the simulated world's),
+    so the check is of the formula alone."""
     s = load_scenario("sts-empty", ["duration_s=12"])
     sim = Simulation(s)
     w = sim.world
@@ -142,12 +144,12 @@ def test_rotation_aware_doppler_is_exact_where_the_document_is_not():
         beams = f.points_sensor / np.linalg.norm(f.points_sensor, axis=1, keepdims=True)
         fit = doppler_velocity(beams, f.fields["range_rate"].astype(float), None, np.random.default_rng(0))
         crane, feeder = w.crane_motion.states(np.array([t])), w.feeder_motion.states(np.array([t]))
-        R_ls = rotation_level_sensor(crane.rpy_rad[0], sim.meta.T_crane_boomtip, sim.meta.T_boomtip_sensor["radar"])
+        R_ls = rotation_level_sensor(crane.rpy_rad[0], w.T_crane_boomtip, w.T_boomtip_sensor["radar"])
         u = R_ls @ fit.velocity_sensor
-        n = feeder.rotation.apply(sim.meta.feeder_deck_plane_body[:3])[0]
+        n = feeder.rotation.apply(w.deck_plane_body[:3])[0]
         truth_D = float(sim.truth.at("D", np.array([t]))[0])
         truth_V = float(sim.truth.at("D_dot", np.array([t]))[0])
-        r_tip = R_ls @ tip_in_sensor(sim.meta.T_boomtip_sensor["radar"])
+        r_tip = R_ls @ tip_in_sensor(w.T_boomtip_sensor["radar"])
         exact = heave_rate_exact(u, n, feeder.omega_radps[0], crane.omega_radps[0], r_tip, truth_D)
         errs_exact.append(exact - truth_V)
         errs_doc.append(heave_rate_document(u) - truth_V)
@@ -173,11 +175,13 @@ def test_normal_rate_recovers_spin_perpendicular_to_the_normal():
 
 @pytest.fixture(scope="module")
 def short_sim():
-    return Simulation(load_scenario("sts-empty", ["duration_s=2"]))
+    # Ideal: no mismatch between the simulated world and the installation processing knows.
+    return Simulation(load_scenario("sts-empty", ["duration_s=2", "mismatch={}"]))
 
 
 def test_pipeline_on_ideal_scenario_is_accurate(short_sim):
-    pipe = HeavePipeline(short_sim.meta, short_sim.mru)
+    assert short_sim.scenario.world.mismatch == type(short_sim.scenario.world.mismatch)()
+    pipe = HeavePipeline(short_sim.meta.installation, short_sim.mru)
     errs: dict[str, list[float]] = {}
     for f in short_sim:
         for m in pipe.process(f).measurements:
@@ -191,7 +195,7 @@ def test_pipeline_on_ideal_scenario_is_accurate(short_sim):
 
 @pytest.mark.parametrize("points", [np.zeros((0, 3)), np.full((100, 3), np.nan)])
 def test_empty_and_all_nan_frames_give_reasons_not_exceptions(short_sim, points):
-    pipe = HeavePipeline(short_sim.meta, short_sim.mru)
+    pipe = HeavePipeline(short_sim.meta.installation, short_sim.mru)
     fields = {"intensity": np.ones(len(points), np.float32), "t": np.zeros(len(points), np.float32), "label": np.zeros(len(points), np.int32)}
     res = pipe.process(Frame("lidar", 0, 0.5, points, fields))
     assert {m.method for m in res.measurements} == {"deck_lidar", "reflectors_lidar"}
@@ -202,7 +206,7 @@ def test_mru_gap_is_reported(short_sim):
     m = short_sim.mru
     keep = (m.t_s < 0.4) | (m.t_s > 0.9)
     gappy = MruLog(m.t_s[keep], m.rpy_rad[keep], m.rpy_rate_radps[keep], max_gap_s=0.1)
-    pipe = HeavePipeline(short_sim.meta, gappy)
+    pipe = HeavePipeline(short_sim.meta.installation, gappy)
     res = pipe.process(short_sim.lidar_frame(6, 0.6))
     assert all("MRU" in r.status for r in res.measurements)
 
@@ -211,7 +215,7 @@ def test_unknown_method_is_refused(short_sim):
     from boomtip.perception.pipeline import PipelineConfig
 
     with pytest.raises(ValueError, match="unknown method"):
-        HeavePipeline(short_sim.meta, short_sim.mru, PipelineConfig(methods=("deck_lidar", "decklidar")))
+        HeavePipeline(short_sim.meta.installation, short_sim.mru, PipelineConfig(methods=("deck_lidar", "decklidar")))
 
 
 def test_a_strip_of_hull_below_the_deck_is_not_a_deck():

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from boomtip.data.sim.hook_world import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, HookSimulation
+from boomtip.data.frames import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS
+from boomtip.data.sim.hook_world import HookSimulation
 from boomtip.data.io.recording import Recording, write_recording
 from boomtip.data.scenario import load_scenario
 from boomtip.data.meshes import Label
@@ -41,7 +42,11 @@ def test_truth_and_encoders_are_consistent(sim):
     tr = sim.truth.columns
     assert set(HOOK_TRUTH_COLUMNS) <= set(tr)
     rel = np.column_stack([tr[f"hook_rel_{a}"] for a in "xyz"])
-    assert np.allclose(np.linalg.norm(rel, axis=1), tr["hoist"], atol=1e-6)  # rigid rope
+    # the reeving stretches by m g l / EA (the world's true mass and EA; the encoder reads l)
+    mm, crane = sim.scenario.world.mismatch, sim.scenario.installation.crane
+    stretch = 1.0 + crane.dynamics.hook_mass_kg * mm.hook_mass * 9.81 / mm.rope_ea_n
+    assert stretch > 1.00005
+    assert np.allclose(np.linalg.norm(rel, axis=1), tr["hoist"] * stretch, atol=1e-6)
     enc = sim.encoders
     assert set(ENCODER_COLUMNS) <= set(enc)
     assert np.abs(np.interp(enc["t"], tr["t"], tr["slew"]) - enc["slew"]).max() < np.deg2rad(0.6)  # 0.1 deg noise

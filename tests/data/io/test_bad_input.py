@@ -49,9 +49,13 @@ def test_meta_json_of_the_wrong_shape_is_refused_by_name(rec, tmp_path):
     with pytest.raises(RecordingError, match="meta.json: expected a JSON object"):
         Recording(r)
     meta = json.loads((rec / "meta.json").read_text())
-    meta["T_crane_boomtip"] = "abc"
+    meta["installation"]["crane"]["geometry"]["boom_tip_m"] = "abc"
     (r / "meta.json").write_text(json.dumps(meta))
-    with pytest.raises(RecordingError, match="wrong shape or type"):
+    with pytest.raises(RecordingError, match="installation.crane.geometry.boom_tip_m"):
+        Recording(r)
+    meta["installation"] = {"lidar": {"mount": {"rpy_deg": [90, float("nan"), 0]}}}
+    (r / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match="finite"):
         Recording(r)
 
 
@@ -64,15 +68,27 @@ def test_an_mru_log_without_samples_is_refused(rec, tmp_path):
 
 
 def test_a_bad_set_value_is_blamed_on_the_set_not_the_file():
-    with pytest.raises(ScenarioError, match=r"^--set lidar.rate_hz=fast: key 'lidar.rate_hz'"):
+    with pytest.raises(ScenarioError, match=r"^--set lidar.rate_hz=fast: key 'installation.lidar.rate_hz'"):
         load_scenario("sts-empty", ["lidar.rate_hz=fast"])
 
 
-def test_reflector_plane_is_moved_down_by_the_marker_height(tmp_path):
-    out = tmp_path / "run"
-    assert runner.invoke(app, ["run", "-s", "sts-empty", "--duration", "3", "--out", str(out)]).exit_code == 0
+def _reflector_run(tmp_path, name, duration, *sets):
+    out = tmp_path / name
+    args = ["run", "-s", "sts-empty", "--duration", str(duration), "--out", str(out)]
+    for text in sets:
+        args += ["--set", text]
+    assert runner.invoke(app, args).exit_code == 0
     rows = list(csv.DictReader(open(out / "measurements.csv")))
-    kp = json.loads((out / "kpis.json").read_text())["measurements"]
+    return rows, json.loads((out / "kpis.json").read_text())["measurements"]["reflectors_lidar"]
+
+
+def test_reflector_plane_is_moved_down_by_the_marker_height(tmp_path):
+    # An ideal verification: no mismatch between the world and the installation.
+    rows, kp = _reflector_run(tmp_path, "run", 3, "mismatch={}")
     # markers stand 2 mm proud of the deck; corrected, ideal sensors give sub-millimetre D
-    assert kp["reflectors_lidar"]["mae"] < 5e-4
+    assert kp["mae"] < 5e-4
     assert sum(1 for x in rows if x["method"] == "reflectors_lidar" and x["status"] == "ok") == 30
+    # Guard: the correction is the installation's marker height. Told the markers are flat
+    # while they stand 2 mm proud, D comes out 2 mm short.
+    _, flat = _reflector_run(tmp_path, "flat", 1, "mismatch={}", "installation.markers.height_m=0")
+    assert flat["mae"] == pytest.approx(0.002, abs=5e-4)

@@ -56,8 +56,8 @@ def test_layout(rec_dir, scenario):
     assert (rec_dir / "meta.json").is_file() and (rec_dir / "mru.csv").is_file() and (rec_dir / "truth.csv").is_file()
     n_lidar = len(list((rec_dir / "lidar").glob("*.pcd")))
     n_radar = len(list((rec_dir / "radar").glob("*.pcd")))
-    assert n_lidar == round(scenario.duration_s * scenario.lidar.rate_hz) == 10
-    assert n_radar == round(scenario.duration_s * scenario.radar.rate_hz) == 20
+    assert n_lidar == round(scenario.duration_s * scenario.installation.lidar.rate_hz) == 10
+    assert n_radar == round(scenario.duration_s * scenario.installation.radar.rate_hz) == 20
     assert frame_file_name(0.1) == "0000100000000.pcd"
     assert (rec_dir / "lidar" / "0000100000000.pcd").is_file()
     # nothing left behind from the atomic write
@@ -107,25 +107,26 @@ def test_truth_round_trips(rec_dir, sim):
 def test_meta_json(rec_dir, sim, scenario):
     meta = json.loads((rec_dir / "meta.json").read_text())
     assert meta["format_version"] == FORMAT_VERSION
-    assert meta["scenario"] == scenario.model_dump(mode="json")
-    assert np.asarray(meta["T_crane_boomtip"]).shape == (4, 4)
-    np.testing.assert_array_equal(meta["T_crane_boomtip"], sim.meta.T_crane_boomtip)
-    np.testing.assert_allclose(np.asarray(meta["T_crane_boomtip"])[:3, 3], scenario.crane.geometry.boom_tip_m)
-    for s in ("lidar", "radar"):
-        T = np.asarray(meta["sensors"][s]["T_boomtip_sensor"])
-        assert T.shape == (4, 4)
-        np.testing.assert_array_equal(T, sim.meta.T_boomtip_sensor[s])
-        np.testing.assert_allclose(T[3], [0, 0, 0, 1])
-        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(meta["feeder_deck_plane_body"], sim.meta.feeder_deck_plane_body)
+    # processing's part: the installation; the world only as provenance
+    assert meta["installation"] == scenario.installation.model_dump(mode="json")
+    assert meta["provenance"]["scenario"] == scenario.model_dump(mode="json")
     assert meta["frames"] == {"lidar": 10, "radar": 20}
     rec = Recording(rec_dir)
-    assert rec.meta.scenario == scenario
+    assert rec.meta.installation == scenario.installation
+    assert rec.meta.provenance == scenario.model_dump(mode="json")
     np.testing.assert_array_equal(rec.meta.T_crane_boomtip, sim.meta.T_crane_boomtip)
+    np.testing.assert_allclose(rec.meta.T_crane_boomtip[:3, 3], scenario.installation.crane.geometry.boom_tip_m)
+    for s in ("lidar", "radar"):
+        T = rec.meta.T_boomtip_sensor[s]
+        np.testing.assert_array_equal(T, sim.meta.T_boomtip_sensor[s])
+        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
 
 
 def test_D_recomputed_from_truth_poses_and_meta_equals_truth_D(rec_dir):
-    """Only the files: truth.csv poses + meta.json transforms and deck plane give back D."""
+    """Only the files: truth.csv poses + the tip and the deck plane give back D."""
+    from boomtip.data.scenario import scenario_from_dict
+    from boomtip.data.sim.scene import feeder_deck_plane_body
+
     meta = json.loads((rec_dir / "meta.json").read_text())
     lines = (rec_dir / "truth.csv").read_text().splitlines()
     names = lines[0].split(",")
@@ -135,8 +136,8 @@ def test_D_recomputed_from_truth_poses_and_meta_equals_truth_D(rec_dir):
     p_c = np.column_stack([c["crane_x"], c["crane_y"], c["crane_z"]])
     R_f = Rotation.from_euler("xyz", np.column_stack([c["feeder_roll"], c["feeder_pitch"], c["feeder_yaw"]]))
     p_f = np.column_stack([c["feeder_x"], c["feeder_y"], c["feeder_z"]])
-    tip = R_c.apply(np.asarray(meta["T_crane_boomtip"])[:3, 3]) + p_c
-    plane = np.asarray(meta["feeder_deck_plane_body"])
+    tip = R_c.apply(np.asarray(meta["installation"]["crane"]["geometry"]["boom_tip_m"])) + p_c
+    plane = feeder_deck_plane_body(scenario_from_dict(meta["provenance"]["scenario"]))
     n = R_f.apply(plane[:3])
     d = plane[3] - np.einsum("ij,ij->i", n, p_f)
     D = (np.einsum("ij,ij->i", n, tip) + d) / n[:, 2]
@@ -163,7 +164,7 @@ def test_write_refuses_non_empty_out_without_force(rec_copy, scenario):
     write_recording(short_sim, rec_copy, force=True)
     assert not sentinel.exists()
     assert len(Recording(rec_copy)) == 2 + 4
-    assert Recording(rec_copy).meta.scenario == short
+    assert Recording(rec_copy).meta.provenance == short.model_dump(mode="json")
 
 
 # ---------------------------------------------------------------------------------------
@@ -293,9 +294,9 @@ def test_bad_meta_errors(rec_copy):
     with pytest.raises(RecordingError, match="format_version"):
         Recording(rec_copy)
     meta["format_version"] = FORMAT_VERSION
-    meta["sensors"]["lidar"]["T_boomtip_sensor"] = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+    meta["installation"]["lidar"]["mount"]["rpy_deg"] = [90, 90]
     meta_path.write_text(json.dumps(meta))
-    with pytest.raises(RecordingError, match="sensors.lidar.T_boomtip_sensor"):
+    with pytest.raises(RecordingError, match="installation.lidar.mount.rpy_deg"):
         Recording(rec_copy)
     meta_path.write_text("{not json")
     with pytest.raises(RecordingError, match="meta.json"):
@@ -325,8 +326,8 @@ def test_cli_simulate_writes_a_recording(runner, tmp_path):
                               "--set", "lidar.rate_hz=20", "--seed", "4"])
     assert res.exit_code == 0, res.output
     rec = Recording(out)
-    assert rec.meta.scenario.duration_s == 0.2 and rec.meta.scenario.seed == 4
-    assert rec.meta.scenario.lidar.rate_hz == 20
+    assert rec.meta.duration_s == 0.2 and rec.meta.provenance["seed"] == 4
+    assert rec.meta.installation.lidar.rate_hz == 20
     frames = list(rec)
     assert sum(f.sensor == "lidar" for f in frames) == 4 and sum(f.sensor == "radar" for f in frames) == 4
     assert all(f.error is None and len(f) > 0 for f in frames)
@@ -366,21 +367,23 @@ def test_cli_scenarios_keys(runner):
     res = runner.invoke(app, ["scenarios", "--keys"])
     assert res.exit_code == 0
     keys = res.stdout.split()
-    assert "lidar.rate_hz" in keys and "feeder.motion.heave.amplitude" in keys
+    assert "installation.lidar.rate_hz" in keys and "world.feeder.motion.heave.amplitude" in keys
+    assert "world.mismatch.rope_ea_n" in keys and "processing.fusion.jerk_psd" in keys
 
 
 # ---------------------------------------------------------------------------------------
 # MRU log (data/frames.py MruLog)
 
 
-def test_mru_log_is_the_crane_attitude_plus_configured_noise(sim, scenario):
-    tr, mru = sim.truth, sim.mru
-    assert scenario.mru.angle_noise_deg > 0
-    truth_rpy = np.column_stack([tr.at(f"crane_{a}", mru.t_s) for a in ("roll", "pitch", "yaw")])
+def test_mru_log_is_the_crane_attitude_plus_its_noise_bias_and_lag(sim, scenario):
+    tr, mru, mm = sim.truth, sim.mru, scenario.world.mismatch
+    sigma = np.deg2rad(scenario.installation.mru.angle_noise_deg)
+    assert sigma > 0 and mm.mru_lag_s > 0 and np.any(mm.mru_bias_deg)
+    truth_rpy = np.column_stack([tr.at(f"crane_{a}", mru.t_s - mm.mru_lag_s) for a in ("roll", "pitch", "yaw")])
     err = mru.rpy_rad - truth_rpy
-    assert np.std(err) == pytest.approx(np.deg2rad(scenario.mru.angle_noise_deg), rel=0.15)
-    assert abs(np.mean(err)) < 3 * np.deg2rad(scenario.mru.angle_noise_deg) / np.sqrt(err.size)
-    np.testing.assert_allclose(np.diff(mru.t_s), 1 / scenario.mru.rate_hz, atol=1e-12)
+    assert np.std(err, axis=0) == pytest.approx(np.full(3, sigma), rel=0.15)
+    np.testing.assert_allclose(np.mean(err, axis=0), np.deg2rad(mm.mru_bias_deg), atol=4 * sigma / np.sqrt(len(err)))
+    np.testing.assert_allclose(np.diff(mru.t_s), 1 / scenario.installation.mru.rate_hz, atol=1e-12)
 
 
 def test_mru_attitude_interpolates_and_refuses_gaps_and_outside():

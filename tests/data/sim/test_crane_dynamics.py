@@ -1,26 +1,26 @@
-"""Truth simulation of the crane hook (data/crane.py): physics checks."""
+"""Truth simulation of the crane hook (data/crane_model.py, data/sim/crane_truth.py): physics checks."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from boomtip.data.sim.crane import (
-    HOOK_SCENARIOS,
-    CallableVesselMotion,
-    CraneJointProfiles,
+from boomtip.data.crane_model import (
     CraneParams,
-    JointMove,
-    JointProfile,
     JointStates,
-    VesselWaves,
+    VesselState,
     crane_accelerations,
-    simulate_crane,
+    hook_relative_kinematics,
     tip_kinematics,
     vessel_rotation,
 )
+from boomtip.data.sim.crane_joints import CraneJointProfiles, JointMove, JointProfile
+from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
+from boomtip.data.sim.crane_truth import simulate_crane
+from boomtip.data.sim.vessel_waves import CallableVesselMotion, StaticVessel, VesselWaves
 
 DEG = math.pi / 180
 G_VEC = np.array([0.0, 0.0, -9.81])
@@ -147,7 +147,6 @@ def test_core_uses_same_tip_acceleration_as_kinematics():
     rng = np.random.default_rng(3)
     n = 50
     J = JointStates(*(rng.normal(0, 0.3, n) for _ in range(6)), np.full(n, 60.0), rng.normal(0, 0.5, n), rng.normal(0, 0.1, n))
-    from boomtip.data.sim.crane import VesselState
     V = VesselState(*(rng.normal(0, 0.03, n) for _ in range(6)))
     z = np.zeros(n)
     add, bdd, _ = crane_accelerations(CraneParams(flexible=False), z, z, z, z, J, V)
@@ -193,8 +192,6 @@ def test_scenarios():
 
 
 def _zero_vessel(t):
-    from boomtip.data.sim.crane import StaticVessel
-
     return StaticVessel().evaluate(t)
 
 
@@ -204,3 +201,69 @@ def test_rk4_and_dop853_agree():
     b = simulate_crane(CraneParams(), sc.joints, sc.vessel, 15.0, method="dop853")
     assert np.abs(a.p_hook_world - b.p_hook_world).max() < 1e-6
     assert np.abs(a.nu_f - b.nu_f).max() < 1e-8
+
+
+# --------------------------------------------------------------------------------------
+# The truth beyond the nominal model: rope stretch and wind drag
+# --------------------------------------------------------------------------------------
+def test_rope_stretch_lengthens_the_pendulum_not_the_encoder():
+    P = CraneParams()
+    ea = 1e9  # N: m g / EA ~ 1 %
+    joints = CraneJointProfiles.from_moves(0.3, 50 * DEG, 80.0, hoist_moves=[(5.0, 60.0)])
+    tr = simulate_crane(P, joints, None, 40.0, rope_ea_n=ea)
+    s = 1.0 + P.m * P.g / ea
+    assert tr.l[0] == 80.0 and abs(tr.l[-1] - 60.0) < 1e-9  # the hoist programme, as the encoder reads it
+    np.testing.assert_allclose(tr.l_rope, tr.l * s, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(tr.p_hook_rel_tip, axis=1), tr.l * s, rtol=1e-6)
+    # hanging straight down while hoisting: the hook moves at the stretched rate
+    np.testing.assert_allclose(tr.v_hook_rel_tip[:, 2], -tr.l_dot * s, atol=1e-9)
+
+
+def test_steady_wind_tilts_the_hanging_hook_to_the_drag_angle():
+    P = CraneParams(m=1e4, flexible=False)  # a light hook, so the angle is measurable
+    wind = (12.0, 9.0)  # 15 m/s
+    tr = simulate_crane(P, _static(), None, 400.0, wind_mps=wind, drag_area_m2=20.0)
+    f_drag = 0.5 * 1.225 * 1.2 * 20.0 * 15.0**2
+    expected = math.atan(f_drag / (P.m * P.g))  # ~1.9 deg
+    u = tr.p_hook_rel_tip[-1] / np.linalg.norm(tr.p_hook_rel_tip[-1])
+    assert abs(math.acos(-u[2]) / expected - 1) < 0.02  # the drag's own damping has settled the swing
+    np.testing.assert_allclose(u[:2] / np.linalg.norm(u[:2]), np.array(wind) / 15.0, atol=1e-3)  # downwind
+
+
+def test_drag_sees_the_hooks_velocity():
+    """With the wind equal to the hook's own horizontal velocity there is no drag: the drag's
+    hand-coded tip velocity agrees with the kinematics."""
+    from boomtip.data.sim.crane_truth import _accelerations_with_drag
+
+    rng = np.random.default_rng(1)
+    n = 40
+    J = JointStates(*(rng.normal(0, 0.3, n) for _ in range(6)), rng.uniform(40, 90, n), rng.normal(0, 0.5, n),
+                    rng.normal(0, 0.1, n))
+    V = VesselState(*(rng.normal(0, 0.03, n) for _ in range(6)))
+    a, ad, b, bd, f, fd = (rng.normal(0, s, n) for s in (0.1, 0.05, 0.1, 0.05, 0.003, 0.003))
+    P = CraneParams()
+    _, v_tip, _ = tip_kinematics(P, J, V, f, fd, 0.0)
+    _, rd = hook_relative_kinematics(J.l, J.l_dot, a, ad, b, bd)
+    v_hook = v_tip + rd
+    args = (np.sin, np.cos, P.as_tuple(), True, a, ad, b, bd, *J, *V, f, fd)
+    nominal = crane_accelerations(P, a, ad, b, bd, J, V, f, fd)
+    with_drag = _accelerations_with_drag(1e-3, v_hook[:, 0], v_hook[:, 1])(*args)
+    for x, y in zip(nominal, with_drag):
+        np.testing.assert_allclose(y, x, rtol=0, atol=1e-15)
+    moving_air = _accelerations_with_drag(1e-3, v_hook[:, 0] + 5.0, v_hook[:, 1])(*args)
+    assert np.all(np.abs(moving_air[0] - nominal[0]) > 0)
+
+
+@pytest.mark.parametrize("method", ["dop853", "rk4"])
+def test_truth_extras_off_by_default(method):
+    sc = HOOK_SCENARIOS["hook-4"]()
+    base = simulate_crane(CraneParams(), sc.joints, sc.vessel, 6.0, method=method)
+    explicit = simulate_crane(CraneParams(), sc.joints, sc.vessel, 6.0, method=method, rope_ea_n=None,
+                              wind_mps=(0.0, 0.0), drag_area_m2=0.0, drag_coefficient=1.2, air_density_kgpm3=1.225)
+    no_area = simulate_crane(CraneParams(), sc.joints, sc.vessel, 6.0, method=method, wind_mps=(10.0, -4.0))
+    for tr in (explicit, no_area):
+        for fld in dataclasses.fields(tr):
+            v = getattr(base, fld.name)
+            if isinstance(v, np.ndarray):
+                np.testing.assert_array_equal(getattr(tr, fld.name), v, err_msg=fld.name)
+    np.testing.assert_array_equal(base.l_rope, base.l)

@@ -13,10 +13,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from boomtip.data.sim.motion import ShipMotion, euler_rates_to_omega_world
-from boomtip.data.scenario import DOFS, IrregularSea, Motion, load_scenario
+from boomtip.data.scenario import load_scenario
+from boomtip.data.sim.world import DOFS, IrregularSea, Motion
 from boomtip.data.sim.scene import feeder_deck_plane_body
 from boomtip.data.sim.scene import build_bodies
-from boomtip.data.sim.simulator import Simulation, World
+from boomtip.data.sim.simulator import SimScene, Simulation
 from boomtip.data.sim.truth import plane_to_world, relative_heave, tip_states
 
 PERIOD = 10.0
@@ -28,14 +29,14 @@ ALL_ZERO = [f"{ship}.motion.{dof}.amplitude=0" for ship in ("crane", "feeder") f
 
 @pytest.fixture(scope="module")
 def bodies():
-    """Meshes are irrelevant to the truth: build them once and reuse them in every World."""
+    """Meshes are irrelevant to the truth: build them once and reuse them in every SimScene."""
     return build_bodies(load_scenario("sts-empty"))
 
 
 @pytest.fixture
 def sim_of(bodies):
     def make(s):
-        return Simulation(s, World(s, bodies=bodies))
+        return Simulation(s, SimScene(s, bodies=bodies))
     return make
 
 
@@ -167,8 +168,8 @@ def test_plane_to_world_contains_transformed_points():
 
 def test_case1_both_static_D_constant_tip_minus_deck(truth):
     s = load_scenario("sts-empty")
-    tip_z = s.crane.geometry.boom_tip_m[2]
-    deck_z = s.feeder.geometry.position_m[2] + s.feeder.geometry.freeboard_m
+    tip_z = s.installation.crane.geometry.boom_tip_m[2]
+    deck_z = s.world.feeder.geometry.position_m[2] + s.world.feeder.geometry.freeboard_m
     _, D, D_dot = truth()
     np.testing.assert_allclose(D, tip_z - deck_z, atol=1e-12)
     np.testing.assert_allclose(D_dot, 0, atol=1e-12)
@@ -314,7 +315,7 @@ def heave_at(sim: Simulation, t):
     crane, feeder = w.crane_motion.states(t), w.feeder_motion.states(t)
     for dof in range(3):  # every DOF really moves
         assert np.ptp(crane.position_m[:, dof]) > 0 and np.ptp(feeder.rpy_rad[:, dof]) > 0
-    p, v = tip_states(crane, np.asarray(s.crane.geometry.boom_tip_m))
+    p, v = tip_states(crane, np.asarray(s.installation.crane.geometry.boom_tip_m))
     return relative_heave(p, v, feeder_deck_plane_body(s), feeder)
 
 
@@ -343,7 +344,7 @@ def test_D_dot_exact_relation_with_tip_velocity_field(sim_of):
     s, w = sim.scenario, sim.world
     t = np.linspace(0.0, 29.0, 200)
     crane, feeder = w.crane_motion.states(t), w.feeder_motion.states(t)
-    p_t, v_t = tip_states(crane, np.asarray(s.crane.geometry.boom_tip_m))
+    p_t, v_t = tip_states(crane, np.asarray(s.installation.crane.geometry.boom_tip_m))
     D, D_dot = relative_heave(p_t, v_t, feeder_deck_plane_body(s), feeder)
     n = plane_to_world(feeder_deck_plane_body(s), feeder)[:, :3]
     u = feeder.velocity_mps + np.cross(feeder.omega_radps, p_t - feeder.position_m) - v_t

@@ -3,9 +3,11 @@ data/simulator.py). Mirrors document 000 Tables 3.2/3.3 (LiDAR/radar verificatio
 shape, translation, rotation about the ship's centre, cargo shadows, reflector intensity,
 Doppler for translation and rotation, plus the noise/dropout/pattern models.
 
-Poses are recomputed here from the scenario's sinusoids (not via data/motion.py) and the
-mount chain from the source metadata, so the expected values are independent of the
-simulator's own kinematics.
+Poses are recomputed here from the scenario's sinusoids (not via data/motion.py), so the
+expected values are independent of the simulator's own kinematics. The mount chain is the
+TRUE one (`sim.world`: the surveyed mounts rotated by `world.mismatch`), since the built-in
+scenarios' world deviates a little from the installation the source metadata carries;
+`test_true_mount_is_the_surveyed_mount_rotated_by_the_mismatch` checks that chain.
 """
 
 from __future__ import annotations
@@ -15,10 +17,11 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from boomtip.data.scenario import DOFS, load_scenario
+from boomtip.data.scenario import load_scenario
+from boomtip.data.sim.world import DOFS
 from boomtip.data.sim.scene import Label, build_bodies
 from boomtip.data.sim.sensors import lidar_pattern, radar_pattern
-from boomtip.data.sim.simulator import Simulation, World
+from boomtip.data.sim.simulator import SimScene, Simulation
 
 ALL_ZERO = [f"{ship}.motion.{dof}.amplitude=0" for ship in ("crane", "feeder") for dof in DOFS]
 CRANE_LABELS = {int(Label.CRANE_HULL), int(Label.CRANE_DECK), int(Label.CRANE_STRUCTURE)}
@@ -28,7 +31,7 @@ DECK = int(Label.FEEDER_DECK)
 
 
 # ---------------------------------------------------------------------------------------
-# Fixtures: meshes are built once per module and shared by every World with the same geometry
+# Fixtures: meshes are built once per module and shared by every SimScene with the same geometry
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +46,7 @@ def bodies_cargo():
 
 def make_sim(bodies, *overrides, base="sts-empty"):
     s = load_scenario(base, ["duration_s=1", *overrides])
-    return Simulation(s, World(s, bodies=bodies))
+    return Simulation(s, SimScene(s, bodies=bodies))
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +60,7 @@ def sim_empty(bodies_empty):
 
 def body_pose(s, ship: str, t: float) -> tuple[np.ndarray, np.ndarray]:
     """R_world_body, p_world_body from the scenario's sinusoids (irregular sea off)."""
-    v = getattr(s, ship)
+    v = getattr(s.world, ship)
     assert not v.irregular.enabled
     q = np.array([getattr(v.motion, d).amplitude * np.sin(2 * np.pi * t / getattr(v.motion, d).period_s
                                                            + np.deg2rad(getattr(v.motion, d).phase_deg)) for d in DOFS])
@@ -66,8 +69,9 @@ def body_pose(s, ship: str, t: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sensor_pose(sim: Simulation, sensor: str, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """The sensor's TRUE world pose at true time t (the mounts as they really are)."""
     R_c, p_c = body_pose(sim.scenario, "crane", t)
-    T = sim.meta.T_crane_boomtip @ sim.meta.T_boomtip_sensor[sensor]
+    T = sim.world.T_crane_boomtip @ sim.world.T_boomtip_sensor[sensor]
     return R_c @ T[:3, :3], R_c @ T[:3, 3] + p_c
 
 
@@ -84,7 +88,7 @@ def to_body(s, ship, t, p_world):
 def deck_plane_world(s, t):
     R, o = body_pose(s, "feeder", t)
     n = R[:, 2]
-    return n, -(s.feeder.geometry.freeboard_m + n @ o)
+    return n, -(s.world.feeder.geometry.freeboard_m + n @ o)
 
 
 def point_velocity_fd(s, ship, t, p_world, h=1e-5):
@@ -174,12 +178,31 @@ def sine(ship, dof, amp, phase_deg=0.0, period=10.0):
 
 
 def test_default_mount_looks_straight_down(sim_empty):
-    for sensor, cfg in (("lidar", sim_empty.scenario.lidar), ("radar", sim_empty.scenario.radar)):
+    for sensor, cfg in (("lidar", sim_empty.scenario.installation.lidar), ("radar", sim_empty.scenario.installation.radar)):
         T = sim_empty.meta.T_boomtip_sensor[sensor]
         np.testing.assert_allclose(T[:3, 0], [0, 0, -1], atol=1e-12)  # boresight x down
         np.testing.assert_allclose(abs(T[0, 1]), 1, atol=1e-12)  # y along the ship
         np.testing.assert_allclose(T[:3, 3], cfg.mount.xyz_m)
         np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+@pytest.mark.parametrize("sensor", ["lidar", "radar"])
+def test_true_mount_is_the_surveyed_mount_rotated_by_the_mismatch(sim_empty, sensor):
+    """The world's mount = the surveyed one (the metadata's) rotated about the sensor's own
+    axes by `world.mismatch.<sensor>_mount_rpy_deg`; the same translation and boom tip."""
+    s = sim_empty.scenario
+    error = getattr(s.world.mismatch, f"{sensor}_mount_rpy_deg")
+    assert np.any(np.asarray(error) != 0)  # the built-in scenario really deviates
+    T_survey, T_true = sim_empty.meta.T_boomtip_sensor[sensor], sim_empty.world.T_boomtip_sensor[sensor]
+    np.testing.assert_allclose(T_true[:3, :3], T_survey[:3, :3] @ Rotation.from_euler("xyz", error, degrees=True).as_matrix(),
+                               atol=1e-12)
+    np.testing.assert_allclose(T_true[:3, 3], T_survey[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(sim_empty.world.T_crane_boomtip, sim_empty.meta.T_crane_boomtip, atol=0)
+    # the true sensor model keeps the surveyed mount; only the scene's pose chain is true
+    np.testing.assert_allclose(getattr(sim_empty.world, sensor).mount.matrix(), T_survey, atol=1e-12)
+    # With no mismatch the two agree.
+    zero = make_sim(sim_empty.world.bodies, "mismatch={}")
+    np.testing.assert_allclose(zero.world.T_boomtip_sensor[sensor], zero.meta.T_boomtip_sensor[sensor], atol=1e-12)
 
 
 def test_hull_meshes_are_outward_facing(bodies_empty):
@@ -199,7 +222,7 @@ def test_hull_meshes_are_outward_facing(bodies_empty):
 
 
 def test_grid_pattern_covers_the_fov(sim_empty):
-    cfg = sim_empty.scenario.lidar
+    cfg = sim_empty.scenario.installation.lidar
     pat = lidar_pattern(cfg)
     n_az = int(round(cfg.fov_h_deg / cfg.res_h_deg)) + 1
     n_el = int(round(cfg.fov_v_deg / cfg.res_v_deg)) + 1
@@ -209,7 +232,7 @@ def test_grid_pattern_covers_the_fov(sim_empty):
     el = np.rad2deg(np.arcsin(pat.dirs_sensor[:, 2]))
     np.testing.assert_allclose([az.min(), az.max()], [-cfg.fov_h_deg / 2, cfg.fov_h_deg / 2], atol=1e-9)
     np.testing.assert_allclose([el.min(), el.max()], [-cfg.fov_v_deg / 2, cfg.fov_v_deg / 2], atol=1e-9)
-    rcfg = sim_empty.scenario.radar
+    rcfg = sim_empty.scenario.installation.radar
     assert len(radar_pattern(rcfg).dirs_sensor) == (int(round(rcfg.fov_az_deg / rcfg.res_az_deg)) + 1) * (
         int(round(rcfg.fov_el_deg / rcfg.res_el_deg)) + 1)
 
@@ -219,12 +242,20 @@ def test_frame_schedule(sim_empty):
     s = sim_empty.scenario
     lid = [f for f in frames if f.sensor == "lidar"]
     rad = [f for f in frames if f.sensor == "radar"]
-    assert len(lid) == round(s.duration_s * s.lidar.rate_hz) and len(rad) == round(s.duration_s * s.radar.rate_hz)
+    assert len(lid) == round(s.duration_s * s.installation.lidar.rate_hz) and len(rad) == round(s.duration_s * s.installation.radar.rate_hz)
     assert len(frames) == len(sim_empty)
-    np.testing.assert_allclose([f.t_s for f in lid], np.arange(len(lid)) / s.lidar.rate_hz)
+    np.testing.assert_allclose([f.t_s for f in lid], np.arange(len(lid)) / s.installation.lidar.rate_hz)
     assert [f.index for f in lid] == list(range(len(lid)))
     assert all(a.t_s <= b.t_s for a, b in zip(frames, frames[1:]))
     assert all(f.error is None for f in frames)
+    # Stamps are on each sensor's own clock: a frame stamped t shows the scene at true time
+    # t - <sensor>_clock_offset_s.
+    mm = s.world.mismatch
+    for f, offset in ((lid[3], mm.lidar_clock_offset_s), (rad[5], mm.radar_clock_offset_s)):
+        assert offset != 0
+        cast = sim_empty.lidar_frame if f.sensor == "lidar" else sim_empty.radar_frame
+        np.testing.assert_array_equal(cast(f.index, f.t_s - offset).points_sensor, f.points_sensor)
+        assert not np.array_equal(cast(f.index, f.t_s).points_sensor, f.points_sensor)
 
 
 # ---------------------------------------------------------------------------------------
@@ -293,7 +324,7 @@ def test_translated_feeder_moves_its_points_exactly(bodies_empty, dofs):
     # Deck points: world height follows the heave exactly.
     z0 = to_world(sim, "lidar", t0, f0.points_sensor[f0.fields["label"] == DECK])[:, 2]
     z1 = to_world(sim, "lidar", t1, f1.points_sensor[f1.fields["label"] == DECK])[:, 2]
-    deck_z = s.feeder.geometry.position_m[2] + s.feeder.geometry.freeboard_m
+    deck_z = s.world.feeder.geometry.position_m[2] + s.world.feeder.geometry.freeboard_m
     np.testing.assert_allclose(z0, deck_z, atol=1e-3)
     np.testing.assert_allclose(z1, deck_z + delta[2], atol=1e-3)
     # The same ray hitting the deck in both frames moves along the ray by exactly delta_z in height.
@@ -359,7 +390,7 @@ def test_rotated_feeder_cloud_rotates_about_its_centre(bodies_empty, dof, amp):
     normal = np.linalg.svd(pd - c, full_matrices=False)[2][-1]
     normal *= np.sign(normal[2])
     assert np.rad2deg(np.arccos(min(1.0, normal @ R[:, 2]))) < 0.01
-    assert abs((c - (o + R @ [0, 0, s.feeder.geometry.freeboard_m])) @ R[:, 2]) < 1e-3
+    assert abs((c - (o + R @ [0, 0, s.world.feeder.geometry.freeboard_m])) @ R[:, 2]) < 1e-3
 
 
 # ---------------------------------------------------------------------------------------
@@ -423,7 +454,7 @@ def reflector_check(sim, idx, t):
 
 def test_reflector_patch_tops_are_the_brightest_returns(sim_empty):
     """Points on the top face of a marker (its retro-reflective surface) outshine the deck."""
-    fb = sim_empty.scenario.feeder.geometry.freeboard_m
+    fb = sim_empty.scenario.world.feeder.geometry.freeboard_m
     for idx in range(0, 10, 3):
         f, refl, i_refl, p99, z_body = reflector_check(sim_empty, idx, idx / 10)
         top = z_body > fb + 0.0015  # patches are 2 mm proud of the deck
@@ -519,7 +550,7 @@ def test_radar_range_rate_is_the_projected_relative_velocity(bodies_empty, case,
 
 
 def test_radar_noise_free_reproduces_ranges_exactly(sim_empty):
-    cfg = sim_empty.scenario.radar
+    cfg = sim_empty.scenario.installation.radar
     assert cfg.range_noise_m == 0 and cfg.azimuth_noise_deg == 0 and cfg.false_alarms_per_scan == 0
     t = 0.55
     f = sim_empty.radar_frame(11, t)
@@ -589,7 +620,7 @@ def test_ideal_lidar_has_no_range_error(sim_empty):
 def test_lidar_range_noise_statistics(bodies_empty):
     sigma = 0.02
     sim = make_sim(bodies_empty, f"lidar.range_noise_m={sigma}")
-    cfg = sim.scenario.lidar
+    cfg = sim.world.lidar  # the true LiDAR: spec and behaviour (weak-return gain)
     res, inten = [], []
     for i, t in enumerate((0.0, 0.5)):
         r, I = deck_range_residual(sim, sim.lidar_frame(i, t), t)
@@ -649,7 +680,7 @@ SPIN = ["lidar.pattern=spinning", "lidar.channels=16", "lidar.columns=512", "lid
 
 def test_spinning_pattern_size_and_layout(sim_empty):
     s = load_scenario("sts-empty", SPIN)
-    pat = lidar_pattern(s.lidar)
+    pat = lidar_pattern(s.installation.lidar)
     assert len(pat.dirs_sensor) == 16 * 512
     np.testing.assert_allclose(np.linalg.norm(pat.dirs_sensor, axis=1), 1)
     el = np.rad2deg(np.arcsin(pat.dirs_sensor[:, 2]))
@@ -658,13 +689,13 @@ def test_spinning_pattern_size_and_layout(sim_empty):
     az = np.mod(np.arctan2(pat.dirs_sensor[:, 1], pat.dirs_sensor[:, 0]), 2 * np.pi)
     assert len(np.unique(np.round(az, 9))) == 512
     assert len(pat.column_time_s) == 512
-    assert pat.column_time_s.min() == 0 and pat.column_time_s.max() < 1 / s.lidar.rate_hz
+    assert pat.column_time_s.min() == 0 and pat.column_time_s.max() < 1 / s.installation.lidar.rate_hz
 
 
 @pytest.mark.parametrize("during", [True, False])
 def test_spinning_time_offsets(bodies_empty, during):
     sim = make_sim(bodies_empty, *SPIN, f"lidar.motion_during_sweep={str(during).lower()}")
-    rate = sim.scenario.lidar.rate_hz
+    rate = sim.scenario.installation.lidar.rate_hz
     f = sim.lidar_frame(2, 0.2)
     assert len(f) > 500
     dt = f.fields["t"].astype(float)
@@ -685,7 +716,7 @@ def test_motion_during_sweep_points_lie_on_meshes_at_their_own_time(bodies_empty
     ov = [*pattern, "lidar.motion_during_sweep=true", *sine("feeder", "heave", 2.0, 0, 4.0),
           *sine("feeder", "roll", 3.0, 0, 5.0), *sine("crane", "pitch", 2.0, 0, 6.0)]
     sim = make_sim(bodies_empty, *ov)
-    cfg = sim.scenario.lidar
+    cfg = sim.scenario.installation.lidar
     f = sim.lidar_frame(1, 0.1)
     dt = f.fields["t"].astype(float)
     limit = (cfg.sweep_fraction if cfg.pattern == "grid" else 1.0) / cfg.rate_hz

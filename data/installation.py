@@ -1,0 +1,198 @@
+"""The installation: what a real rig documents on a spec sheet or a survey, and all that
+processing (perception and fusion) may know about the hardware.
+
+Sensor patterns, rates, fields of view, resolutions, specified noise and latency; the mounts
+as surveyed (`T_boomtip_sensor`); the boom tip on the crane vessel; the crane's geometry and
+nominal dynamics (document 002 Table 4.1); the rope's nominal radius; the block model; the deck
+markers' height; the MRU's and the encoders' specs. The simulated world may deviate from all of
+it (`world.mismatch`); processing never learns by how much.
+
+Angles are degrees here (the YAML edge) and radians inside the code.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from scipy.spatial.transform import Rotation
+
+
+class _Model(BaseModel):
+    # Unknown keys are errors: a misspelt key silently falling back to a default is the worst
+    # kind of configuration bug.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+def _finite(values, what: str):
+    if not all(math.isfinite(float(v)) for v in values):
+        raise ValueError(f"{what} must be finite, got {list(values)}")
+    return values
+
+
+class Mount(_Model):
+    """A sensor's pose on the boom tip as surveyed: T_boomtip_sensor."""
+
+    xyz_m: tuple[float, float, float] = (0.0, 0.0, -0.5)
+    # Default: sensor x (boresight) straight down, y along the ship, z across (see README).
+    rpy_deg: tuple[float, float, float] = (90.0, 90.0, 0.0)
+
+    @field_validator("xyz_m", "rpy_deg")
+    @classmethod
+    def _is_finite(cls, v):
+        return _finite(v, "a mount")
+
+    def matrix(self) -> np.ndarray:
+        return mount_matrix(self.xyz_m, self.rpy_deg)
+
+
+def mount_matrix(xyz_m, rpy_deg) -> np.ndarray:
+    """4x4 T_boomtip_sensor from a translation (m) and roll/pitch/yaw (deg, R = Rz Ry Rx)."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", rpy_deg, degrees=True).as_matrix()
+    T[:3, 3] = xyz_m
+    return T
+
+
+class LidarSpec(_Model):
+    enabled: bool = True
+    pattern: Literal["grid", "spinning"] = "grid"
+    rate_hz: float = Field(10.0, gt=0, le=1000)
+    latency_s: float = Field(0.0, ge=0, le=10)
+    # grid pattern (document 000 Table 5.3)
+    fov_h_deg: float = Field(120.0, gt=0, le=360)
+    fov_v_deg: float = Field(30.0, gt=0, le=180)
+    res_h_deg: float = Field(0.5, gt=0, le=90)
+    res_v_deg: float = Field(0.5, gt=0, le=90)
+    sweep_fraction: float = Field(1.0, gt=0, le=1, description="fraction of the frame period the grid scan takes")
+    # spinning pattern (Ouster OS1 class): uniform channel elevations over channel_fov_deg
+    channels: int = Field(64, ge=1, le=512)
+    channel_fov_deg: float = Field(45.0, gt=0, le=180)
+    columns: int = Field(1024, ge=8, le=8192)
+    min_range_m: float = Field(0.5, ge=0)
+    max_range_m: float = Field(300.0, gt=0)
+    range_noise_m: float = Field(0.0, ge=0, le=10, description="specified 1-sigma range noise, strong return")
+    range_resolution_m: float = Field(0.0, ge=0, le=10, description="range quantisation step, 0 = off")
+    mount: Mount = Mount()
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "LidarSpec":
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError("lidar.min_range_m must be below lidar.max_range_m")
+        return self
+
+    @property
+    def angular_step_rad(self) -> float:
+        """The larger of the two beam spacings: what limits a small object's edges."""
+        if self.pattern == "spinning":
+            return max(2 * math.pi / self.columns, math.radians(self.channel_fov_deg) / max(self.channels - 1, 1))
+        return math.radians(max(self.res_h_deg, self.res_v_deg))
+
+
+class RadarSpec(_Model):
+    enabled: bool = True
+    rate_hz: float = Field(20.0, gt=0, le=1000)
+    latency_s: float = Field(0.0, ge=0, le=10)
+    fov_az_deg: float = Field(60.0, gt=0, le=360)
+    fov_el_deg: float = Field(12.0, gt=0, le=180)
+    res_az_deg: float = Field(1.0, gt=0, le=90)
+    res_el_deg: float = Field(1.5, gt=0, le=90)
+    min_range_m: float = Field(0.5, ge=0)
+    max_range_m: float = Field(300.0, gt=0)
+    range_noise_m: float = Field(0.0, ge=0, le=100)
+    azimuth_noise_deg: float = Field(0.0, ge=0, le=90)
+    elevation_noise_deg: float = Field(0.0, ge=0, le=90)
+    range_rate_noise_mps: float = Field(0.0, ge=0, le=100)
+    detection_probability: float = Field(1.0, gt=0, le=1)
+    false_alarms_per_scan: float = Field(0.0, ge=0)
+    max_abs_range_rate_mps: float = Field(10.0, gt=0, description="largest range rate the radar reports")
+    mount: Mount = Mount(xyz_m=(0.3, 0.0, -0.5))
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "RadarSpec":
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError("radar.min_range_m must be below radar.max_range_m")
+        return self
+
+
+class MruSpec(_Model):
+    """The crane vessel's motion reference unit, as its data sheet states it."""
+
+    rate_hz: float = Field(200.0, gt=0, le=10000)
+    latency_s: float = Field(0.0, ge=0, le=10)
+    angle_noise_deg: float = Field(0.0, ge=0, le=10)
+    rate_noise_degps: float = Field(0.0, ge=0, le=100)
+
+
+class EncoderSpec(_Model):
+    """Crane joint encoders (document 002, 4.5.1): slew, luff, hoist."""
+
+    rate_hz: float = Field(100.0, gt=0, le=10000)
+    latency_s: float = Field(0.0, ge=0, le=10)
+    angle_noise_deg: float = Field(0.1, ge=0, le=10)
+    hoist_noise_m: float = Field(0.01, ge=0, le=10)
+
+
+class CraneGeometry(_Model):
+    """Where the boom tip is (ship-to-ship runs: a fixed tip) and, for the hook chain, the
+    crane's geometry of document 002 Table 4.1."""
+
+    boom_tip_m: tuple[float, float, float] = Field(
+        (10.0, -40.0, 52.0), description="boom tip in the crane-vessel body frame (fixed-tip runs)"
+    )
+    boom_length_m: float = Field(150.0, gt=0, description="L")
+    boom_foot_offset_m: float = Field(10.0, description="b: boom foot from the slewing axis")
+    boom_foot_height_m: float = Field(40.0, description="h: boom foot above the crane base")
+    crane_base_m: tuple[float, float, float] = Field((50.0, -20.0, 10.0), description="c, vessel frame")
+
+    @field_validator("boom_tip_m", "crane_base_m")
+    @classmethod
+    def _is_finite(cls, v):
+        return _finite(v, "a crane position")
+
+
+class CraneDynamics(_Model):
+    """Nominal dynamics (document 002 Table 4.1): what the filter's model assumes."""
+
+    hook_mass_kg: float = Field(1e6, gt=0, description="nominal hook and load mass")
+    boom_mass_kg: float = Field(2e6, gt=0)
+    boom_stiffness_nm_per_rad: float = Field(2e11, gt=0, description="k_f")
+    boom_damping: float = Field(2e9, ge=0, description="c_f, J s/rad")
+
+
+class CraneSpec(_Model):
+    geometry: CraneGeometry = CraneGeometry()
+    dynamics: CraneDynamics = CraneDynamics()
+    rope_radius_m: float = Field(0.04, gt=0, le=0.5, description="hoist rope's nominal radius")
+    block_height_m: float = Field(4.0, gt=1, le=8, description="height of the known block model")
+
+
+class MarkerSpec(_Model):
+    """Retro-reflective deck markers the crew lays on the feeder deck (known tape)."""
+
+    height_m: float = Field(0.002, ge=0, le=0.5, description="markers' height above the deck (tape thickness)")
+
+
+class Installation(_Model):
+    lidar: LidarSpec = LidarSpec()
+    radar: RadarSpec = RadarSpec()
+    mru: MruSpec = MruSpec()
+    encoders: EncoderSpec = EncoderSpec()
+    crane: CraneSpec = CraneSpec()
+    markers: MarkerSpec = MarkerSpec()
+    attitude: Literal["mru", "level"] = Field(
+        "mru", description="'level': no attitude stream; the boom-tip frame is taken as level"
+    )
+
+    def T_crane_boomtip(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, 3] = self.crane.geometry.boom_tip_m
+        return T
+
+    def T_boomtip_sensor(self) -> dict[str, np.ndarray]:
+        return {"lidar": self.lidar.mount.matrix(), "radar": self.radar.mount.matrix()}
+
+    def sensors(self) -> tuple[str, ...]:
+        return tuple(s for s in ("lidar", "radar") if getattr(self, s).enabled)

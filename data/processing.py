@@ -1,0 +1,43 @@
+"""Processing settings: each stage's parameters and the filters' tuning, with defaults that
+hold for any installation and any sea up to Hs 4 m. Nothing here describes the world; a user
+may add a sea-state prior from a forecast (`sea_state`), which only sizes the heave filters'
+process noise.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from boomtip.data.installation import _Model
+from boomtip.fusion.solutions import FusionConfig
+from boomtip.perception.hook_types import HookConfig
+from boomtip.perception.pipeline import PipelineConfig
+from boomtip.perception.rope import RopeConfig
+
+HOOK_ESTIMATORS = ("ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid")
+
+
+class SeaStatePrior(_Model):
+    """A forecast's significant wave height and peak period."""
+
+    hs_m: float = Field(gt=0, le=20)
+    tp_s: float = Field(gt=1, le=30)
+
+
+class HookProcessing(_Model):
+    detector: HookConfig = HookConfig()
+    rope: RopeConfig = RopeConfig()
+    estimators: tuple[str, ...] = HOOK_ESTIMATORS
+
+
+class Processing(_Model):
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the stages' random draws (RANSAC, ...)")
+    chain: Literal["heave", "hook"] | None = Field(
+        None, description="which chain runs; null: the hook chain when the source has an encoder stream, else heave"
+    )
+    heave: PipelineConfig = PipelineConfig()
+    fusion: FusionConfig = FusionConfig()
+    hook: HookProcessing = HookProcessing()
+    sea_state: SeaStatePrior | None = None

@@ -1,0 +1,197 @@
+"""The simulated world: everything a real installation does not know.
+
+Both ships' geometry and motion, the sea, the cargo, how the sensors really behave (their
+true noise, dropouts, intensities), the hook scene and its programme, and `mismatch`: how
+reality deviates from the installation (mount errors, MRU bias and lag, clock offsets, crane
+parameters, an elastic rope, wind, encoder biases). Only the simulator reads it; perception
+and fusion are built from the installation and their own settings alone.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+from scipy.spatial.transform import Rotation
+
+from boomtip.data.installation import LidarSpec, Mount, RadarSpec, _finite, _Model
+
+DOFS = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+
+
+class Sinusoid(_Model):
+    amplitude: float = Field(0.0, description="m for surge/sway/heave, deg for roll/pitch/yaw")
+    period_s: float = Field(10.0, gt=0)
+    phase_deg: float = 0.0
+
+
+class Motion(_Model):
+    surge: Sinusoid = Sinusoid()
+    sway: Sinusoid = Sinusoid()
+    heave: Sinusoid = Sinusoid()
+    roll: Sinusoid = Sinusoid()
+    pitch: Sinusoid = Sinusoid()
+    yaw: Sinusoid = Sinusoid()
+
+
+class IrregularSea(_Model):
+    """Irregular sea added on top of the sinusoids: a JONSWAP spectrum of wave elevation,
+    turned into each DOF through a per-DOF gain (m or deg per metre of wave)."""
+
+    enabled: bool = False
+    hs_m: float = Field(2.0, gt=0, le=20, description="significant wave height")
+    tp_s: float = Field(10.0, gt=0, le=30, description="peak period")
+    gamma: float = Field(3.3, ge=1.0, description="JONSWAP peak enhancement")
+    n_components: int = Field(64, ge=4, le=4096)
+    response: dict[Literal["surge", "sway", "heave", "roll", "pitch", "yaw"], float] = Field(
+        default_factory=lambda: {"heave": 0.5, "roll": 0.4, "pitch": 0.6}
+    )
+
+
+class CraneHull(_Model):
+    length_m: float = Field(216.0, gt=0)
+    beam_m: float = Field(49.0, gt=0)
+    freeboard_m: float = Field(10.0, gt=0, description="main deck above the waterline")
+    draft_m: float = Field(8.0, gt=0)
+    pedestal_m: tuple[float, float] = (10.0, -8.0)
+
+
+class FeederGeometry(_Model):
+    length_m: float = Field(95.0, gt=0)
+    beam_m: float = Field(22.0, gt=0)
+    freeboard_m: float = Field(4.0, gt=0)
+    draft_m: float = Field(5.0, gt=0)
+    bulwark_height_m: float = Field(1.2, ge=0)
+    position_m: tuple[float, float, float] = Field(
+        (0.0, -41.0, 0.0), description="feeder body origin in the world at rest (waterline)"
+    )
+
+
+class Reflectors(_Model):
+    """Retro-reflective deck markers (tape patches) along both deck edges, as laid."""
+
+    enabled: bool = True
+    spacing_m: float = Field(8.0, gt=0)
+    size_m: float = Field(1.0, gt=0)
+    inset_m: float = Field(1.5, ge=0, description="distance from the bulwark inboard")
+    height_m: float = Field(0.002, ge=0, le=0.5, description="markers' true height above the deck")
+    false_bright_points: int = Field(0, ge=0, description="extra bright patches on cargo/bulwarks that are not markers")
+
+
+class Vessel(_Model):
+    motion: Motion = Motion()
+    irregular: IrregularSea = IrregularSea()
+
+
+class CraneVessel(Vessel):
+    geometry: CraneHull = CraneHull()
+
+
+class FeederVessel(Vessel):
+    geometry: FeederGeometry = FeederGeometry()
+    cargo: bool = False
+    reflectors: Reflectors = Reflectors()
+
+
+class Sea(_Model):
+    clutter: bool = Field(False, description="LiDAR/radar returns from the sea surface")
+    clutter_probability: float = Field(0.02, ge=0, le=1)
+    reflectivity: float = Field(0.05, ge=0, le=1)
+
+
+class LidarBehaviour(_Model):
+    """How the LiDAR really behaves beyond its spec sheet."""
+
+    weak_return_noise_gain: float = Field(3.0, ge=1, description="range noise grows as sqrt(I_ref/I) up to this factor")
+    intensity_noise: float = Field(0.0, ge=0, description="relative 1-sigma intensity noise")
+    dropout_probability: float = Field(0.0, ge=0, lt=1)
+    retro_gain: float = Field(25.0, gt=0, description="retro-reflector peak gain over a white diffuse target")
+    retro_lobe_deg: float = Field(25.0, gt=0, le=90)
+    motion_during_sweep: bool = Field(False, description="move the scene while the frame is scanned")
+
+
+class HookScene(_Model):
+    """The hook scene (document 002): enabled, the scene is the crane vessel with a moving
+    boom, rope and block instead of the ship-to-ship pair; the vessel's waves are
+    `crane.motion.roll` and `crane.motion.pitch` (about the vessel origin)."""
+
+    enabled: bool = False
+    program: Literal["hook-1", "hook-2", "hook-3", "hook-4"] = Field(
+        "hook-1", description="joint motion programme of document 002 section 5.2"
+    )
+    flexible: bool = Field(True, description="flexible boom in the truth simulation")
+    deck_cargo: bool = Field(True, description="cargo on the crane vessel's deck below the hook")
+    drag_area_m2: float = Field(8.0, ge=0, description="block and load area the wind sees")
+
+
+class EncoderBias(_Model):
+    slew: float = 0.0
+    luff: float = 0.0
+
+
+class Mismatch(_Model):
+    """How reality deviates from the installation. Defaults: none."""
+
+    lidar_mount_rpy_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="true LiDAR mount = surveyed mount rotated by these (sensor axes)"
+    )
+    radar_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mru_bias_deg: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="roll, pitch, yaw")
+    mru_lag_s: float = Field(0.0, ge=0, le=1, description="the MRU reports the attitude this much late, unstated")
+    lidar_clock_offset_s: float = Field(0.0, ge=-1, le=1, description="LiDAR time stamps minus true time")
+    radar_clock_offset_s: float = Field(0.0, ge=-1, le=1)
+    boom_stiffness: float = Field(1.0, gt=0, le=10, description="true k_f = nominal x this")
+    boom_damping: float = Field(1.0, ge=0, le=10, description="true c_f = nominal x this")
+    hook_mass: float = Field(1.0, gt=0, le=10, description="true hook and load mass = nominal x this")
+    boom_mass: float = Field(1.0, gt=0, le=10)
+    rope_ea_n: float | None = Field(
+        None, gt=0, description="axial stiffness EA of the whole reeving, N (stretch m g l / EA); null = rigid"
+    )
+    wind_mps: tuple[float, float] = Field((0.0, 0.0), description="steady wind on block and load, world x, y")
+    encoder_bias_deg: EncoderBias = EncoderBias()
+
+    @model_validator(mode="after")
+    def _finite(self) -> "Mismatch":
+        for name in ("lidar_mount_rpy_deg", "radar_mount_rpy_deg", "mru_bias_deg", "wind_mps"):
+            _finite(getattr(self, name), f"mismatch.{name}")
+        return self
+
+
+class World(_Model):
+    truth_rate_hz: float = Field(200.0, gt=0, le=10000)
+    crane: CraneVessel = CraneVessel()
+    feeder: FeederVessel = FeederVessel()
+    sea: Sea = Sea()
+    lidar: LidarBehaviour = LidarBehaviour()
+    hook: HookScene = HookScene()
+    mismatch: Mismatch = Mismatch()
+
+
+# ---------------------------------------------------------------------------------------
+# The sensors as they really are: the spec, how they behave, and where they really point
+
+
+class Lidar(LidarSpec, LidarBehaviour):
+    """The true LiDAR the simulator casts: spec sheet + behaviour (its true pose on the boom
+    tip is `true_T_boomtip_sensor`)."""
+
+
+class Radar(RadarSpec):
+    """The true radar the simulator casts."""
+
+
+def true_lidar(spec: LidarSpec, world: World) -> Lidar:
+    return Lidar.model_validate({**spec.model_dump(), **world.lidar.model_dump()})
+
+
+def true_radar(spec: RadarSpec, world: World) -> Radar:
+    return Radar.model_validate(spec.model_dump())
+
+
+def true_T_boomtip_sensor(surveyed: Mount, error_rpy_deg) -> np.ndarray:
+    """The surveyed mount rotated by an error about the sensor's own axes (matrices, not Euler
+    angles: the default mount's pitch of 90 deg is a gimbal lock)."""
+    T = surveyed.matrix()
+    T[:3, :3] = T[:3, :3] @ Rotation.from_euler("xyz", error_rpy_deg, degrees=True).as_matrix()
+    return T

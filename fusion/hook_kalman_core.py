@@ -1,0 +1,334 @@
+"""The Kalman machinery of the hook filter: the estimate (x, P), its prediction by the crane
+model (EKF or UKF) and the updates by the crane's own sensors (encoders, MRU).
+:class:`~boomtip.fusion.hook_kalman.HookFilter` adds the sway measurements (LiDAR block fix,
+rope direction).
+
+EKF (the equations of filterpy's ``ExtendedKalmanFilter``, written out: its per-call
+overhead dominated the 200 Hz loop): mean by RK4, ``P = F P F^T + Q`` with
+``F = I + A dt + (A dt)^2 / 2`` and the continuous Jacobian ``A`` of the equations of
+motion (fusion/models/jacobian.py), refreshed every ``jacobian_interval_s`` (50 Hz; ``0`` =
+every step; ``F`` is rebuilt only when ``A`` or ``dt`` changes).
+UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points with
+Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
+batched (vectorised) RK4 step and recomputed from (x, P) before every LiDAR update.  The
+linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
+linear h the unscented transform gives the same result).  Every correction is
+``x + K y``, ``P - K S K^T`` through the Cholesky factor of ``S`` (filterpy's EKF uses the
+Joseph form, equal for the optimal gain).  P is symmetrised after every prediction (the
+corrections are symmetric by construction).
+
+Encoders (100 Hz) measure slew, luff and hoist length (document 002 measures only slew and
+luff); the MRU (200 Hz) roll, pitch and their rates.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal, Sequence
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints
+from scipy.linalg.lapack import dpotrf, dtrtri
+
+from boomtip.data.crane_model import CraneParams
+from boomtip.fusion.hook_config import HookFilterConfig
+from boomtip.fusion.models.autodiff import accel_jacobian
+from boomtip.fusion.models.crane_pendulum import (
+    HOOK_IX,
+    IA,
+    IAD,
+    IB,
+    IBD,
+    IF,
+    IFD,
+    IL,
+    IMU,
+    INU,
+    IPITCH,
+    IROLL,
+    STATE_NAMES,
+    hook_pos_vel,
+    process_noise,
+    rk4_batch,
+    rk4_float,
+)
+from boomtip.fusion.models.jacobian import continuous_jacobian
+
+__all__ = ["HookKalmanCore", "kalman_correction"]
+
+
+class _State:
+    """The estimate (x, P).  The EKF and UKF equations are written out in :class:`HookKalmanCore`
+    (same equations as filterpy's ExtendedKalmanFilter / UnscentedKalmanFilter; their
+    per-call overhead dominated the 200 Hz loop)."""
+
+    __slots__ = ("x", "P")
+
+    def __init__(self, n: int) -> None:
+        self.x = np.zeros(n)
+        self.P = np.eye(n)
+
+
+class _FastMerweSigmaPoints(MerweScaledSigmaPoints):
+    """filterpy's Merwe points with a vectorised ``sigma_points`` (same result)."""
+
+    def sigma_points(self, x, P):
+        n = self.n
+        lambda_ = self.alpha**2 * (n + self.kappa) - n
+        M = (lambda_ + n) * np.asarray(P)
+        # the upper Cholesky factor U^T U = M (filterpy's default scipy.linalg.cholesky),
+        # straight from LAPACK
+        U, info = dpotrf(M)
+        if info != 0:  # lost positive definiteness: clip the eigenvalues
+            w, V = np.linalg.eigh(0.5 * (M + M.T))
+            U = (V * np.sqrt(np.clip(w, 1e-300, None))).T
+        x = np.asarray(x, float)
+        return np.concatenate([x[None, :], x + U, x - U], axis=0)
+
+
+def kalman_correction(x, P, PHT, S, y, nis=False):
+    """(x + K y, P - K S K^T[, y^T S^-1 y]) for the gain K = PHT S^-1.
+
+    With the Cholesky factor S = U^T U and G = PHT U^-1: K S K^T = G G^T (exactly
+    symmetric) and K y = G (U^-T y).  Two small LAPACK calls instead of numpy.linalg.inv
+    (whose Python overhead dominated the 200 Hz linear updates).
+    """
+    U, info = dpotrf(S)
+    if info == 0:
+        Ui, info = dtrtri(U)
+    if info != 0:  # S not positive definite (a broken P): the plain formulas
+        K = PHT @ np.linalg.inv(S)
+        if nis:
+            return x + K @ y, P - K @ PHT.T, float(y @ np.linalg.solve(S, y))
+        return x + K @ y, P - K @ PHT.T
+    G = PHT @ Ui
+    w = y @ Ui
+    if nis:
+        return x + G @ w, P - G @ G.T, float(w @ w)
+    return x + G @ w, P - G @ G.T
+
+
+class HookKalmanCore:
+    """Multi-rate estimate of the crane and hook state (document 002 chapter 4): prediction by
+    the crane model, updates by the encoders and the MRU, hook outputs from the state."""
+
+    def __init__(
+        self,
+        kind: Literal["ekf", "ukf"] = "ekf",
+        model: Literal["rigid", "flexible"] = "flexible",
+        params: CraneParams | None = None,
+        config: HookFilterConfig | None = None,
+    ) -> None:
+        if kind not in ("ekf", "ukf"):
+            raise ValueError(kind)
+        if model not in ("rigid", "flexible"):
+            raise ValueError(model)
+        self.kind, self.model = kind, model
+        self.params = params or CraneParams()
+        self.cfg = config or HookFilterConfig()
+        self.flex = model == "flexible"
+        self.n = n = 21 if self.flex else 19
+        self.dt_s = 1.0 / self.cfg.predict_rate_hz
+        self._prm = self.params.as_tuple()
+        self._I = np.eye(n)
+        self.t = 0.0
+        self.initialized = False
+        m = self.cfg.measurement
+        self._R_enc = np.array([m.sigma_slew_rad, m.sigma_luff_rad, m.sigma_hoist_m]) ** 2
+        self._R_mru = np.array([m.sigma_mru_angle_rad, m.sigma_mru_angle_rad,
+                                m.sigma_mru_rate_rad_s, m.sigma_mru_rate_rad_s]) ** 2
+        # MRU + encoders with the same time stamp as one update (H selects states, R diagonal)
+        self._me_idx = np.array([IROLL, IPITCH, IROLL + 1, IPITCH + 1, INU, IMU, IL], np.intp)
+        self._me_R = np.diag(np.concatenate([self._R_mru, self._R_enc]))
+        self._q_cache: dict[float, np.ndarray] = {}
+        self._A: np.ndarray | None = None
+        self._A_t = -math.inf
+        self._jac_interval = float(self.cfg.jacobian_interval_s)
+        self._F: np.ndarray | None = None  # F for (self._A, self._F_key = round(dt, 12))
+        self._Fh: np.ndarray | None = None  # F / 2
+        self._F_key: float | None = None
+        self._lin_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self.n_jacobians = 0
+        if kind == "ekf" and self.cfg.jacobian == "autodiff":
+            accel_jacobian(self._prm, self.flex)  # generate the code now (once per params)
+        self._kf = _State(n)
+        if kind == "ukf":
+            self._pts = _FastMerweSigmaPoints(n, alpha=self.cfg.ukf_alpha, beta=self.cfg.ukf_beta,
+                                              kappa=self.cfg.ukf_kappa)
+            self._Wm, self._Wc = self._pts.Wm, self._pts.Wc
+            self._Wc_half = 0.5 * self._Wc
+
+    # ------------------------------------------------------------------ state access
+    @property
+    def x(self) -> np.ndarray:
+        return self._kf.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._kf.P
+
+    def state_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in zip(STATE_NAMES, self._kf.x)}
+
+    # ------------------------------------------------------------------ initialisation
+    def initialize(self, x0: Sequence[float], P0: np.ndarray | None = None, t0: float = 0.0) -> None:
+        x0 = np.asarray(x0, float)[: self.n].copy()
+        if len(x0) != self.n:
+            raise ValueError(f"x0 must have {self.n} entries")
+        self._kf.x = x0
+        self._kf.P = self._default_P0() if P0 is None else np.array(P0, float)
+        self._A = None
+        self.t = float(t0)
+        self.initialized = True
+
+    def _default_P0(self) -> np.ndarray:
+        c, m = self.cfg.initial, self.cfg.measurement
+        s = np.zeros(21)
+        s[[IA, IB]] = c.sigma_sway_rad
+        s[[IAD, IBD]] = c.sigma_sway_rate_rad_s
+        s[INU], s[IMU], s[IL] = m.sigma_slew_rad, m.sigma_luff_rad, m.sigma_hoist_m
+        s[[INU + 1, IMU + 1]] = c.sigma_joint_rate
+        s[IL + 1] = 10 * c.sigma_joint_rate
+        s[[INU + 2, IMU + 2]] = c.sigma_joint_acc
+        s[IL + 2] = 10 * c.sigma_joint_acc
+        s[[IROLL, IPITCH]] = m.sigma_mru_angle_rad
+        s[[IROLL + 1, IPITCH + 1]] = m.sigma_mru_rate_rad_s
+        s[[IROLL + 2, IPITCH + 2]] = c.sigma_vessel_acc_rad_s2
+        s[IF], s[IFD] = c.sigma_deflection_rad, c.sigma_deflection_rate_rad_s
+        return np.diag(s[: self.n] ** 2)
+
+    def initialize_from_measurements(self, p_rel_tip_world, joints: Sequence[float],
+                                     vessel: Sequence[float], t0: float = 0.0) -> None:
+        """joints = (slew, luff, hoist); vessel = (roll, pitch, roll_rate, pitch_rate). Only the
+        direction of p_rel_tip_world counts (the sway angles); the rope length is the hoist's."""
+        nu, mu, l = joints
+        roll, pitch, roll_rate, pitch_rate = vessel
+        a, b = self._angles_from_lidar(p_rel_tip_world)
+        x = np.zeros(21)
+        x[[IA, IB]] = a, b
+        x[INU], x[IMU], x[IL] = nu, mu, l
+        x[IROLL], x[IROLL + 1], x[IPITCH], x[IPITCH + 1] = roll, roll_rate, pitch, pitch_rate
+        self.initialize(x, None, t0)
+
+    @staticmethod
+    def _angles_from_lidar(p) -> tuple[float, float]:
+        p = np.asarray(p, float)
+        r = float(np.linalg.norm(p))
+        return math.asin(max(-1.0, min(1.0, -p[0] / r))), math.atan2(p[1], -p[2])
+
+    # ------------------------------------------------------------------ dynamics
+    def continuous_jacobian(self, x=None, method: str | None = None) -> np.ndarray:
+        """A = df/dx of the continuous model at x ("autodiff", "complex_step" or "numeric")."""
+        x = self._kf.x if x is None else np.asarray(x, float)
+        return continuous_jacobian(self._prm, self.flex, x, method or self.cfg.jacobian)
+
+    def process_noise(self, dt: float) -> np.ndarray:
+        """Discrete Q for a step dt (eqs. 4.29-4.30)."""
+        key = round(dt, 12)
+        Q = self._q_cache.get(key)
+        if Q is not None:
+            return Q
+        Q = process_noise(self.cfg.process, dt, self.n)
+        if len(self._q_cache) < 64:
+            self._q_cache[key] = Q
+        return Q
+
+    # ------------------------------------------------------------------ predict
+    def predict(self, dt: float | None = None) -> None:
+        """Propagate the estimate by dt seconds (one RK4 step)."""
+        dt = self.dt_s if dt is None else float(dt)
+        if dt <= 0:
+            return
+        kf = self._kf
+        key = round(dt, 12)
+        Q = self._q_cache.get(key)
+        if Q is None:
+            Q = self.process_noise(dt)
+        # H = half the propagated covariance (the factor 1/2 is exact): P = H + H^T + Q is
+        # the symmetrised P
+        if self.kind == "ekf":
+            if self._A is None or self.t - self._A_t >= self._jac_interval - 1e-9:
+                self._A = self.continuous_jacobian(kf.x)
+                self._A_t = self.t
+                self.n_jacobians += 1
+                self._F_key = None
+            if key != self._F_key:  # F depends on (A, dt) only: rebuilt when either changes
+                Ad = self._A * dt
+                F = self._I + Ad + 0.5 * (Ad @ Ad)
+                self._F, self._Fh, self._F_key = F, 0.5 * F, key
+            kf.x = np.array(rk4_float(self._prm, self.flex, kf.x.tolist(), dt))
+            H = (self._Fh @ kf.P) @ self._F.T
+        else:
+            # sigma points from (x, P), one batched RK4 step, unscented transform
+            sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
+            Xf = rk4_batch(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
+            x = Xf @ self._Wm
+            D = Xf - x[:, None]
+            kf.x = x
+            H = (D * self._Wc_half) @ D.T
+        P = H + H.T
+        P += Q
+        kf.P = P
+        self.t += dt
+
+    def advance_to(self, t: float) -> None:
+        """Predict in steps of at most 1/predict_rate up to time t (no-op for t <= self.t)."""
+        while t - self.t > 1e-9:
+            self.predict(min(self.dt_s, t - self.t))
+
+    # ------------------------------------------------------------------ updates
+    def _linear_update(self, idx: Sequence[int], z: np.ndarray, r_diag: np.ndarray) -> None:
+        """Exact Kalman update for z = x[idx] + noise with diagonal R (H selects states):
+        K = P H^T S^-1 with S = P[idx, idx] + R.  For a linear h the unscented transform
+        gives the same result, so the UKF uses it too."""
+        r_diag = np.asarray(r_diag, float)
+        key = (tuple(idx), r_diag.tobytes())
+        c = self._lin_cache.get(key)
+        if c is None:
+            c = self._lin_cache[key] = (np.array(idx, np.intp), np.diag(r_diag))
+        self._selection_update(c[0], c[1], z)
+
+    def _selection_update(self, ii: np.ndarray, R: np.ndarray, z) -> None:
+        """:meth:`_linear_update` with the index array and the R matrix prepared."""
+        kf = self._kf
+        x, P = kf.x, kf.P
+        W = P.take(ii, 1)  # P H^T, (n, k)
+        kf.x, kf.P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
+
+    def update_encoders(self, slew_rad: float, luff_rad: float, hoist_m: float | None = None,
+                        t: float | None = None) -> None:
+        if t is not None:
+            self.advance_to(t)
+        if hoist_m is None or not np.isfinite(hoist_m):
+            idx, z, r = (INU, IMU), np.array([slew_rad, luff_rad]), self._R_enc[:2]
+        else:
+            idx, z, r = (INU, IMU, IL), np.array([slew_rad, luff_rad, hoist_m]), self._R_enc
+        self._linear_update(idx, z, r)
+
+    def update_mru(self, roll_rad: float, pitch_rad: float, roll_rate_rad_s: float, pitch_rate_rad_s: float,
+                   t: float | None = None) -> None:
+        if t is not None:
+            self.advance_to(t)
+        self._linear_update((IROLL, IPITCH, IROLL + 1, IPITCH + 1),
+                            np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]), self._R_mru)
+
+    def update_mru_and_encoders(self, mru: Sequence[float], encoders: Sequence[float], t: float | None = None) -> None:
+        """An MRU sample (roll, pitch, roll rate, pitch rate) and an encoder sample (slew, luff,
+        hoist) with the same time stamp as one linear update: the same result as one after the
+        other (H selects states, R is diagonal)."""
+        if t is not None:
+            self.advance_to(t)
+        self._selection_update(self._me_idx, self._me_R, np.concatenate((mru, encoders)))
+
+    # ------------------------------------------------------------------ outputs
+    def hook_position_velocity(self) -> tuple[np.ndarray, np.ndarray]:
+        """Hook position and velocity relative to the boom tip, world axes."""
+        p, v, _, _ = hook_pos_vel(self._kf.x)
+        return p, v
+
+    def hook_position_velocity_covariance(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(p_rel, v_rel, cov_p (3,3), cov_v (3,3)) by first-order propagation of P."""
+        p, v, hp, hv = hook_pos_vel(self._kf.x)
+        Ps = self._kf.P[HOOK_IX]
+        return p, v, hp @ Ps @ hp.T, hv @ Ps @ hv.T
+

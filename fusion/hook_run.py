@@ -1,0 +1,182 @@
+"""The hook filter run over recorded measurement streams: :func:`run_hook_filter` applies every
+sample at its time stamp, predicts in between and records the estimate at a fixed rate."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import numpy as np
+
+from boomtip.data.crane_model import CraneParams
+from boomtip.fusion.hook_config import HookFilterConfig
+from boomtip.fusion.hook_kalman import HookFilter
+from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch
+
+__all__ = ["HookMeasurements", "HookFilterRun", "merged_events", "run_hook_filter"]
+
+
+@dataclass
+class HookMeasurements:
+    """Time-stamped sensor streams.  A LiDAR row of NaN means "no detection"."""
+
+    t_lidar: np.ndarray
+    lidar_p_rel_tip_world: np.ndarray  # (K, 3)
+    t_encoders: np.ndarray
+    encoders: np.ndarray  # (K, 3): slew rad, luff rad, hoist m
+    t_mru: np.ndarray
+    mru: np.ndarray  # (K, 4): roll, pitch, roll rate, pitch rate
+    lidar_sigma_m: np.ndarray | None = None  # (K,) per-fix 1-sigma; None: the config's
+    lidar_cov_m2: np.ndarray | None = None  # (K, 3, 3) per-fix covariance; rows with NaN: lidar_sigma_m
+    # the rope's direction in the same LiDAR frames (perception.rope), applied before the frame's
+    # block fix: (K, 3) unit vectors, world axes (NaN rows: no rope fit), and (K, 3, 3) covariances
+    rope_direction: np.ndarray | None = None
+    rope_cov: np.ndarray | None = None
+
+
+@dataclass
+class HookFilterRun:
+    t: np.ndarray
+    p_rel: np.ndarray  # (N, 3) hook position relative to the boom tip, world axes
+    v_rel: np.ndarray
+    cov_p: np.ndarray  # (N, 3, 3)
+    cov_v: np.ndarray
+    x: np.ndarray  # (N, n)
+    P_diag: np.ndarray  # (N, n)
+    runtime_s: float
+    realtime_fraction: float
+    n_lidar_accepted: int
+    n_lidar_rejected: int
+    n_reacquired: int
+    lidar_accepted: np.ndarray  # (K,) bool per LiDAR sample
+    kind: str
+    model: str
+    n_rope_accepted: int = 0
+    n_rope_rejected: int = 0
+    nis: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def merged_events(stamps: Sequence[np.ndarray], t_after: float, t_until: float) -> tuple[list, list, list]:
+    """One time-ordered event list over several sensors' time stamps, in (t_after, t_until]:
+    (times, sensor = position in ``stamps``, sample index). Equal times keep the sensor order
+    (MRU, encoders, LiDAR), so the linear updates come before a LiDAR fix at the same stamp."""
+    ev_t = np.concatenate([np.asarray(t, float) for t in stamps])
+    ev_s = np.concatenate([np.full(len(t), k) for k, t in enumerate(stamps)])
+    ev_i = np.concatenate([np.arange(len(t)) for t in stamps])
+    keep = (ev_t > t_after + 1e-9) & (ev_t <= t_until + 1e-9)
+    order = np.lexsort((ev_s[keep], ev_t[keep]))
+    return ev_t[keep][order].tolist(), ev_s[keep][order].tolist(), ev_i[keep][order].tolist()
+
+
+def run_hook_filter(
+    meas: HookMeasurements,
+    kind: Literal["ekf", "ukf"] = "ekf",
+    model: Literal["rigid", "flexible"] = "flexible",
+    params: CraneParams | None = None,
+    config: HookFilterConfig | None = None,
+    *,
+    t_end: float | None = None,
+    output_rate_hz: float = 200.0,
+) -> HookFilterRun:
+    """Run the filter over time-stamped measurement streams.
+
+    The filter starts at the first LiDAR frame with a block fix or a rope direction
+    (initialised from it and the latest encoder/MRU samples; a frame's rope direction is
+    applied before its block fix), predicts at ``config.predict_rate_hz``, applies every
+    measurement at its time stamp and records the estimate at ``output_rate_hz``.
+    ``runtime_s`` is the wall-clock time of the whole loop (predictions, updates, output).
+    An MRU sample and an encoder sample with the same time stamp are applied as one
+    linear update (the same result as one after the other: H selects states, R is diagonal).
+    The hook outputs (p_rel, v_rel and their covariances) are computed from the recorded
+    states and covariance blocks after the loop, vectorised (inside the timed region).
+    """
+    params = params or CraneParams()
+    filt = HookFilter(kind, model, params, config)
+    n = filt.n
+    rope, rope_cov = meas.rope_direction, meas.rope_cov
+    rope_ok = np.zeros(len(meas.t_lidar), bool)
+    if rope is not None and rope_cov is not None:
+        rope_ok = np.all(np.isfinite(rope), 1) & np.all(np.isfinite(rope_cov.reshape(len(rope_cov), -1)), 1)
+    valid = np.all(np.isfinite(meas.lidar_p_rel_tip_world), 1) | rope_ok
+    has_fix = bool(valid.any())
+    if has_fix:
+        k0 = int(np.argmax(valid))
+        t0 = float(meas.t_lidar[k0])
+    else:
+        # No LiDAR fix in the whole run (a block too far or hidden): start from the encoders with
+        # the hook hanging straight down at the hoist length and bridge everything by prediction.
+        k0 = -1
+        t0 = float(max(meas.t_encoders[0], meas.t_mru[0]))
+    ie = max(0, int(np.searchsorted(meas.t_encoders, t0, "right")) - 1)
+    im = max(0, int(np.searchsorted(meas.t_mru, t0, "right")) - 1)
+    t_last = max(meas.t_lidar[-1], meas.t_encoders[-1], meas.t_mru[-1])
+    t_end = float(t_last if t_end is None else min(t_end, t_last))
+
+    # merged event list: (time, priority, sensor, index); MRU, encoders, LiDAR at equal times
+    ev_t, ev_s, ev_i = merged_events((meas.t_mru, meas.t_encoders, meas.t_lidar), t0, t_end)
+    n_out = int(math.floor((t_end - t0) * output_rate_hz + 1e-6)) + 1
+    t_out = t0 + np.arange(n_out) / output_rate_hz
+    x_out = np.empty((n_out, n))
+    # per output sample: diag(P) (n) and P's hook block P[HOOK_IX] (36), from the flat P
+    flat_idx = np.concatenate([np.arange(n) * (n + 1), np.ravel_multi_index(np.ix_(HOOK_COLS, HOOK_COLS), (n, n)).ravel()])
+    pb_out = np.empty((n_out, len(flat_idx)))
+    lidar_ok = np.zeros(len(meas.t_lidar), bool)
+    lid, enc, mru = meas.lidar_p_rel_tip_world, meas.encoders, meas.mru
+    lid_sigma = meas.lidar_sigma_m
+    lid_cov = meas.lidar_cov_m2
+    enc_ok = np.isfinite(enc[:, 2]).tolist() if len(enc) else []
+
+    def lidar_frame(i: int, te: float | None = None) -> None:
+        """One LiDAR frame: its rope direction, then its block fix."""
+        if rope_ok[i]:
+            filt.update_rope(rope[i], rope_cov[i], t=te)
+        lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i],
+                                        cov_m2=None if lid_cov is None else lid_cov[i])
+
+    tic = time.perf_counter()
+    if not has_fix:
+        filt.initialize_from_measurements(np.array([0.0, 0.0, -1.0]), enc[ie], mru[im], t0)
+    elif rope_ok[k0]:  # the sway from the rope's direction, then the whole frame as any other
+        filt.initialize_from_measurements(rope[k0], enc[ie], mru[im], t0)
+        lidar_frame(k0)
+    else:  # the sway from the block fix, which is then used
+        filt.initialize_from_measurements(lid[k0], enc[ie], mru[im], t0)
+        lidar_ok[k0] = True
+    j = 0
+    n_ev = len(ev_t)
+    for k, tk in enumerate(t_out.tolist()):
+        while j < n_ev and ev_t[j] <= tk + 1e-9:
+            s, i, te = ev_s[j], ev_i[j], ev_t[j]
+            if s == 0:
+                if j + 1 < n_ev and ev_s[j + 1] == 1 and ev_t[j + 1] - te <= 1e-9 and enc_ok[ev_i[j + 1]]:
+                    filt.update_mru_and_encoders(mru[i], enc[ev_i[j + 1]], t=te)
+                    j += 2
+                    continue
+                r = mru[i]
+                filt.update_mru(r[0], r[1], r[2], r[3], t=te)
+            elif s == 1:
+                e = enc[i]
+                filt.update_encoders(e[0], e[1], e[2], t=te)
+            else:
+                lidar_frame(i, te)
+            j += 1
+        filt.advance_to(tk)
+        x_out[k] = filt.x
+        filt.P.take(flat_idx, out=pb_out[k])
+    # hook outputs, vectorised over the recorded samples
+    p_out, v_out, Hp, Hv = hook_pos_vel_batch(x_out)
+    Ps = pb_out[:, n:].reshape(n_out, 6, 6)
+    cp_out = Hp @ Ps @ Hp.transpose(0, 2, 1)
+    cv_out = Hv @ Ps @ Hv.transpose(0, 2, 1)
+    pd_out = pb_out[:, :n].copy()
+    runtime = time.perf_counter() - tic
+    return HookFilterRun(
+        t=t_out, p_rel=p_out, v_rel=v_out, cov_p=cp_out, cov_v=cv_out, x=x_out, P_diag=pd_out,
+        runtime_s=runtime, realtime_fraction=runtime / max(t_end - t0, 1e-9),
+        n_lidar_accepted=filt.n_lidar_accepted, n_lidar_rejected=filt.n_lidar_rejected,
+        n_reacquired=filt.n_reacquired, lidar_accepted=lidar_ok, kind=kind, model=model,
+        n_rope_accepted=filt.n_rope_accepted, n_rope_rejected=filt.n_rope_rejected,
+        nis=np.array(filt.nis_history),
+    )

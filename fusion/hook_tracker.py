@@ -1,0 +1,99 @@
+"""The hook filter run online, frame by frame, for the perception (its prior and attitude)."""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+
+from boomtip.data.crane_model import CraneParams
+from boomtip.fusion.hook_config import HookFilterConfig
+from boomtip.fusion.hook_kalman import HookFilter
+from boomtip.fusion.hook_run import merged_events
+from boomtip.fusion.models.crane_pendulum import IF, INU, IPITCH, IROLL
+
+__all__ = ["HookTracker"]
+
+
+class HookTracker:
+    """The hook filter run online, frame by frame, so the perception gets the filter's state:
+    its attitude levels the frame, its prediction gates the rope, and its estimate after the
+    rope (with its covariance) is the block detector's prior: the association of a far, sparse
+    block's few points needs to know where the block should be (document 002 runs its filter
+    the same way).
+
+    >>> tr = HookTracker(t_enc, enc, t_mru, mru, params=params)
+    >>> p_pred, cov_pred = tr.predict(t)      # applies every encoder/MRU sample <= t first
+    >>> roll, pitch, heading = tr.tip_attitude()
+    >>> tr.correct_rope(u_rope, cov_rope)     # the rope's direction at t
+    >>> p_prior, cov_prior = tr.estimate()
+    >>> tr.correct(p_fix, cov_fix)            # a detection at t (gated like any LiDAR fix)
+
+    It starts at the first ``predict`` with the hook hanging straight down at the hoist length
+    and the filter's default initial covariance; detections then pull it in (a fix far outside
+    the gate re-initialises the sway after ``reacquire_after_rejections`` frames).
+    """
+
+    def __init__(self, t_encoders: np.ndarray, encoders: np.ndarray, t_mru: np.ndarray, mru: np.ndarray,
+                 kind: Literal["ekf", "ukf"] = "ekf", model: Literal["rigid", "flexible"] = "flexible",
+                 params: CraneParams | None = None, config: HookFilterConfig | None = None) -> None:
+        self.filter = HookFilter(kind, model, params, config)
+        self._enc = np.asarray(encoders, float).reshape(-1, 3)
+        self._mru = np.asarray(mru, float).reshape(-1, 4)
+        t_e, t_m = np.asarray(t_encoders, float), np.asarray(t_mru, float)
+        self._ev = list(zip(*merged_events((t_m, t_e), -math.inf, math.inf)))
+        self._t_enc, self._t_mru = t_e, t_m
+        self._j = 0
+
+    @property
+    def started(self) -> bool:
+        return self.filter.initialized
+
+    def _start(self, t: float) -> None:
+        ie = max(0, int(np.searchsorted(self._t_enc, t, "right")) - 1)
+        im = max(0, int(np.searchsorted(self._t_mru, t, "right")) - 1)
+        e = self._enc[ie]
+        self.filter.initialize_from_measurements(np.array([0.0, 0.0, -float(e[2])]), e, self._mru[im], t)
+        while self._j < len(self._ev) and self._ev[self._j][0] <= t + 1e-9:
+            self._j += 1
+
+    def predict(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Hook position relative to the tip (world axes) and its 3x3 covariance at time t."""
+        f = self.filter
+        if not f.initialized:
+            self._start(t)
+        ev, enc, mru = self._ev, self._enc, self._mru
+        while self._j < len(ev) and ev[self._j][0] <= t + 1e-9:
+            te, s, i = ev[self._j]
+            if s == 0:
+                r = mru[i]
+                f.update_mru(r[0], r[1], r[2], r[3], t=te)
+            elif np.isfinite(enc[i, 2]):
+                e = enc[i]
+                f.update_encoders(e[0], e[1], e[2], t=te)
+            self._j += 1
+        f.advance_to(t)
+        return self.estimate()
+
+    def tip_attitude(self) -> tuple[float, float, float]:
+        """(roll, pitch, heading) of the boom-tip frame at the last :meth:`predict` (rad): the
+        vessel's roll and pitch and the slew plus the boom's deflection, filtered. They level
+        a LiDAR frame about ten times better than one MRU sample (0.03 vs 0.35 mrad on
+        hook-4, 0.02 deg noise): at 200 m a raw sample's noise alone moves the cloud by 7 cm."""
+        x = self.filter.x
+        heading = x[INU] + (x[IF] if len(x) > IF else 0.0)
+        return float(x[IROLL]), float(x[IPITCH]), float(heading)
+
+    def correct(self, p_rel_tip_world: np.ndarray, cov_m2: np.ndarray) -> bool:
+        """Apply a detection at the time of the last :meth:`predict`; False if gated out."""
+        return self.filter.update_lidar(p_rel_tip_world, cov_m2=cov_m2)
+
+    def correct_rope(self, direction: np.ndarray, cov: np.ndarray) -> bool:
+        """Apply the rope's direction at the time of the last :meth:`predict`; False if gated out."""
+        return self.filter.update_rope(direction, cov)
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """Hook position relative to the tip (world axes) and its covariance now (after corrections)."""
+        p, _, cov_p, _ = self.filter.hook_position_velocity_covariance()
+        return p, cov_p

@@ -1,0 +1,107 @@
+"""The runner builds its chain from the installation and processing alone: the world (the
+provenance) changes nothing; a calm sea and a scenario with nothing but a LiDAR run to the end."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from boomtip.data.io.recording import Recording, RecordingError, write_recording
+from boomtip.data.scenario import ScenarioError, load_scenario
+from boomtip.data.sim.simulator import Simulation
+from boomtip.tools.cli import app
+from boomtip.tools.runner import run
+
+runner = CliRunner()
+CALM = [f"{v}.motion.{d}.amplitude=0" for v in ("crane", "feeder") for d in ("heave", "roll", "pitch")]
+
+
+def _rows(path):
+    with open(path) as fh:
+        return [{k: v for k, v in r.items() if k != "time_ms"} for r in csv.DictReader(fh)]
+
+
+def test_deleting_the_provenance_changes_no_estimate(tmp_path):
+    rec = tmp_path / "rec"
+    write_recording(Simulation(load_scenario("sts-loaded", ["duration_s=4"])), rec)
+    blind = tmp_path / "blind"
+    shutil.copytree(rec, blind)
+    meta = json.loads((blind / "meta.json").read_text())
+    assert meta["provenance"]["scenario"]["world"]["mismatch"]["mru_lag_s"] > 0  # the world is in there
+    del meta["provenance"]
+    (blind / "meta.json").write_text(json.dumps(meta))
+    run(Recording(rec), tmp_path / "a")
+    run(Recording(blind), tmp_path / "b")
+    assert (tmp_path / "a" / "estimates.csv").read_bytes() == (tmp_path / "b" / "estimates.csv").read_bytes()
+    assert _rows(tmp_path / "a" / "measurements.csv") == _rows(tmp_path / "b" / "measurements.csv")
+
+
+def test_a_recording_says_what_the_installation_is_not_what_the_world_was(tmp_path):
+    s = load_scenario("sts-loaded", ["duration_s=0.3", "mismatch.lidar_mount_rpy_deg=[0.5,0,0]"])
+    write_recording(Simulation(s), tmp_path / "rec")
+    meta = json.loads((tmp_path / "rec" / "meta.json").read_text())
+    assert meta["installation"]["lidar"]["mount"]["rpy_deg"] == [90.0, 90.0, 0.0]  # as surveyed
+    assert "world" not in meta and "mismatch" not in json.dumps(meta["installation"])
+
+
+def test_a_calm_sea_runs_to_the_end(tmp_path):
+    r = runner.invoke(app, ["run", "-s", "sts-loaded", "--duration", "8", "--out", str(tmp_path / "calm"), *sum((["--set", c] for c in CALM), [])])
+    assert r.exit_code == 0, r.output
+    kpis = json.loads((tmp_path / "calm" / "kpis.json").read_text())
+    assert kpis["solutions"]["fused"]["mae_D_m"] < 0.002
+
+
+def test_a_scenario_with_nothing_but_a_lidar_runs(tmp_path):
+    path = tmp_path / "only-lidar.yaml"
+    path.write_text("duration_s: 3\ninstallation:\n  lidar:\n    rate_hz: 10\n")
+    r = runner.invoke(app, ["run", "-s", str(path), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    kpis = json.loads((tmp_path / "out" / "kpis.json").read_text())
+    assert kpis["measurements"]["deck_lidar"]["valid_fraction"] > 0.9
+
+
+def test_keys_without_their_section_resolve_to_the_one_that_has_them():
+    s = load_scenario("sts-loaded", ["crane.motion.heave.amplitude=0.25", "lidar.rate_hz=5", "mismatch.mru_lag_s=0.01"])
+    assert s.world.crane.motion.heave.amplitude == 0.25
+    assert s.installation.lidar.rate_hz == 5 and s.world.mismatch.mru_lag_s == 0.01
+    with pytest.raises(ScenarioError, match="world.mismatch.mru_lag_s"):
+        load_scenario("sts-loaded", ["mismatch.mru_lagg=0.01"])
+    with pytest.raises(ScenarioError, match=r"--set lidar.mount.rpy_deg=\[1,2\]"):
+        load_scenario("sts-loaded", ["lidar.mount.rpy_deg=[1,2]"])
+
+
+def test_every_built_in_scenario_deviates_from_its_installation():
+    from boomtip.data.scenario import available_scenarios
+    from boomtip.data.sim.world import Mismatch
+
+    for name in available_scenarios():
+        assert load_scenario(name).world.mismatch != Mismatch(), name
+
+
+def test_a_recording_without_an_installation_is_refused_naming_the_key(tmp_path):
+    write_recording(Simulation(load_scenario("sts-empty", ["duration_s=0.3"])), tmp_path / "rec")
+    meta_path = tmp_path / "rec" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["installation"]["lidar"]["rate_hzz"] = 10
+    meta_path.write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match=r"installation.lidar.rate_hzz.*installation.lidar.rate_hz"):
+        Recording(tmp_path / "rec")
+    del meta["installation"]
+    meta_path.write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match="missing key 'installation'"):
+        Recording(tmp_path / "rec")
+
+
+def test_the_hook_chain_needs_its_encoders(tmp_path):
+    from boomtip.data.processing import Processing
+    from boomtip.tools.runner import build_chain
+
+    sim = Simulation(load_scenario("sts-empty", ["duration_s=0.3"]))
+    with pytest.raises(ValueError, match="encoder stream"):
+        build_chain(sim, Processing(chain="hook"))
+    assert np.isfinite(sim.duration_s)

@@ -1,0 +1,110 @@
+"""The relative-heave chain: frames -> D and D-dot measurements (perception) -> the
+solutions' estimates (fusion). Built from the installation and the processing settings.
+
+OUT/measurements.csv   t, method, quantity, value, time_ms, status, sigma
+OUT/estimates.csv      t, solution, D, D_dot, D_ddot, var_D, var_D_dot
+kpis.json              measurements.<method> and, with truth, solutions.<solution>
+OUT/report.md + plots  Table 5.4 layout beside document 000 (tools/report.py)
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from boomtip.data.frames import Frame, FrameSource, Truth
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.processing import Processing
+from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
+from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
+from boomtip.perception.pipeline import SENSOR_OF, FrameResult, HeavePipeline, Measurement
+from boomtip.tools.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
+
+MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
+
+
+@dataclass
+class HeaveResult:
+    rows: list[Measurement]
+    estimates: dict[str, Estimates]
+
+
+def to_fusion(row: Measurement, latency_s: dict[str, float]) -> FusionMeasurement:
+    """A perception row as fusion's plain measurement, arriving after its sensor's latency."""
+    return FusionMeasurement(row.t_s, row.t_s + latency_s[SENSOR_OF[row.method]], row.quantity, row.value,
+                             row.sigma, row.method)
+
+
+class HeaveChain:
+    name = "heave"
+
+    def __init__(self, source: FrameSource, processing: Processing) -> None:
+        inst = source.meta.installation
+        self.pipeline = HeavePipeline(inst, source.mru, processing.heave, seed=processing.seed)
+        self.fusion = processing.fusion
+        self.sea_state = (processing.sea_state.hs_m, processing.sea_state.tp_s) if processing.sea_state else None
+        self.latency_s = {"lidar": inst.lidar.latency_s, "radar": inst.radar.latency_s}
+        self.rows: list[Measurement] = []
+
+    def process(self, frame: Frame) -> FrameResult:
+        res = self.pipeline.process(frame)
+        self.rows.extend(res.measurements)
+        return res
+
+    def finish(self, duration_s: float) -> HeaveResult:
+        duration = max((r.t_s for r in self.rows), default=0.0) if duration_s <= 0 else duration_s
+        meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
+        estimates = {name: run_solution(name, meas, self.fusion, duration, self.sea_state) for name in self.fusion.solutions}
+        return HeaveResult(self.rows, estimates)
+
+    # -- outputs -------------------------------------------------------------------------
+    def write(self, out: Path, result: HeaveResult) -> list[str]:
+        write_measurements(out / "measurements.csv", result.rows)
+        write_estimates(out / "estimates.csv", result.estimates)
+        return ["measurements.csv", "estimates.csv"]
+
+    def kpis(self, result: HeaveResult, truth: Truth | None) -> dict:
+        kpis: dict = {"measurements": measurement_kpis(result.rows, truth)}
+        if truth is not None:
+            kpis["solutions"] = {n: solution_kpis(e, truth, result.rows, SOLUTIONS[n]) for n, e in result.estimates.items()}
+            kpis["solutions_note"] = f"solution errors exclude the first {WARMUP_S:g} s (filter convergence)"
+            kpis["truth_max_amplitude"] = truth_amplitudes(truth)
+        return kpis
+
+    def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth) -> list[str]:
+        from boomtip.tools.report import write_report
+
+        write_report(out, kpis, result.estimates, truth, result.rows)
+        return ["report.md", "plots"]
+
+    def visualiser(self, path: Path, source: FrameSource):
+        from boomtip.tools.visualise import RerunLogger
+
+        return RerunLogger(path, source)
+
+    def visualise_result(self, viz, result: HeaveResult, truth: Truth | None) -> None:
+        viz.log_estimates(result.estimates, truth)
+
+
+def write_measurements(path: Path, rows: list[Measurement]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(MEASUREMENT_COLUMNS)
+    for r in rows:
+        w.writerow([f"{r.t_s:.6f}", r.method, r.quantity, "" if not np.isfinite(r.value) else f"{r.value:.6f}",
+                    f"{r.time_ms:.4f}", r.status, "" if not np.isfinite(r.sigma) else f"{r.sigma:.6g}"])
+    atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def write_estimates(path: Path, estimates: dict[str, Estimates]) -> None:
+    buf = io.StringIO()
+    buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot\n")
+    for name, e in estimates.items():
+        ok = np.isfinite(e.x[:, 0])
+        for t, x, v in zip(e.t_s[ok], e.x[ok], e.var[ok]):
+            buf.write(f"{t:.4f},{name},{x[0]:.6f},{x[1]:.6f},{x[2]:.6f},{v[0]:.6g},{v[1]:.6g}\n")
+    atomic_write_bytes(path, buf.getvalue().encode())
