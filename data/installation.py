@@ -38,6 +38,7 @@ class Mount(_Model):
     xyz_m: tuple[float, float, float] = (0.0, 0.0, -0.5)
     # Default: sensor x (boresight) straight down, y along the ship, z across (see README).
     rpy_deg: tuple[float, float, float] = (90.0, 90.0, 0.0)
+    accuracy_deg: float = Field(0.0, ge=0, le=10, description="the survey's 1-sigma per rotation axis")
 
     @field_validator("xyz_m", "rpy_deg")
     @classmethod
@@ -124,6 +125,7 @@ class MruSpec(_Model):
     latency_s: float = Field(0.0, ge=0, le=10)
     angle_noise_deg: float = Field(0.0, ge=0, le=10)
     rate_noise_degps: float = Field(0.0, ge=0, le=100)
+    bias_accuracy_deg: float = Field(0.0, ge=0, le=10, description="1-sigma of the roll/pitch static error (data sheet)")
 
 
 class EncoderSpec(_Model):
@@ -166,6 +168,9 @@ class CraneSpec(_Model):
     geometry: CraneGeometry = CraneGeometry()
     dynamics: CraneDynamics = CraneDynamics()
     rope_radius_m: float = Field(0.04, gt=0, le=0.5, description="hoist rope's nominal radius")
+    rope_ea_n: float | None = Field(
+        None, gt=0, description="nominal axial stiffness EA of the whole reeving (N); null: rigid"
+    )
     block_height_m: float = Field(4.0, gt=1, le=8, description="height of the known block model")
 
 

@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import Field
 
 from boomtip.data.installation import _Model
+from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.solutions import FusionConfig
 from boomtip.perception.hook_types import HookConfig
 from boomtip.perception.pipeline import PipelineConfig
@@ -29,6 +30,7 @@ class SeaStatePrior(_Model):
 class HookProcessing(_Model):
     detector: HookConfig = HookConfig()
     rope: RopeConfig = RopeConfig()
+    filter: HookFilterConfig = HookFilterConfig()
     estimators: tuple[str, ...] = HOOK_ESTIMATORS
 
 

@@ -65,6 +65,9 @@ class HookFilterConfig(BaseModel):
     measurement: MeasurementNoiseConfig = Field(default_factory=MeasurementNoiseConfig)
     initial: InitialUncertaintyConfig = Field(default_factory=InitialUncertaintyConfig)
     predict_rate_hz: float = 200.0
+    # 1-sigma of the levelling's constant tilt (mount survey + MRU static accuracy, rad): a bias
+    # no averaging removes, added to the reported covariance across the rope (l sigma per axis)
+    levelling_bias_sigma_rad: float = Field(0.0, ge=0.0)
     lidar_gate_probability: float = 0.9999  # chi-square (3 dof) gate on the LiDAR innovation
     reacquire_after_rejections: int = 10  # consecutive gated LiDAR fixes -> re-initialise the sway
     # continuous Jacobian of the equations of motion (fusion/models/jacobian.py): "autodiff" and

@@ -15,7 +15,20 @@ from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
 from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch
 
-__all__ = ["HookMeasurements", "HookFilterRun", "merged_events", "run_hook_filter"]
+__all__ = ["HookMeasurements", "HookFilterRun", "merged_events", "run_hook_filter", "with_levelling_bias"]
+
+
+def with_levelling_bias(p_rel: np.ndarray, cov_p: np.ndarray, sigma_rad: float) -> np.ndarray:
+    """The reported covariance of the hook relative to the tip: the filter's own plus a
+    constant tilt of the levelling (sigma per horizontal axis), which moves the hook by
+    l * tilt across the rope. A bias is not white noise: the filter cannot average it away,
+    so it is added to what the filter reports rather than to its measurement noise."""
+    if sigma_rad <= 0:
+        return cov_p
+    l2 = np.einsum("ni,ni->n", p_rel, p_rel)[:, None, None]
+    u = p_rel / np.sqrt(np.maximum(l2[:, :, 0], 1e-12))
+    across = np.eye(3) - u[:, :, None] * u[:, None, :]
+    return cov_p + (sigma_rad**2) * l2 * across
 
 
 @dataclass
@@ -168,7 +181,7 @@ def run_hook_filter(
     # hook outputs, vectorised over the recorded samples
     p_out, v_out, Hp, Hv = hook_pos_vel_batch(x_out)
     Ps = pb_out[:, n:].reshape(n_out, 6, 6)
-    cp_out = Hp @ Ps @ Hp.transpose(0, 2, 1)
+    cp_out = with_levelling_bias(p_out, Hp @ Ps @ Hp.transpose(0, 2, 1), filt.cfg.levelling_bias_sigma_rad)
     cv_out = Hv @ Ps @ Hv.transpose(0, 2, 1)
     pd_out = pb_out[:, :n].copy()
     runtime = time.perf_counter() - tic

@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from boomtip.data.io.pcd import PcdError
 from boomtip.data.io.recording import RecordingError
+from boomtip.tools.runner import ChainError
 from boomtip.data.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
@@ -30,7 +31,7 @@ def user_errors() -> Iterator[None]:
     """Turn expected user-input errors into one clear message and exit code 2."""
     try:
         yield
-    except (ScenarioError, RecordingError, PcdError, FileNotFoundError) as exc:
+    except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
         console.print(f"[bold red]error:[/] {exc}", highlight=False)
         raise typer.Exit(2) from None
 

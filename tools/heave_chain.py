@@ -22,6 +22,7 @@ from boomtip.data.processing import Processing
 from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
 from boomtip.perception.pipeline import SENSOR_OF, FrameResult, HeavePipeline, Measurement
+from boomtip.tools.runner import ChainError
 from boomtip.tools.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
 
 MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
@@ -44,6 +45,9 @@ class HeaveChain:
 
     def __init__(self, source: FrameSource, processing: Processing) -> None:
         inst = source.meta.installation
+        if not inst.sensors():
+            raise ChainError("installation.lidar.enabled and installation.radar.enabled are both false: "
+                             "the heave chain needs a LiDAR or a radar")
         self.pipeline = HeavePipeline(inst, source.mru, processing.heave, seed=processing.seed)
         self.fusion = processing.fusion
         self.sea_state = (processing.sea_state.hs_m, processing.sea_state.tp_s) if processing.sea_state else None

@@ -27,6 +27,7 @@ from boomtip.perception.hook import HookDetection, detect_hook, segmentation_sco
 from boomtip.perception.rope import RopeFix, fit_rope
 from boomtip.perception.timing import StageTimes
 from boomtip.tools import hook_outputs as outputs
+from boomtip.tools.runner import ChainError
 
 ROW_DEFAULTS = {"x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sigma_y_m": np.nan, "sigma_z_m": np.nan,
                 "n_points": 0, "fit_rms_m": np.nan, "precision": np.nan, "recall": np.nan, "hook_points_true": 0,
@@ -83,9 +84,9 @@ class HookChain:
     def __init__(self, source: FrameSource, processing: Processing) -> None:
         inst: Installation = source.meta.installation
         if source.encoders is None:
-            raise ValueError(f"{source.meta.name}: the hook chain needs the crane's encoder stream (slew, luff, hoist)")
+            raise ChainError(f"{source.meta.name}: the hook chain needs the crane's encoder stream (slew, luff, hoist)")
         if not inst.lidar.enabled:
-            raise ValueError("installation.lidar.enabled: the hook chain needs a LiDAR")
+            raise ChainError("installation.lidar.enabled is false: the hook chain needs a LiDAR")
         self.lidar = inst.lidar
         self.cfg = processing.hook.detector
         self.rope_cfg = processing.hook.rope
@@ -94,10 +95,18 @@ class HookChain:
         if "block_height_m" not in self.cfg.model_fields_set:
             self.cfg = self.cfg.model_copy(update={"block_height_m": inst.crane.block_height_m})
         self.estimators = processing.hook.estimators
+        self.filter_cfg = processing.hook.filter
+        if "levelling_bias_sigma_rad" not in self.filter_cfg.model_fields_set:  # the kit's stated accuracy
+            sigma = math.radians(math.hypot(inst.lidar.mount.accuracy_deg, inst.mru.bias_accuracy_deg))
+            self.filter_cfg = self.filter_cfg.model_copy(update={"levelling_bias_sigma_rad": sigma})
         self.seed = processing.seed
         self.params = nominal_crane_params(inst.crane)
         enc, m = source.encoders, source.mru
-        self.enc = enc
+        # The hoist encoder reads the rope paid out; the pendulum is that stretched by the
+        # hook's weight, with the rope's nominal EA (rigid when the installation gives none).
+        stretch = 1.0 + (self.params.m * self.params.g / inst.crane.rope_ea_n if inst.crane.rope_ea_n else 0.0)
+        self.enc = {**enc, "hoist": np.asarray(enc["hoist"]) * stretch}
+        enc = self.enc
         self.enc_table = np.column_stack([enc["slew"], enc["luff"], enc["hoist"]])
         self.mru_table = np.column_stack([m.rpy_rad[:, 0], m.rpy_rad[:, 1], m.rpy_rate_radps[:, 0], m.rpy_rate_radps[:, 1]])
         self.mru = m
@@ -196,7 +205,8 @@ class HookChain:
         runs = {}
         for name in self.estimators:
             kind, model = name.split("_")
-            runs[name] = run_hook_filter(meas, kind, model, self.params.model_copy(update={"flexible": model == "flexible"}))
+            runs[name] = run_hook_filter(meas, kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
+                                         self.filter_cfg)
         return HookResult([r.row for r in fr], meas, runs)
 
     # -- outputs -------------------------------------------------------------------------

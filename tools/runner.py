@@ -21,6 +21,10 @@ from boomtip.data.keys import format_validation, leaf_keys
 from boomtip.data.processing import Processing
 
 
+class ChainError(ValueError):
+    """A chain cannot be built from what the source provides: the message names the key."""
+
+
 class NullVisualiser:
     """The visualiser when none is wanted: every logging call does nothing."""
 

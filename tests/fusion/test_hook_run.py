@@ -1,0 +1,36 @@
+"""The hook run's reported covariance: the filter's own plus the levelling's stated bias."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from boomtip.fusion.hook_run import with_levelling_bias
+
+
+def test_a_levelling_bias_widens_the_covariance_across_the_rope_only():
+    rng = np.random.default_rng(3)
+    p = np.column_stack([rng.normal(0, 5, 50), rng.normal(0, 5, 50), -rng.uniform(20, 200, 50)])
+    base = np.broadcast_to(np.eye(3) * 1e-4, (50, 3, 3)).copy()
+    sigma = 1e-4
+    cov = with_levelling_bias(p, base, sigma)
+    u = p / np.linalg.norm(p, axis=1, keepdims=True)
+    added = cov - base
+    # nothing along the rope, l^2 sigma^2 in each direction across it
+    np.testing.assert_allclose(np.einsum("ni,nij,nj->n", u, added, u), 0.0, atol=1e-15)
+    e1 = np.cross(u, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.einsum("ni,nij,nj->n", e1, added, e1), sigma**2 * np.sum(p**2, 1), rtol=1e-12)
+    assert with_levelling_bias(p, base, 0.0) is base
+
+
+def test_the_widened_covariance_is_consistent_with_a_drawn_tilt():
+    """Hooks seen through a levelling tilted by draws of the stated sigma: NEES averages 2 on
+    the two axes the tilt moves (3 with the filter's own noise on top of it)."""
+    rng = np.random.default_rng(0)
+    n, sigma, own = 4000, 1.2e-4, 0.004
+    p = np.column_stack([rng.normal(0, 3, n), rng.normal(0, 3, n), -rng.uniform(50, 200, n)])
+    tilt = rng.normal(0, sigma, (n, 2))
+    err = np.cross(np.column_stack([tilt, np.zeros(n)]), p) + rng.normal(0, own, (n, 3))
+    cov = with_levelling_bias(p, np.broadcast_to(np.eye(3) * own**2, (n, 3, 3)), sigma)
+    nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
+    assert abs(np.mean(nees) - 3.0) < 0.15
