@@ -4,55 +4,17 @@ from __future__ import annotations
 
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Optional
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from boomtip.data.io.pcd import PcdError
-from boomtip.data.io.recording import RecordingError
-from boomtip.tools.runner import ChainError
 from boomtip.data.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
+from boomtip.tools.cli_bench import bench_app
+from boomtip.tools.cli_common import ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
-bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: each prints a ratio against a baseline measured in the same run.")
 app.add_typer(bench_app, name="bench")
-console = Console(stderr=True, soft_wrap=True)
-
-ScenarioOpt = typer.Option(..., "--scenario", "-s", help="Built-in scenario name or a YAML file.")
-SetOpt = typer.Option(None, "--set", help="Override a scenario key: dotted.key=value (repeatable).")
-
-
-@contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn expected user-input errors into one clear message and exit code 2."""
-    try:
-        yield
-    except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
-        console.print(f"[bold red]error:[/] {exc}", highlight=False)
-        raise typer.Exit(2) from None
-
-
-@contextmanager
-def progress_bar(total: int, label: str) -> Iterator:
-    quiet = not sys.stderr.isatty()
-    with Progress(
-        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console, disable=quiet
-    ) as prog:
-        task = prog.add_task(label, total=total)
-        yield lambda n=1: prog.advance(task, n)
-
-
-def resolve_scenario(scenario: str, overrides: list[str] | None, duration: float | None = None, seed: int | None = None):
-    extra = list(overrides or [])
-    if duration is not None:
-        extra.append(f"duration_s={duration}")
-    if seed is not None:
-        extra.append(f"seed={seed}")
-    return load_scenario(scenario, extra)
 
 
 @app.command()
@@ -188,132 +150,87 @@ def view(
     print(f"{rrd} ({rrd.stat().st_size / 1e6:.1f} MB): open it with `rerun {rrd}` or `boomtip view {out} --spawn`")
 
 
+DEFAULT_KPIS = ("solutions.fused.mae_D_m", "solutions.fused.mae_D_dot_mps", "solutions.deck_lidar.mae_D_m",
+                "solutions.reflectors_lidar.mae_D_m", "hook.ekf_flexible.rmse_pos_m.0", "hook.ekf_flexible.rmse_pos_m.1",
+                "hook.ekf_flexible.rmse_pos_m.2")
+WorkersOpt = typer.Option(None, "--workers", "-j", min=1, help="Worker processes (default: the number of cores).")
+ExecutorOpt = typer.Option("local", "--executor", help="local (processes) or dask.")
+SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address tcp://HOST:PORT (default: a LocalCluster).")
+
+
+def _study(tasks, out: Path, grid_keys: list[str], labels: dict, kpis: list[str], executor: str, workers, scheduler,
+           resume: bool, force: bool, scenario_dump: dict | None) -> list[dict]:
+    from boomtip.tools.study_run import make_executor, plot_kpis, prepare_study_dir, run_study, write_summary, write_sweep_json
+
+    done = prepare_study_dir(out, force, resume)
+    with progress_bar(len(tasks), "tasks") as advance, make_executor(executor, workers, scheduler) as pool:
+        rows = run_study(tasks, out, grid_keys, pool, done, advance)
+    summary = write_summary(out, rows, grid_keys)
+    present = {r["kpi"] for r in summary}
+    plots = plot_kpis(out, summary, grid_keys, [k for k in (kpis or DEFAULT_KPIS) if k in present], labels)
+    write_sweep_json(out, sys.argv, scenario_dump, tasks, rows)
+    failed = [r for r in rows if r["status"] != "ok"]
+    console.print(f"wrote {out}: runs.csv ({len(rows)} runs, {len(failed)} failed), summary.csv, sweep.json"
+                  + "".join(f", {p.name}" for p in plots))
+    for r in failed[:5]:
+        console.print(f"  failed: {r['task']}: {r['error']}", highlight=False)
+    return rows
+
+
 @app.command()
 def sweep(
-    param: str = typer.Argument(..., help="delay | mru_noise | rate | density | false_reflectors"),
     scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
-    values: Optional[str] = typer.Option(None, "--values", help="Comma-separated grid (default: the parameter's own grid)."),
-    duration: float = typer.Option(30.0, "--duration", help="Seconds per run."),
-    jobs: int = typer.Option(2, "--jobs", "-j", help="Parallel processes."),
+    grid: Optional[list[str]] = typer.Option(None, "--grid", help="KEY=V1,V2,... (repeatable: the product of the grids)."),
+    preset: Optional[list[str]] = typer.Option(None, "--preset", help="A named axis of document 000's study: "
+                                               "delay, mru_noise, mru_bias, rate, density, fov, false_reflectors, clock_offset."),
+    seeds: int = typer.Option(1, "--seeds", min=1, help="Runs per grid point (Monte Carlo), seeds derived from the scenario's."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Seconds per run (default: the scenario's)."),
     set_: Optional[list[str]] = SetOpt,
     out: Path = typer.Option(..., "--out", "-o"),
+    kpi: Optional[list[str]] = typer.Option(None, "--kpi", help="KPI to plot (flattened kpis.json key; repeatable)."),
+    workers: Optional[int] = WorkersOpt,
+    executor: str = ExecutorOpt,
+    scheduler: Optional[str] = SchedulerOpt,
+    resume: bool = typer.Option(False, "--resume", help="Keep the finished runs in --out and do the rest."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+) -> None:
+    """Sweeps and Monte Carlo over any scenario keys: one task per run, on local processes or Dask."""
+    from boomtip.tools.study import axis_from_grid, axis_from_preset, sweep_tasks
+
+    with user_errors():
+        try:
+            axes = [axis_from_preset(p) for p in preset or []] + [axis_from_grid(g) for g in grid or []]
+        except ValueError as exc:
+            raise ScenarioError(str(exc)) from None
+        base = resolve_scenario(scenario, set_, duration)
+        for ax in axes:  # refuse a bad key or value before spawning anything
+            for over in ax.overrides:
+                load_scenario(scenario, list(set_ or []) + list(over))
+        tasks = sweep_tasks(scenario, axes, seeds, list(set_ or []), duration, base.seed)
+        _study(tasks, out, [a.name for a in axes], {a.name: a.label for a in axes}, list(kpi or []), executor, workers,
+               scheduler, resume, force, base.model_dump(mode="json"))
+
+
+@app.command()
+def batch(
+    paths: list[Path] = typer.Argument(..., help="Recording folders."),
+    out: Path = typer.Option(..., "--out", "-o"),
+    kpi: Optional[list[str]] = typer.Option(None, "--kpi"),
+    workers: Optional[int] = WorkersOpt,
+    executor: str = ExecutorOpt,
+    scheduler: Optional[str] = SchedulerOpt,
+    resume: bool = typer.Option(False, "--resume"),
     force: bool = typer.Option(False, "--force"),
 ) -> None:
-    """Sensitivity study: KPIs over a grid of one parameter (document 000, 5.3.2)."""
-    from boomtip.tools.sweep import PARAMS, run_sweep
+    """Process many recordings the same way, one task each, one summary."""
+    from boomtip.data.io.recording import Recording
+    from boomtip.tools.study import Task
 
     with user_errors():
-        if param not in PARAMS:
-            raise ScenarioError(f"unknown sweep parameter '{param}'; expected one of {', '.join(PARAMS)}")
-        try:
-            grid = [float(v) for v in values.split(",")] if values else None
-        except ValueError:
-            raise ScenarioError(f"--values '{values}': expected comma-separated numbers") from None
-        load_scenario(scenario, list(set_ or []))  # refuse a bad scenario or key before spawning
-        n = len(grid or PARAMS[param][1])
-        with progress_bar(n, f"sweep {param}") as advance:
-            summary = run_sweep(scenario, param, grid, duration, out, jobs, force, list(set_ or []), advance)
-    print(f"{'value':>8s} " + " ".join(f"{n + ' D/Ddot':>26s}" for n in summary["runs"][0]["kpis"]["solutions"]))
-    for r in summary["runs"]:
-        cells = [f"{1e3 * k['mae_D_m']:9.2f} mm {1e3 * k['mae_D_dot_mps']:7.2f} mm/s" for k in r["kpis"]["solutions"].values()]
-        print(f"{r['value']:8g} " + " ".join(f"{c:>26s}" for c in cells))
-    console.print(f"wrote {out}/sweep.json and {out}/sweep_{param}.png")
-
-
-def write_bench_json(path: Optional[Path], result: dict, force: bool) -> None:
-    if path is None:
-        return
-    from boomtip.data.io.recording import RecordingError, write_json
-
-    if path.exists() and not force:
-        raise RecordingError(f"--json {path} exists; pass --force to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, result)
-
-
-JsonOpt = typer.Option(None, "--json", help="Also write the figures (ratio, times, accuracies) to this JSON file.")
-ForceOpt = typer.Option(False, "--force", help="Replace an existing --json file.")
-
-
-@bench_app.command("raycast")
-def bench_raycast_cmd(
-    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
-    frames: int = typer.Option(20, "--frames", min=1),
-    simulate_s: float = typer.Option(60.0, "--simulate-s", help="Also time `simulate` over this many seconds (0: skip)."),
-    set_: Optional[list[str]] = SetOpt,
-    json_path: Optional[Path] = JsonOpt,
-    force: bool = ForceOpt,
-) -> None:
-    """LiDAR frames/s vs the trimesh route on the same frames; simulate vs real time."""
-    from boomtip.tools.bench import bench_raycast
-
-    with user_errors():
-        s = resolve_scenario(scenario, set_)
-        r = bench_raycast(s, frames=frames, simulate_s=simulate_s)
-        write_bench_json(json_path, r, force)
-    print(f"raycast  {r['triangles']} triangles, {r['rays_per_frame']} rays/frame, {r['points_per_frame']:.0f} points/frame, {frames} frames")
-    print(f"  boomtip (Open3D scenes, rays moved per body): {r['boomtip_fps']:8.1f} frames/s")
-    print(f"  baseline (posed trimesh + embreex per frame): {r['baseline_fps']:8.1f} frames/s")
-    print(f"  ratio {r['ratio']:.1f}x   hit agreement {100 * r['hit_agreement']:.2f} %")
-    if "simulate_realtime_factor" in r:
-        print(f"simulate {r['simulate_duration_s']:g} s of {s.name} in {r['simulate_wall_s']:.1f} s: "
-              f"{r['simulate_realtime_factor']:.1f}x real time")
-
-
-@bench_app.command("perception")
-def bench_perception_cmd(
-    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
-    frames: int = typer.Option(30, "--frames", min=1),
-    set_: Optional[list[str]] = SetOpt,
-    json_path: Optional[Path] = JsonOpt,
-    force: bool = ForceOpt,
-) -> None:
-    """Deck detection and its stages vs Open3D's own calls on the same frames; every method's APT and MAE."""
-    from boomtip.tools.bench import bench_perception
-
-    with user_errors():
-        s = resolve_scenario(scenario, set_)
-        r = bench_perception(s, frames=frames)
-        write_bench_json(json_path, r, force)
-    print(f"perception  {s.name}, {frames} LiDAR frames, {r['points_per_frame']:.0f} points/frame")
-    print(f"  baseline: {r['baseline']}")
-    print(f"  {'stage':28s} {'boomtip ms':>11s} {'Open3D ms':>10s} {'ratio':>7s}")
-    for label, key in (("preprocess (same operations)", "preprocess"), ("plane search (same points)", "plane_search"),
-                       ("deck detection end to end", "deck_detection")):
-        ms = r[f"{key}_ms"]
-        print(f"  {label:28s} {ms['boomtip']:11.2f} {ms['open3d']:10.2f} {ms['open3d'] / ms['boomtip']:6.1f}x")
-    print(f"  deck D MAE: boomtip {1e3 * r['deck_mae_m']['boomtip']:.2f} mm (max {1e3 * r['deck_max_m']['boomtip']:.2f}), "
-          f"Open3D {1e3 * r['deck_mae_m']['open3d']:.2f} mm (max {1e3 * r['deck_max_m']['open3d']:.2f})")
-    print(f"  ratio {r['ratio']:.1f}x")
-    print("  every method, as the pipeline times it:")
-    for m, k in r["methods"].items():
-        unit = "mm/s" if m.startswith("doppler") else "mm"
-        print(f"    {m:20s} APT {k['apt_ms']:6.2f} ms   MAE {1e3 * k['mae']:6.2f} {unit}   valid {100 * k['valid_fraction']:.0f} %")
-
-
-@bench_app.command("fusion")
-def bench_fusion_cmd(
-    program: str = typer.Option("hook-2", "--program", help="hook-1 .. hook-4 (document 002, 5.2)"),
-    duration: float = typer.Option(60.0, "--duration"),
-    json_path: Optional[Path] = JsonOpt,
-    force: bool = ForceOpt,
-) -> None:
-    """Hook EKF (flexible) runtime vs the same filter with numerically differenced Jacobians."""
-    from boomtip.tools.bench import bench_fusion
-
-    with user_errors():
-        if program not in ("hook-1", "hook-2", "hook-3", "hook-4"):
-            raise ScenarioError(f"--program '{program}': expected hook-1, hook-2, hook-3 or hook-4")
-        r = bench_fusion(program, duration)
-        write_bench_json(json_path, r, force)
-    print(f"fusion  EKF flexible on {program}, {duration:g} s, LiDAR = truth + 1.5 cm noise (document 002's measurement)")
-    names = {"analytic": "exact Jacobian", "numeric": "numeric Jacobian", "analytic_rope": "exact, + rope 0.1 mrad"}
-    for label, name in names.items():
-        k = r[label]
-        f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
-        print(f"  {name:22s}: {k['runtime_s']:6.2f} s = {100 * k['runtime_fraction']:5.2f} % of real time, "
-              f"RMSE pos {f(k['rmse_pos_m'])} cm, vel {f(k['rmse_vel_mps'])} cm/s")
-    print(f"  ratio numeric / exact {r['ratio']:.2f}x")
+        for p in paths:
+            Recording(p)  # refuse an unreadable recording before spawning anything
+        tasks = [Task(f"{i}:{p}", "", (), None, 0, {"recording": str(p)}, recording=str(p.resolve())) for i, p in enumerate(paths)]
+        _study(tasks, out, ["recording"], {}, list(kpi or []), executor, workers, scheduler, resume, force, None)
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -1,0 +1,132 @@
+"""`boomtip bench ...`: each benchmark prints a ratio against a baseline measured in the same
+run; `--json PATH` writes the figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from boomtip.tools.cli_common import SetOpt, resolve_scenario, user_errors
+
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: each prints a ratio against a baseline measured in the same run.")
+
+
+def write_bench_json(path: Optional[Path], result: dict, force: bool) -> None:
+    if path is None:
+        return
+    from boomtip.data.io.recording import RecordingError, write_json
+
+    if path.exists() and not force:
+        raise RecordingError(f"--json {path} exists; pass --force to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, result)
+
+
+JsonOpt = typer.Option(None, "--json", help="Also write the figures (ratio, times, accuracies) to this JSON file.")
+ForceOpt = typer.Option(False, "--force", help="Replace an existing --json file.")
+
+
+@bench_app.command("raycast")
+def bench_raycast_cmd(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    frames: int = typer.Option(20, "--frames", min=1),
+    simulate_s: float = typer.Option(60.0, "--simulate-s", help="Also time `simulate` over this many seconds (0: skip)."),
+    set_: Optional[list[str]] = SetOpt,
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """LiDAR frames/s vs the trimesh route on the same frames; simulate vs real time."""
+    from boomtip.tools.bench import bench_raycast
+
+    with user_errors():
+        s = resolve_scenario(scenario, set_)
+        r = bench_raycast(s, frames=frames, simulate_s=simulate_s)
+        write_bench_json(json_path, r, force)
+    print(f"raycast  {r['triangles']} triangles, {r['rays_per_frame']} rays/frame, {r['points_per_frame']:.0f} points/frame, {frames} frames")
+    print(f"  boomtip (Open3D scenes, rays moved per body): {r['boomtip_fps']:8.1f} frames/s")
+    print(f"  baseline (posed trimesh + embreex per frame): {r['baseline_fps']:8.1f} frames/s")
+    print(f"  ratio {r['ratio']:.1f}x   hit agreement {100 * r['hit_agreement']:.2f} %")
+    if "simulate_realtime_factor" in r:
+        print(f"simulate {r['simulate_duration_s']:g} s of {s.name} in {r['simulate_wall_s']:.1f} s: "
+              f"{r['simulate_realtime_factor']:.1f}x real time")
+
+
+@bench_app.command("perception")
+def bench_perception_cmd(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    frames: int = typer.Option(30, "--frames", min=1),
+    set_: Optional[list[str]] = SetOpt,
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """Deck detection and its stages vs Open3D's own calls on the same frames; every method's APT and MAE."""
+    from boomtip.tools.bench import bench_perception
+
+    with user_errors():
+        s = resolve_scenario(scenario, set_)
+        r = bench_perception(s, frames=frames)
+        write_bench_json(json_path, r, force)
+    print(f"perception  {s.name}, {frames} LiDAR frames, {r['points_per_frame']:.0f} points/frame")
+    print(f"  baseline: {r['baseline']}")
+    print(f"  {'stage':28s} {'boomtip ms':>11s} {'Open3D ms':>10s} {'ratio':>7s}")
+    for label, key in (("preprocess (same operations)", "preprocess"), ("plane search (same points)", "plane_search"),
+                       ("deck detection end to end", "deck_detection")):
+        ms = r[f"{key}_ms"]
+        print(f"  {label:28s} {ms['boomtip']:11.2f} {ms['open3d']:10.2f} {ms['open3d'] / ms['boomtip']:6.1f}x")
+    print(f"  deck D MAE: boomtip {1e3 * r['deck_mae_m']['boomtip']:.2f} mm (max {1e3 * r['deck_max_m']['boomtip']:.2f}), "
+          f"Open3D {1e3 * r['deck_mae_m']['open3d']:.2f} mm (max {1e3 * r['deck_max_m']['open3d']:.2f})")
+    print(f"  ratio {r['ratio']:.1f}x")
+    print("  every method, as the pipeline times it:")
+    for m, k in r["methods"].items():
+        unit = "mm/s" if m.startswith("doppler") else "mm"
+        print(f"    {m:20s} APT {k['apt_ms']:6.2f} ms   MAE {1e3 * k['mae']:6.2f} {unit}   valid {100 * k['valid_fraction']:.0f} %")
+
+
+@bench_app.command("fusion")
+def bench_fusion_cmd(
+    program: str = typer.Option("hook-2", "--program", help="hook-1 .. hook-4 (document 002, 5.2)"),
+    duration: float = typer.Option(60.0, "--duration"),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """Hook EKF (flexible) runtime vs the same filter with numerically differenced Jacobians."""
+    from boomtip.tools.bench import bench_fusion
+
+    with user_errors():
+        if program not in ("hook-1", "hook-2", "hook-3", "hook-4"):
+            raise ScenarioError(f"--program '{program}': expected hook-1, hook-2, hook-3 or hook-4")
+        r = bench_fusion(program, duration)
+        write_bench_json(json_path, r, force)
+    print(f"fusion  EKF flexible on {program}, {duration:g} s, LiDAR = truth + 1.5 cm noise (document 002's measurement)")
+    names = {"analytic": "exact Jacobian", "numeric": "numeric Jacobian", "analytic_rope": "exact, + rope 0.1 mrad"}
+    for label, name in names.items():
+        k = r[label]
+        f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
+        print(f"  {name:22s}: {k['runtime_s']:6.2f} s = {100 * k['runtime_fraction']:5.2f} % of real time, "
+              f"RMSE pos {f(k['rmse_pos_m'])} cm, vel {f(k['rmse_vel_mps'])} cm/s")
+    print(f"  ratio numeric / exact {r['ratio']:.2f}x")
+
+
+@bench_app.command("sweep")
+def bench_sweep_cmd(
+    scenario: str = typer.Option("sts-empty", "--scenario", "-s"),
+    tasks: int = typer.Option(16, "--tasks", min=2),
+    duration: float = typer.Option(1.0, "--duration", help="Simulated seconds per task."),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """Per-task overhead of the local and Dask executors; two workers against one."""
+    from boomtip.tools.bench_sweep import bench_sweep
+
+    with user_errors():
+        r = bench_sweep(scenario, tasks, duration)
+        write_bench_json(json_path, r, force)
+    print(f"sweep  {r['tasks']} tasks of {scenario}, {duration:g} s simulated each")
+    for kind in ("local", "dask"):
+        k = r[kind]
+        print(f"  {kind:5s} 1 worker: {k['wall_s']:6.2f} s wall, tasks' own {k['tasks_own_s']:6.2f} s, "
+              f"overhead {1e3 * k['overhead_per_task_s']:6.1f} ms/task")
+    print(f"  local 2 workers: {r['two_workers_wall_s']:6.2f} s wall")
+    print(f"  ratio {r['ratio']:.2f} (two workers / one)")

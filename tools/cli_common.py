@@ -1,0 +1,51 @@
+"""What every `boomtip` command shares: the console, user-error handling, the progress bar,
+scenario resolution and the common options."""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from typing import Iterator
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from boomtip.data.io.pcd import PcdError
+from boomtip.data.io.recording import RecordingError
+from boomtip.data.scenario import ScenarioError, load_scenario
+from boomtip.tools.runner import ChainError
+
+console = Console(stderr=True, soft_wrap=True)
+
+ScenarioOpt = typer.Option(..., "--scenario", "-s", help="Built-in scenario name or a YAML file.")
+SetOpt = typer.Option(None, "--set", help="Override a scenario key: dotted.key=value (repeatable).")
+
+
+@contextmanager
+def user_errors() -> Iterator[None]:
+    """Turn expected user-input errors into one clear message and exit code 2."""
+    try:
+        yield
+    except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
+        console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+
+
+@contextmanager
+def progress_bar(total: int, label: str) -> Iterator:
+    quiet = not sys.stderr.isatty()
+    with Progress(
+        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console, disable=quiet
+    ) as prog:
+        task = prog.add_task(label, total=total)
+        yield lambda n=1: prog.advance(task, n)
+
+
+def resolve_scenario(scenario: str, overrides: list[str] | None, duration: float | None = None, seed: int | None = None):
+    extra = list(overrides or [])
+    if duration is not None:
+        extra.append(f"duration_s={duration}")
+    if seed is not None:
+        extra.append(f"seed={seed}")
+    return load_scenario(scenario, extra)
