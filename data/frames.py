@@ -90,8 +90,15 @@ class Truth:
         return self.columns["t"]
 
     def at(self, name: str, t_s: np.ndarray) -> np.ndarray:
-        """A column linearly interpolated at times t (truth rate is 200 Hz by default)."""
-        return np.interp(t_s, self.columns["t"], self.columns[name])
+        """A column linearly interpolated at times t (truth rate is 200 Hz by default); NaN
+        outside the truth's span, so a truth that ends early scores nothing beyond its end
+        instead of holding its last value."""
+        t = self.columns["t"]
+        return np.interp(t_s, t, self.columns[name], left=np.nan, right=np.nan)
+
+    @property
+    def end_s(self) -> float:
+        return float(self.columns["t"][-1]) if len(self.columns["t"]) else float("nan")
 
 
 @dataclass

@@ -182,9 +182,14 @@ def load_scenario(name_or_path: str | Path, overrides: list[str] | None = None) 
                 f"scenario '{text}' is neither a built-in scenario ({', '.join(builtin)}) nor a file"
             )
     try:
-        raw = yaml.safe_load(path.read_text()) or {}
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{path}: not valid YAML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: byte {exc.start}: not UTF-8 text; expected a YAML scenario") from None
+    if raw is None:
+        raise ScenarioError(f"{path}: empty; expected scenario keys (world, installation, processing; "
+                            "`boomtip scenarios --show sts-loaded` prints a full one)")
     if not isinstance(raw, dict):
         raise ScenarioError(f"{path}: expected a mapping of scenario keys at the top level")
     raw.setdefault("name", path.stem)

@@ -292,6 +292,12 @@ class HookKalmanCore:
         """:meth:`_linear_update` with the index array and the R matrix prepared."""
         kf = self._kf
         x, P = kf.x, kf.P
+        z = np.asarray(z, dtype=float)
+        if not np.all(np.isfinite(z)):  # a NaN sample updates nothing: the state never holds a NaN
+            keep = np.isfinite(z)
+            if not keep.any():
+                return
+            ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
         W = P.take(ii, 1)  # P H^T, (n, k)
         kf.x, kf.P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
 

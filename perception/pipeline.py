@@ -58,6 +58,7 @@ class PipelineConfig(BaseModel):
     doppler_preprocess: PreprocessConfig = PreprocessConfig(min_range_m=2.0, max_range_m=150.0)
     normal_window_s: float = Field(1.0, gt=0, description="window of deck normals used for the deck's spin")
     max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
+    max_abs_D_dot_mps: float = Field(15.0, gt=0, description="no sea moves a deck faster: beyond it a D-dot is implausible")
 
 
 @dataclass
@@ -123,10 +124,27 @@ class HeavePipeline:
         return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor]
 
     def _rows(self, frame: Frame, results: dict[str, tuple[float, float, str]], times: StageTimes) -> list[Measurement]:
-        return [
-            Measurement(frame.t_s, m, QUANTITY[m], v, s, times.total(*STAGES[m]), status)
-            for m, (v, s, status) in results.items()
-        ]
+        rows = []
+        for m, (v, s, status) in results.items():
+            if status == "ok":
+                status = self._implausible(frame.sensor, QUANTITY[m], v, s) or status
+                if status != "ok":
+                    v, s = np.nan, np.nan
+            rows.append(Measurement(frame.t_s, m, QUANTITY[m], v, s, times.total(*STAGES[m]), status))
+        return rows
+
+    def _implausible(self, sensor: str, quantity: str, value: float, sigma: float) -> str | None:
+        """Why a value cannot be right, before it says ok: not finite, a D outside the sensor's
+        range, a D-dot faster than any sea moves a deck (the installation's bounds)."""
+        if not (math.isfinite(value) and math.isfinite(sigma) and sigma > 0):
+            return f"implausible: value {value!r} with sigma {sigma!r}"
+        if quantity == "D":
+            spec = getattr(self.installation, sensor)
+            if not 0.0 < value <= spec.max_range_m:
+                return f"implausible D = {value:.4g} m (expected 0 to the {sensor}'s {spec.max_range_m:g} m range)"
+        elif abs(value) > self.cfg.max_abs_D_dot_mps:
+            return f"implausible D-dot = {value:.4g} m/s (expected |D-dot| <= {self.cfg.max_abs_D_dot_mps:g} m/s)"
+        return None
 
     def process(self, frame: Frame) -> FrameResult:
         times = StageTimes()

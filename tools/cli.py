@@ -11,10 +11,17 @@ import typer
 
 from boomtip.data.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
 from boomtip.tools.cli_bench import bench_app
-from boomtip.tools.cli_common import ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario, user_errors
+from boomtip.tools.cli_common import (ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario,
+                                       terminate_like_interrupt, user_errors)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
 app.add_typer(bench_app, name="bench")
+
+
+@app.callback()
+def _main() -> None:
+    """Point-cloud perception for offshore cranes."""
+    terminate_like_interrupt()
 
 
 @app.command()

@@ -30,6 +30,21 @@ def user_errors() -> Iterator[None]:
     except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
         console.print(f"[bold red]error:[/] {exc}", highlight=False)
         raise typer.Exit(2) from None
+    except OSError as exc:  # a read-only or full disk: say so; the staging folder is already gone
+        where = f" {exc.filename}" if exc.filename else ""
+        console.print(f"[bold red]error:[/] cannot write{where}: {exc.strerror or exc}; nothing was replaced", highlight=False)
+        raise typer.Exit(2) from None
+
+
+def terminate_like_interrupt() -> None:
+    """SIGTERM (a job scheduler, `kill`) unwinds like Ctrl-C, so a run removes its staging
+    folder instead of leaving a half-written one behind."""
+    import signal
+
+    def _raise(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, _raise)
 
 
 @contextmanager

@@ -28,7 +28,7 @@ DOC002_RUNTIME_PCT = "2.4-4.0 % (flexible EKF 3.3-3.8 %)"
 def estimator_kpis(run: HookFilterRun, truth: Truth, params) -> dict:
     # Runs shorter than the warm-up are scored over all their samples (and say so).
     t_from = WARMUP_S if np.any(run.t >= WARMUP_S) else float(run.t[0])
-    keep = run.t >= t_from
+    keep = (run.t >= t_from) & (run.t <= truth.end_s)  # scored only where the truth is
     t = run.t[keep]
     _, _, p_hook, v_hook = world_hook_from_states(params, run.x[keep])
     ref_p = np.column_stack([truth.at(f"hook_{a}", t) for a in "xyz"])
@@ -73,7 +73,7 @@ def segmentation_kpis(rows: list[dict], ok: list[dict], sparse: list[dict], trut
             t = np.array([r["t"] for r in fixes])
             det = np.array([[r["x"], r["y"], r["z"]] for r in fixes])
             ref = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
-            seg[key] = np.sqrt(np.mean((det - ref) ** 2, axis=0)).tolist()
+            seg[key] = np.sqrt(np.nanmean((det - ref) ** 2, axis=0)).tolist()
     return seg
 
 

@@ -29,6 +29,11 @@ from boomtip.data.installation import Installation
 from boomtip.data.keys import format_validation, leaf_keys
 
 FORMAT_VERSION = 2
+# Physical bounds of the logs (rad, rad/s, m): a value beyond them is a corrupt sample, refused
+# with its line. Roll and pitch within +-90 deg; no vessel turns at 5 rad/s; a luffing boom
+# stays within +-90 deg; no crane pays out 5 km of rope.
+MRU_BOUNDS = {"roll": 1.5708, "pitch": 1.5708, "yaw": 7.0, "roll_rate": 5.0, "pitch_rate": 5.0, "yaw_rate": 5.0}
+ENCODER_BOUNDS = {"slew": 1000.0, "luff": 1.5708, "hoist": 5000.0}
 
 
 class RecordingError(ValueError):
@@ -45,7 +50,12 @@ def prepare_output(out: Path, force: bool, inputs: tuple[Path, ...] = ()) -> Pat
     Results are written into the staging folder and moved into place by `commit_output`, so
     an interrupted run never leaves a half-written OUT.
     """
+    if str(out).strip() in ("", "."):
+        raise RecordingError(f"--out '{out}': name a folder for the results (not the current folder)")
     out = Path(out).resolve()
+    if out == Path.cwd() or out in Path.cwd().parents or out == Path.home() or out == Path(out.anchor):
+        raise RecordingError(f"--out {out}: is the current folder, one of its parents or your home; "
+                             "name a folder of its own for the results")
     for inp in inputs:
         inp = Path(inp).resolve()
         if out == inp or inp in out.parents or out in inp.parents:
@@ -72,7 +82,21 @@ def commit_output(staging: Path, out: Path) -> None:
 
 
 def write_json(path: Path, obj) -> None:
-    atomic_write_bytes(path, (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
+    """Strict JSON: NaN and infinities are written as null (json.dumps would write NaN)."""
+    text = json.dumps(_finite_or_null(obj), indent=2, default=_json_default, allow_nan=False)
+    atomic_write_bytes(path, (text + "\n").encode())
+
+
+def _finite_or_null(o):
+    if isinstance(o, dict):
+        return {k: _finite_or_null(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_null(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite_or_null(o.tolist())
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    return o
 
 
 def _json_default(o):
@@ -93,12 +117,16 @@ def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
     atomic_write_bytes(path, buf.getvalue().encode())
 
 
-def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t") -> dict[str, np.ndarray]:
-    """Read a numeric CSV with a header; errors name the file, line and what was expected."""
+def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t",
+             bounds: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """Read a numeric CSV with a header; errors name the file, line and what was expected.
+    Every value must be finite, and |value| <= bounds[column] where a bound is given."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise RecordingError(f"{path}: byte {exc.start}: not UTF-8 text; expected a CSV of numbers") from None
     if not lines:
         raise RecordingError(f"{path}: empty file; expected a header {','.join(expected)}")
     names = [c.strip() for c in lines[0].split(",")]
@@ -117,6 +145,18 @@ def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t") -> d
         except ValueError:
             raise RecordingError(f"{path}: line {i}: a value is not a number: {line!r}") from None
     table = np.array(rows, dtype=float).reshape(-1, len(names))
+    if len(table) == 0:
+        raise RecordingError(f"{path}: a header and no samples; expected rows of {','.join(expected)}")
+    bad = ~np.isfinite(table)
+    for j, n in enumerate(names):
+        if bounds and n in bounds:
+            bad[:, j] |= np.abs(np.nan_to_num(table[:, j])) > bounds[n]
+    if bad.any():
+        i, j = (int(v) for v in np.argwhere(bad)[0])
+        v = float(table[i, j])
+        limit = (f" (expected |{names[j]}| <= {bounds[names[j]]:g})" if np.isfinite(v) and bounds and names[j] in bounds
+                 else " (expected a finite number)")
+        raise RecordingError(f"{path}: line {i + 2}: column '{names[j]}' is {v!r}{limit}")
     cols = {n: table[:, j] for j, n in enumerate(names)}
     t = cols[time_column]
     if not np.all(np.isfinite(t)):
@@ -226,7 +266,7 @@ class Recording(FrameSource):
         if version != FORMAT_VERSION:
             raise RecordingError(f"{meta_path}: format_version {version!r}; this boomtip reads version {FORMAT_VERSION}")
         self.meta = self._read_meta(meta, meta_path)
-        mru = read_csv(self.root / "mru.csv", MRU_COLUMNS)
+        mru = read_csv(self.root / "mru.csv", MRU_COLUMNS, bounds=MRU_BOUNDS)
         if len(mru["t"]) < 2:
             raise RecordingError(f"{self.root / 'mru.csv'}: {len(mru['t'])} samples; the attitude needs at least 2")
         rate = self.meta.installation.mru.rate_hz
@@ -238,7 +278,7 @@ class Recording(FrameSource):
         )
         hook = (self.root / "encoders.csv").exists()
         if hook:
-            self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS)
+            self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS, bounds=ENCODER_BOUNDS)
         truth_path = self.root / "truth.csv"
         expected = HOOK_TRUTH_COLUMNS if hook else TRUTH_COLUMNS
         self.truth = Truth(read_csv(truth_path, expected)) if truth_path.exists() else None

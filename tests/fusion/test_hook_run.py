@@ -34,3 +34,18 @@ def test_the_widened_covariance_is_consistent_with_a_drawn_tilt():
     cov = with_levelling_bias(p, np.broadcast_to(np.eye(3) * own**2, (n, 3, 3)), sigma)
     nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
     assert abs(np.mean(nees) - 3.0) < 0.15
+
+
+def test_a_nan_encoder_or_mru_sample_updates_nothing_and_never_poisons_the_state():
+    from boomtip.fusion.hook_kalman import HookFilter
+
+    f = HookFilter("ekf", "flexible")
+    f.initialize_from_measurements(np.array([0.5, -0.3, -60.0]), (0.3, 0.5, 60.0), (0.0, 0.0, 0.0, 0.0), 0.0)
+    f.predict(0.005)
+    x0, P0 = f.x.copy(), f.P.copy()
+    f.update_encoders(float("nan"), float("nan"), float("nan"))
+    f.update_mru(float("nan"), float("nan"), float("nan"), float("nan"))
+    np.testing.assert_array_equal(f.x, x0)
+    np.testing.assert_array_equal(f.P, P0)
+    f.update_encoders(0.3, float("nan"), 60.0)  # the finite part is used
+    assert np.all(np.isfinite(f.x)) and not np.array_equal(f.P, P0)

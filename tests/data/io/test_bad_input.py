@@ -63,7 +63,7 @@ def test_an_mru_log_without_samples_is_refused(rec, tmp_path):
     r = _copy(rec, tmp_path)
     header = (r / "mru.csv").read_text().splitlines()[0]
     (r / "mru.csv").write_text(header + "\n")
-    with pytest.raises(RecordingError, match="mru.csv: 0 samples"):
+    with pytest.raises(RecordingError, match="mru.csv: a header and no samples"):
         Recording(r)
 
 
@@ -92,3 +92,80 @@ def test_reflector_plane_is_moved_down_by_the_marker_height(tmp_path):
     # while they stand 2 mm proud, D comes out 2 mm short.
     _, flat = _reflector_run(tmp_path, "flat", 1, "mismatch={}", "installation.markers.height_m=0")
     assert flat["mae"] == pytest.approx(0.002, abs=5e-4)
+
+
+@pytest.mark.parametrize("value, expect", [("nan", "'roll' is nan"), ("1e300", "expected |roll| <= 1.5708"),
+                                           ("inf", "'roll' is inf")])
+def test_non_finite_or_absurd_mru_samples_are_refused_with_their_line(rec, tmp_path, value, expect):
+    r = _copy(rec, tmp_path)
+    lines = (r / "mru.csv").read_text().splitlines()
+    parts = lines[5].split(",")
+    parts[1] = value
+    lines[5] = ",".join(parts)
+    (r / "mru.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=rf"mru.csv: line 6: column {expect}"):
+        Recording(r)
+
+
+def test_a_non_utf8_log_is_refused_naming_the_file(rec, tmp_path):
+    r = _copy(rec, tmp_path)
+    (r / "mru.csv").write_bytes(b"t,roll\n\xff\xfe1,2\n")
+    with pytest.raises(RecordingError, match="mru.csv: byte 7: not UTF-8"):
+        Recording(r)
+
+
+def test_kpis_json_is_strict_json_and_out_must_name_a_folder(tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    # 1 s: shorter than the filters' warm-up, so the solutions' errors are undefined (null)
+    assert runner.invoke(app, ["run", "-s", "sts-empty", "--duration", "1", "--out", str(out)]).exit_code == 0
+    text = (out / "kpis.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    kpis = json.loads(text)
+    assert kpis["solutions"]["fused"]["mae_D_m"] is None
+    monkeypatch.chdir(tmp_path)
+    for bad in ("", "."):
+        r = runner.invoke(app, ["run", "-s", "sts-empty", "--duration", "1", "--out", bad, "--force"])
+        assert r.exit_code == 2 and "name a folder" in r.output
+    assert (tmp_path / "run" / "kpis.json").is_file()  # nothing deleted
+
+
+def test_a_truth_that_ends_early_is_scored_over_its_span_only(rec, tmp_path):
+    r = _copy(rec, tmp_path)
+    lines = (r / "truth.csv").read_text().splitlines()
+    (r / "truth.csv").write_text("\n".join(lines[: len(lines) // 2]) + "\n")
+    res = runner.invoke(app, ["process", str(r), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    kpis = json.loads((tmp_path / "out" / "kpis.json").read_text())
+    assert "only its span is scored" in kpis["warnings"][0]
+    assert kpis["measurements"]["deck_lidar"]["mae"] < 0.005  # not the last value held flat
+
+
+def test_implausible_values_never_say_ok():
+    from boomtip.data.installation import Installation
+    from boomtip.perception.pipeline import HeavePipeline
+
+    pipe = HeavePipeline(Installation(), mru=None)
+    assert "implausible D" in pipe._implausible("lidar", "D", 3.7e8, 0.01)
+    assert "implausible D" in pipe._implausible("lidar", "D", -6.5, 0.01)
+    assert "implausible D-dot" in pipe._implausible("radar", "D_dot", 1e297, 0.01)
+    assert "implausible" in pipe._implausible("radar", "D_dot", 0.5, float("nan"))
+    assert pipe._implausible("lidar", "D", 45.0, 0.002) is None
+
+
+def test_sigterm_leaves_no_staging_folder(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "rec"
+    proc = subprocess.Popen([sys.executable, "-m", "boomtip.tools.cli", "simulate", "-s", "sts-loaded", "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    while time.time() < deadline and not list(tmp_path.glob(".rec.partial-*")):
+        time.sleep(0.1)
+    assert list(tmp_path.glob(".rec.partial-*")), "the run never started writing"
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=60)
+    assert proc.returncode != 0
+    assert not list(tmp_path.glob(".rec.partial-*")) and not out.exists()
