@@ -83,10 +83,11 @@ def filter_config(cfg: FusionConfig, q: float) -> HeaveFilterConfig:
 
 
 def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, duration_s: float,
-                 sea_state: tuple[float, float] | None = None) -> Estimates:
+                 sea_state: tuple[float, float] | None = None, methods: tuple[str, ...] | None = None) -> Estimates:
     """One solution over every method's measurements (`source` = method name), causally, on
-    the output grid of integer ticks of 1 / output_rate_hz."""
-    methods = SOLUTIONS[name]
+    the output grid of integer ticks of 1 / output_rate_hz. `methods` overrides the
+    solution's own sources (a fused solution falling back on the radar's deck)."""
+    methods = methods or SOLUTIONS[name]
     inputs = [m2 for m in measurements if m.source in methods for m2 in [with_floor(m, cfg)] if m2 is not None]
     inputs.sort(key=lambda m: (m.t_arrival_s, m.t_acq_s))
     initial_D = None

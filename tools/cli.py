@@ -73,6 +73,8 @@ def _print_kpis(kpis: dict) -> None:
     from boomtip.tools.report import kpi_table, measurement_table
 
     print(f"\n{kpis['scenario']} (seed {kpis['seed']}, {kpis['duration_s']:.0f} s)\n")
+    for w in kpis.get("warnings", []):
+        console.print(f"[bold yellow]warning:[/] {w}", highlight=False)
     if "hook" in kpis:
         h = kpis["hook"]
         seg = h["segmentation"]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,7 @@ from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.data.processing import Processing
 from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
-from boomtip.perception.pipeline import SENSOR_OF, FrameResult, HeavePipeline, Measurement
+from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
 from boomtip.tools.runner import ChainError
 from boomtip.tools.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
 
@@ -32,6 +32,19 @@ MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", 
 class HeaveResult:
     rows: list[Measurement]
     estimates: dict[str, Estimates]
+    sources: dict[str, dict[str, list[str]]] = field(default_factory=dict)  # per solution, what fed D and D-dot
+    warnings: list[str] = field(default_factory=list)
+
+
+LIDAR_D = ("deck_lidar", "reflectors_lidar")
+
+
+def solution_sources(name: str, have: set[str]) -> tuple[str, ...]:
+    """The methods a solution fuses: its own, except that the fused solution falls back on the
+    radar's deck for D when the run has no LiDAR distance (a lost or absent LiDAR)."""
+    if name == "fused" and not (set(LIDAR_D) & have) and "deck_radar" in have:
+        return ("deck_radar", "doppler_radar_rot")
+    return SOLUTIONS[name]
 
 
 def to_fusion(row: Measurement, latency_s: dict[str, float]) -> FusionMeasurement:
@@ -62,8 +75,22 @@ class HeaveChain:
     def finish(self, duration_s: float) -> HeaveResult:
         duration = max((r.t_s for r in self.rows), default=0.0) if duration_s <= 0 else duration_s
         meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
-        estimates = {name: run_solution(name, meas, self.fusion, duration, self.sea_state) for name in self.fusion.solutions}
-        return HeaveResult(self.rows, estimates)
+        have = {m.source for m in meas}
+        estimates, sources, warnings = {}, {}, []
+        for name in self.fusion.solutions:
+            methods = solution_sources(name, have)
+            if methods != SOLUTIONS[name]:
+                warnings.append(f"{name}: no LiDAR distance in this run; it fuses {', '.join(methods)} instead")
+            d_sources = [m for m in methods if QUANTITY[m] == "D" and m in have]
+            if name == "doppler_radar" and "deck_radar" in have:
+                d_sources = ["deck_radar (start only)"]
+            sources[name] = {"D": d_sources, "D_dot": [m for m in methods if QUANTITY[m] == "D_dot" and m in have]}
+            if not d_sources:
+                # a filter with nothing that measures D would report D with a sigma of 100 m
+                warnings.append(f"{name}: no distance source in this run; no estimate")
+                continue
+            estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods)
+        return HeaveResult(self.rows, estimates, sources, warnings)
 
     # -- outputs -------------------------------------------------------------------------
     def write(self, out: Path, result: HeaveResult) -> list[str]:
@@ -72,7 +99,9 @@ class HeaveChain:
         return ["measurements.csv", "estimates.csv"]
 
     def kpis(self, result: HeaveResult, truth: Truth | None) -> dict:
-        kpis: dict = {"measurements": measurement_kpis(result.rows, truth)}
+        kpis: dict = {"measurements": measurement_kpis(result.rows, truth), "sources": result.sources}
+        if result.warnings:
+            kpis["warnings"] = list(result.warnings)
         if truth is not None:
             kpis["solutions"] = {n: solution_kpis(e, truth, result.rows, SOLUTIONS[n]) for n, e in result.estimates.items()}
             kpis["solutions_note"] = f"solution errors exclude the first {WARMUP_S:g} s (filter convergence)"

@@ -66,6 +66,11 @@ def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: 
     text = [
         f"# boomtip relative-heave report: {kpis['scenario']} (seed {kpis['seed']}, {kpis['duration_s']:.0f} s)",
         "",
+        *[f"**Warning:** {w}" for w in kpis.get("warnings", [])],
+        "",
+        "Sources: " + "; ".join(f"{n}: D from {', '.join(v['D']) or 'none'}, D-dot from {', '.join(v['D_dot']) or 'D'}"
+                                for n, v in kpis.get("sources", {}).items()),
+        "",
         "## Solutions after the Kalman filter (document 000, Table 5.4 layout)",
         "",
         f"Errors against the closed-form truth, first {WARMUP_S:g} s excluded (filter convergence). Percentages are of the",

@@ -100,8 +100,8 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     written = chain.write(staging, result)
     kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth)}
     if source.truth is not None and source.truth.end_s < source.duration_s - 0.05:
-        kpis["warnings"] = [f"the truth ends at {source.truth.end_s:.2f} s of {source.duration_s:.2f} s: "
-                            "only its span is scored"]
+        kpis.setdefault("warnings", []).append(f"the truth ends at {source.truth.end_s:.2f} s of "
+                                               f"{source.duration_s:.2f} s: only its span is scored")
     write_json(staging / "kpis.json", kpis)
     written.append("kpis.json")
     if source.truth is not None and report:

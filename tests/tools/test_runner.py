@@ -105,3 +105,16 @@ def test_the_hook_chain_needs_its_encoders(tmp_path):
     with pytest.raises(ValueError, match="encoder stream"):
         build_chain(sim, Processing(chain="hook"))
     assert np.isfinite(sim.duration_s)
+
+
+def test_without_a_lidar_fused_falls_back_on_the_radar_deck_and_says_so(tmp_path):
+    r = runner.invoke(app, ["run", "-s", "sts-loaded", "--duration", "12", "--set", "lidar.enabled=false",
+                            "--out", str(tmp_path / "radar")])
+    assert r.exit_code == 0, r.output
+    assert "fused: no LiDAR distance" in r.output
+    kpis = json.loads((tmp_path / "radar" / "kpis.json").read_text())
+    assert kpis["sources"]["fused"] == {"D": ["deck_radar"], "D_dot": ["doppler_radar_rot"]}
+    assert kpis["solutions"]["fused"]["mae_D_m"] < 0.015
+    assert "deck_lidar" not in kpis["solutions"]  # no distance source: no numbers with a 100 m sigma
+    assert any("deck_lidar: no distance source" in w for w in kpis["warnings"])
+    assert "Warning" in (tmp_path / "radar" / "report.md").read_text()
