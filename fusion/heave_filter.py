@@ -150,6 +150,7 @@ class Measurement:
     value: float
     sigma: float  # 1-sigma noise, same unit as value
     source: str
+    sigma_systematic: float = 0.0  # 1-sigma of a bias no averaging removes (reported, not filtered)
 
     def __post_init__(self) -> None:
         if self.quantity not in _INDEX:

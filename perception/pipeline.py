@@ -70,6 +70,9 @@ class Measurement:
     sigma: float
     time_ms: float
     status: str
+    # 1-sigma of what does not average out over frames: the levelling's stated bias (mount
+    # survey and MRU static accuracy) through the measured deck tilt
+    sigma_systematic: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -116,6 +119,8 @@ class HeavePipeline:
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
         self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
+        self.bias_sigma_rad = {s: math.radians(math.hypot(getattr(installation, s).mount.accuracy_deg,
+                                                          installation.mru.bias_accuracy_deg)) for s in ("lidar", "radar")}
         if "marker_height_m" not in self.cfg.reflectors.model_fields_set:  # the markers as the crew laid them
             self.cfg = self.cfg.model_copy(update={"reflectors": self.cfg.reflectors.model_copy(
                 update={"marker_height_m": installation.markers.height_m})})
@@ -187,6 +192,11 @@ class HeavePipeline:
             if {"doppler_radar", "doppler_radar_rot"} & set(wanted):
                 results.update(self._doppler(frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out))
         out.measurements = self._rows(frame, results, times)
+        planes = {"deck_lidar": out.deck_lidar, "reflectors_lidar": out.reflectors, "deck_radar": out.deck_radar}
+        for row in out.measurements:
+            fit = planes.get(row.method)
+            if row.ok and fit is not None:
+                row.sigma_systematic = attitude_sigma_D(row.value, fit.plane_sensor, wire, self.bias_sigma_rad[frame.sensor])
         return out
 
     def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:

@@ -50,7 +50,7 @@ def solution_sources(name: str, have: set[str]) -> tuple[str, ...]:
 def to_fusion(row: Measurement, latency_s: dict[str, float]) -> FusionMeasurement:
     """A perception row as fusion's plain measurement, arriving after its sensor's latency."""
     return FusionMeasurement(row.t_s, row.t_s + latency_s[SENSOR_OF[row.method]], row.quantity, row.value,
-                             row.sigma, row.method)
+                             row.sigma, row.method, row.sigma_systematic)
 
 
 class HeaveChain:
@@ -98,12 +98,12 @@ class HeaveChain:
         write_estimates(out / "estimates.csv", result.estimates)
         return ["measurements.csv", "estimates.csv"]
 
-    def kpis(self, result: HeaveResult, truth: Truth | None) -> dict:
+    def kpis(self, result: HeaveResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
         kpis: dict = {"measurements": measurement_kpis(result.rows, truth), "sources": result.sources}
         if result.warnings:
             kpis["warnings"] = list(result.warnings)
         if truth is not None:
-            kpis["solutions"] = {n: solution_kpis(e, truth, result.rows, SOLUTIONS[n]) for n, e in result.estimates.items()}
+            kpis["solutions"] = {n: solution_kpis(e, truth, result.rows, SOLUTIONS[n], windows) for n, e in result.estimates.items()}
             kpis["solutions_note"] = f"solution errors exclude the first {WARMUP_S:g} s (filter convergence)"
             kpis["truth_max_amplitude"] = truth_amplitudes(truth)
         return kpis

@@ -215,7 +215,7 @@ class HookChain:
         outputs.write_estimates(out / "hook_estimates.csv", result.runs, self.params)
         return ["hook_measurements.csv", "hook_estimates.csv"]
 
-    def kpis(self, result: HookResult, truth: Truth | None) -> dict:
+    def kpis(self, result: HookResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
         rows = result.rows
         ok = [r for r in rows if r["status"] == "ok"]
         sparse = [r for r in rows if r["status"] == "sparse"]

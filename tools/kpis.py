@@ -41,22 +41,39 @@ def measurement_kpis(rows: list[Measurement], truth: Truth | None) -> dict[str, 
     return out
 
 
-def solution_kpis(est: Estimates, truth: Truth, rows: list[Measurement], methods: tuple[str, ...]) -> dict:
-    keep = est.t_s >= WARMUP_S
+def consistency(est: Estimates, truth: Truth, keep: np.ndarray) -> dict:
+    """Errors of D and D-dot over the kept samples, and the fraction of D errors within the
+    filter's own 3 sigma (0.997 for an honest Gaussian)."""
     t = est.t_s[keep]
-    d = error_stats(est.x[keep, 0] - truth.at("D", t))
+    eD = est.x[keep, 0] - truth.at("D", t)
+    d = error_stats(eD)
     v = error_stats(est.x[keep, 1] - truth.at("D_dot", t))
+    ok = np.isfinite(eD) & np.isfinite(est.var[keep, 0])
+    within = float(np.mean(np.abs(eD[ok]) <= 3 * np.sqrt(est.var[keep, 0][ok]))) if ok.any() else float("nan")
+    return {"mae_D_m": d["mae"], "max_D_m": d["max"], "rmse_D_m": d["rmse"], "mae_D_dot_mps": v["mae"],
+            "max_D_dot_mps": v["max"], "rmse_D_dot_mps": v["rmse"], "within_3sigma_D": within, "samples": d["n"]}
+
+
+def solution_kpis(est: Estimates, truth: Truth, rows: list[Measurement], methods: tuple[str, ...],
+                  windows: list[tuple[float, float]] = ()) -> dict:
+    keep = est.t_s >= WARMUP_S
+    errors = consistency(est, truth, keep)
     used = [r for r in rows if r.method in methods]
     cycles = len({(r.t_s, r.method.split("_")[-1]) for r in used}) or 1
     perception_ms = sum(r.time_ms for r in used)
-    return {
-        "mae_D_m": d["mae"], "max_D_m": d["max"], "rmse_D_m": d["rmse"],
-        "mae_D_dot_mps": v["mae"], "max_D_dot_mps": v["max"], "rmse_D_dot_mps": v["rmse"],
+    out = {
+        **errors,
         "apt_ms": (perception_ms + est.filter_ms) / cycles,
         "filter_ms_per_cycle": est.filter_ms / cycles,
         "measurements": est.inputs,
         "filter_status": est.statuses,
     }
+    if windows:  # the same figures over the samples inside the sensors' outages
+        inside = np.zeros(len(est.t_s), bool)
+        for a, b in windows:
+            inside |= (est.t_s >= a) & (est.t_s < b)
+        out["outage"] = consistency(est, truth, keep & inside)
+    return out
 
 
 def truth_amplitudes(truth: Truth) -> dict[str, float]:

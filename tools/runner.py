@@ -76,6 +76,12 @@ def run_labels(source: FrameSource, chain: str) -> dict:
     return labels
 
 
+def outage_windows(source: FrameSource) -> list[tuple[float, float]]:
+    """The simulated sensors' outage windows (from the provenance: for scoring only)."""
+    world = (source.meta.provenance or {}).get("world") or {}
+    return sorted(tuple(w) for s in ("lidar", "radar", "mru") for w in (world.get(s) or {}).get("outages_s", []))
+
+
 def run(source: FrameSource, out: Path, force: bool = False, processing: Processing | None = None, rerun: bool = False,
         report: bool = True, inputs: tuple[Path, ...] = (), progress: Callable[[int], None] | None = None) -> RunResult:
     staging = prepare_output(out, force, inputs)
@@ -98,7 +104,7 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
             progress(1)
     result = chain.finish(source.duration_s)
     written = chain.write(staging, result)
-    kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth)}
+    kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth, outage_windows(source))}
     if source.truth is not None and source.truth.end_s < source.duration_s - 0.05:
         kpis.setdefault("warnings", []).append(f"the truth ends at {source.truth.end_s:.2f} s of "
                                                f"{source.duration_s:.2f} s: only its span is scored")

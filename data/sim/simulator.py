@@ -15,7 +15,7 @@ from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLo
 from boomtip.data.sim.motion import BodyStates, ShipMotion
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.scenario import Scenario
-from boomtip.data.sim.world import true_lidar, true_radar, true_T_boomtip_sensor
+from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
 from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
 from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, radar_measure, radar_pattern
 from boomtip.data.sim.truth import relative_heave, tip_states
@@ -114,7 +114,9 @@ class Simulation(FrameSource):
         items = []
         for sensor in s.installation.sensors():
             rate = getattr(s.installation, sensor).rate_hz
-            items += [(float(t), sensor, i) for i, t in enumerate(frame_times(rate, s.duration_s))]
+            t = frame_times(rate, s.duration_s)
+            out = in_windows(t, getattr(s.world, sensor).outages_s)  # the sensor gives nothing then
+            items += [(float(tk), sensor, i) for i, tk in enumerate(t) if not out[i]]
         return sorted(items)
 
     def __len__(self) -> int:
@@ -220,7 +222,8 @@ class Simulation(FrameSource):
         rng = self._rng("mru", 0)
         rpy = st.rpy_rad + np.deg2rad(mm.mru_bias_deg) + np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(st.rpy_rad.shape)
         rate = st.rpy_rate_radps + np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(st.rpy_rad.shape)
-        return MruLog(t, rpy, rate, max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
+        keep = ~in_windows(t, self.scenario.world.mru.outages_s)
+        return MruLog(t[keep], rpy[keep], rate[keep], max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
 
     def _truth(self) -> Truth:
         s = self.scenario

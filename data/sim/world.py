@@ -12,7 +12,9 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+import math
+
+from pydantic import Field, field_validator, model_validator
 from scipy.spatial.transform import Rotation
 
 from boomtip.data.installation import LidarSpec, Mount, RadarSpec, _finite, _Model
@@ -100,8 +102,43 @@ class Sea(_Model):
     reflectivity: float = Field(0.05, ge=0, le=1)
 
 
+Windows = list[tuple[float, float]]
+
+
+def _check_windows(v: Windows, what: str) -> Windows:
+    for a, b in v:
+        if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
+            raise ValueError(f"{what}: each window is [start, end] seconds with 0 <= start < end, got {[a, b]}")
+    return v
+
+
+class RadarBehaviour(_Model):
+    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the radar gives nothing")
+
+    @field_validator("outages_s")
+    @classmethod
+    def _windows(cls, v):
+        return _check_windows(v, "radar.outages_s")
+
+
+class MruBehaviour(_Model):
+    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the MRU gives nothing")
+
+    @field_validator("outages_s")
+    @classmethod
+    def _windows(cls, v):
+        return _check_windows(v, "mru.outages_s")
+
+
 class LidarBehaviour(_Model):
     """How the LiDAR really behaves beyond its spec sheet."""
+
+    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the LiDAR gives nothing")
+
+    @field_validator("outages_s")
+    @classmethod
+    def _windows(cls, v):
+        return _check_windows(v, "lidar.outages_s")
 
     weak_return_noise_gain: float = Field(3.0, ge=1, description="range noise grows as sqrt(I_ref/I) up to this factor")
     intensity_noise: float = Field(0.0, ge=0, description="relative 1-sigma intensity noise")
@@ -164,6 +201,8 @@ class World(_Model):
     feeder: FeederVessel = FeederVessel()
     sea: Sea = Sea()
     lidar: LidarBehaviour = LidarBehaviour()
+    radar: RadarBehaviour = RadarBehaviour()
+    mru: MruBehaviour = MruBehaviour()
     hook: HookScene = HookScene()
     mismatch: Mismatch = Mismatch()
 
@@ -187,6 +226,15 @@ def true_lidar(spec: LidarSpec, world: World) -> Lidar:
 
 def true_radar(spec: RadarSpec, world: World) -> Radar:
     return Radar.model_validate(spec.model_dump())
+
+
+def in_windows(t_s: np.ndarray, windows: Windows) -> np.ndarray:
+    """Which times fall inside any [start, end) window."""
+    t = np.asarray(t_s, dtype=float)
+    out = np.zeros(t.shape, dtype=bool)
+    for a, b in windows:
+        out |= (t >= a) & (t < b)
+    return out
 
 
 def true_T_boomtip_sensor(surveyed: Mount, error_rpy_deg) -> np.ndarray:
