@@ -72,7 +72,8 @@ def simulate(
 def _print_kpis(kpis: dict) -> None:
     from boomtip.tools.report import kpi_table, measurement_table
 
-    print(f"\n{kpis['scenario']} (seed {kpis['seed']}, {kpis['duration_s']:.0f} s)\n")
+    seed = kpis['seed'] if kpis.get('seed') is not None else '-'
+    print(f"\n{kpis['scenario']} (seed {seed}, {kpis['duration_s']:.0f} s)\n")
     for w in kpis.get("warnings", []):
         console.print(f"[bold yellow]warning:[/] {w}", highlight=False)
     if "hook" in kpis:
@@ -130,16 +131,43 @@ def run(
 
 @app.command()
 def process(
-    recording: Path = typer.Argument(..., help="Recording folder written by `boomtip simulate` (or the same layout)."),
+    recording: Path = typer.Argument(..., help="A boomtip recording, or a folder of .pcd/.ply/.bin clouds."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
+    format: Optional[str] = typer.Option(None, "--format", help="Force a loader: boomtip, folder (default: guessed)."),
+    installation: Optional[Path] = typer.Option(None, "--installation", help="Installation YAML (sensors, mounts, crane)."),
+    start: Optional[float] = typer.Option(None, "--start", help="Skip the frames before this time (s)."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Process this many seconds from --start."),
+    every: int = typer.Option(1, "--every", help="Every N-th frame of each sensor."),
     rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
 ) -> None:
-    """Run perception + fusion on a recording."""
-    from boomtip.data.io.recording import Recording
+    """Run perception + fusion on a recording (any format the loaders read)."""
+    from boomtip.data.io.installation_file import load_installation
+    from boomtip.data.io.loaders import open_source
 
     with user_errors():
-        _run_and_report(Recording(recording), out, force, rerun, inputs=(recording,))
+        inst = load_installation(installation) if installation else None
+        source = open_source(recording, format, inst, start, duration, every)
+        _run_and_report(source, out, force, rerun, inputs=(recording,))
+
+
+@app.command("installation")
+def installation_cmd(
+    template: bool = typer.Option(False, "--template", help="Print a commented template of every installation key."),
+    check: Optional[Path] = typer.Option(None, "--check", help="Validate an installation file and print it resolved."),
+) -> None:
+    """Installation files: a template to fill in, or a check of one."""
+    import yaml
+
+    from boomtip.data.io.installation_file import installation_template, load_installation
+
+    with user_errors():
+        if check is not None:
+            print(yaml.safe_dump(load_installation(check).model_dump(mode="json"), sort_keys=False), end="")
+        elif template:
+            print(installation_template(), end="")
+        else:
+            raise ScenarioError("boomtip installation: pass --template or --check FILE")
 
 
 @app.command()

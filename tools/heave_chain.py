@@ -66,6 +66,8 @@ class HeaveChain:
         self.sea_state = (processing.sea_state.hs_m, processing.sea_state.tp_s) if processing.sea_state else None
         self.latency_s = {"lidar": inst.lidar.latency_s, "radar": inst.radar.latency_s}
         self.rows: list[Measurement] = []
+        self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
+                      if inst.attitude == "level" else [])
 
     def process(self, frame: Frame) -> FrameResult:
         res = self.pipeline.process(frame)
@@ -76,7 +78,7 @@ class HeaveChain:
         duration = max((r.t_s for r in self.rows), default=0.0) if duration_s <= 0 else duration_s
         meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
         have = {m.source for m in meas}
-        estimates, sources, warnings = {}, {}, []
+        estimates, sources, warnings = {}, {}, list(self.notes)
         for name in self.fusion.solutions:
             methods = solution_sources(name, have)
             if methods != SOLUTIONS[name]:

@@ -1,0 +1,118 @@
+"""Loaders: a folder of clouds with an installation file reads like the boomtip recording it
+came from; times from names or a timestamps file; a level installation without an attitude
+stream; KITTI .bin; a selection of frames; clear errors for the formats not read."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from boomtip.data.io.installation_file import installation_template, load_installation
+from boomtip.data.io.loaders import guess_format, open_source
+from boomtip.data.io.pcd import write_pcd
+from boomtip.data.io.recording import RecordingError
+from boomtip.tools.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    root = tmp_path_factory.mktemp("loaders")
+    assert runner.invoke(app, ["simulate", "-s", "sts-loaded", "--duration", "2", "--out", str(root / "rec")]).exit_code == 0
+    return root / "rec"
+
+
+def _deck_rows(path):
+    with open(path) as fh:
+        return [(r["t"], r["value"], r["status"]) for r in csv.DictReader(fh) if r["method"] == "deck_lidar"]
+
+
+def test_a_folder_of_pcds_reads_like_its_recording(rec, tmp_path):
+    clouds = tmp_path / "clouds"
+    clouds.mkdir()
+    for p in (rec / "lidar").iterdir():
+        shutil.copy(p, clouds / p.name)
+    shutil.copy(rec / "mru.csv", clouds / "mru.csv")
+    inst = tmp_path / "inst.yaml"
+    inst.write_text(installation_template())  # the defaults are the recording's LiDAR and mount
+    assert guess_format(clouds) == "folder" and guess_format(rec) == "boomtip"
+    r = runner.invoke(app, ["process", str(clouds), "--installation", str(inst), "--out", str(tmp_path / "f")])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["process", str(rec), "--out", str(tmp_path / "b")])
+    assert r.exit_code == 0, r.output
+    assert _deck_rows(tmp_path / "f" / "measurements.csv") == _deck_rows(tmp_path / "b" / "measurements.csv")
+    # without an installation file the folder is refused, naming what is missing
+    r = runner.invoke(app, ["process", str(clouds), "--out", str(tmp_path / "g")])
+    assert r.exit_code == 2 and "--installation" in r.output
+
+
+def _ground(n=4000, height=12.0, seed=0):
+    rng = np.random.default_rng(seed)
+    # sensor looking down (the default mount): boresight x is down, so the ground is x = height
+    yz = rng.uniform(-8, 8, (n, 2))
+    return np.column_stack([np.full(n, height) + rng.normal(0, 0.01, n), yz])
+
+
+def test_level_attitude_and_times_from_names_or_a_file(tmp_path):
+    folder = tmp_path / "ground"
+    folder.mkdir()
+    for k in range(5):
+        write_pcd(folder / f"{1.5 + 0.1 * k:.1f}.pcd", _ground(seed=k), {"intensity": np.ones(4000, np.float32)})
+    inst = tmp_path / "level.yaml"
+    inst.write_text("attitude: level\nradar: {enabled: false}\nlidar: {rate_hz: 10}\ncrane: {geometry: {boom_tip_m: [0, 0, 0]}}\n")
+    src = open_source(folder, installation=load_installation(inst))
+    frames = list(src)
+    np.testing.assert_allclose([f.t_s for f in frames], [1.5, 1.6, 1.7, 1.8, 1.9])
+    r = runner.invoke(app, ["process", str(folder), "--installation", str(inst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert "attitude: level" in r.output
+    vals = [float(v) for _, v, s in _deck_rows(tmp_path / "o" / "measurements.csv") if s == "ok"]
+    assert len(vals) == 5 and np.allclose(vals, 12.5, atol=0.01)  # 12 m below the sensor, 0.5 m below the tip
+    (folder / "times.txt").write_text("\n".join(str(10 + k) for k in range(5)) + "\n")
+    assert [f.t_s for f in open_source(folder, installation=load_installation(inst))] == [10, 11, 12, 13, 14]
+    (folder / "times.txt").write_text("1\n2\n")
+    with pytest.raises(RecordingError, match="2 times for 5 cloud files"):
+        open_source(folder, installation=load_installation(inst))
+    (folder / "times.txt").unlink()
+    (folder / "frame_a.pcd").write_bytes((folder / "1.5.pcd").read_bytes())
+    with pytest.raises(RecordingError, match="frame_a.pcd: the file name is not a time"):
+        open_source(folder, installation=load_installation(inst))
+    inst.write_text("radar: {enabled: false}\n")
+    (folder / "frame_a.pcd").unlink()
+    with pytest.raises(RecordingError, match="attitude: level"):
+        open_source(folder, installation=load_installation(inst))
+
+
+def test_kitti_bin_and_a_selection_of_frames(tmp_path):
+    folder = tmp_path / "kitti"
+    folder.mkdir()
+    for k in range(6):
+        pts = np.column_stack([_ground(seed=k), np.full(4000, 0.3)]).astype(np.float32)
+        pts.tofile(folder / f"{k * 100_000_000:013d}.bin")
+    inst = tmp_path / "i.yaml"
+    inst.write_text("attitude: level\nradar: {enabled: false}\n")
+    frames = list(open_source(folder, installation=load_installation(inst), start_s=0.1, duration_s=0.35, every=2))
+    assert [round(f.t_s, 3) for f in frames] == [0.1, 0.3]
+    assert frames[0].fields["intensity"][0] == pytest.approx(0.3) and frames[0].points_sensor.shape == (4000, 3)
+    (folder / f"{7 * 100_000_000:013d}.bin").write_bytes(b"\x00" * 10)
+    bad = list(open_source(folder, installation=load_installation(inst)))[-1]
+    assert bad.error is not None and "multiple of 4" in bad.error
+
+
+def test_unknown_keys_in_an_installation_file_name_the_key(tmp_path):
+    p = tmp_path / "i.yaml"
+    p.write_text("lidar: {rate_hzz: 10}\n")
+    with pytest.raises(RecordingError, match=r"lidar.rate_hzz.*lidar.rate_hz"):
+        load_installation(p)
+
+
+@pytest.mark.parametrize("name, fmt", [("x.pcap", "ouster"), ("x.bag", "ros1"), ("x.mcap", "mcap")])
+def test_formats_not_read_yet_say_so(tmp_path, name, fmt):
+    (tmp_path / name).write_bytes(b"\x00")
+    with pytest.raises(RecordingError, match=f"the {fmt} loader is not built yet"):
+        guess_format(tmp_path / name)
