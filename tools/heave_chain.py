@@ -78,6 +78,7 @@ class HeaveChain:
         duration = max((r.t_s for r in self.rows), default=0.0) if duration_s <= 0 else duration_s
         meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
         have = {m.source for m in meas}
+        ran = {r.method for r in self.rows}
         estimates, sources, warnings = {}, {}, list(self.notes)
         for name in self.fusion.solutions:
             methods = solution_sources(name, have)
@@ -89,7 +90,8 @@ class HeaveChain:
             sources[name] = {"D": d_sources, "D_dot": [m for m in methods if QUANTITY[m] == "D_dot" and m in have]}
             if not d_sources:
                 # a filter with nothing that measures D would report D with a sigma of 100 m
-                warnings.append(f"{name}: no distance source in this run; no estimate")
+                if set(methods) & ran:  # its sensor ran but never measured D: say so
+                    warnings.append(f"{name}: no distance source in this run; no estimate")
                 continue
             estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods)
         return HeaveResult(self.rows, estimates, sources, warnings)
@@ -110,7 +112,13 @@ class HeaveChain:
             kpis["truth_max_amplitude"] = truth_amplitudes(truth)
         return kpis
 
-    def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth) -> list[str]:
+    def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:
+        if truth is None:
+            from boomtip.tools.report_estimates import write_estimates_report
+
+            inst = self.pipeline.installation
+            return write_estimates_report(out, kpis, result.estimates, result.rows, self.pipeline.mru,
+                                          {"lidar": inst.lidar.rate_hz, "radar": inst.radar.rate_hz})
         from boomtip.tools.report import write_report
 
         write_report(out, kpis, result.estimates, truth, result.rows)

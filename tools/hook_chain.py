@@ -230,8 +230,8 @@ class HookChain:
         hook["rope"] = outputs.rope_kpis(rows, truth)
         return {"hook": hook}
 
-    def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth) -> list[str]:
-        if not result.runs:
+    def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
+        if not result.runs or truth is None:  # the CSVs and kpis.json say what was estimated
             return []
         outputs.write_hook_report(out, kpis, kpis.get("program"), result.runs, truth, self.params, result.rows)
         return ["hook_report.md", "plots"]

@@ -110,7 +110,7 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
                                                f"{source.duration_s:.2f} s: only its span is scored")
     write_json(staging / "kpis.json", kpis)
     written.append("kpis.json")
-    if source.truth is not None and report:
+    if report:
         written += chain.report(staging, kpis, result, source.truth)
     chain.visualise_result(viz, result, source.truth)
     viz.close()
