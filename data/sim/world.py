@@ -105,40 +105,30 @@ class Sea(_Model):
 Windows = list[tuple[float, float]]
 
 
-def _check_windows(v: Windows, what: str) -> Windows:
-    for a, b in v:
-        if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
-            raise ValueError(f"{what}: each window is [start, end] seconds with 0 <= start < end, got {[a, b]}")
-    return v
+class _Outages(_Model):
+    """A sensor that can go silent: [start, end] windows (seconds) in which it gives nothing."""
 
-
-class RadarBehaviour(_Model):
-    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the radar gives nothing")
+    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the sensor gives nothing")
 
     @field_validator("outages_s")
     @classmethod
-    def _windows(cls, v):
-        return _check_windows(v, "radar.outages_s")
+    def _windows(cls, v: Windows) -> Windows:
+        for a, b in v:
+            if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
+                raise ValueError(f"each window is [start, end] seconds with 0 <= start < end, got {[a, b]}")
+        return v
 
 
-class MruBehaviour(_Model):
-    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the MRU gives nothing")
-
-    @field_validator("outages_s")
-    @classmethod
-    def _windows(cls, v):
-        return _check_windows(v, "mru.outages_s")
+class RadarBehaviour(_Outages):
+    """How the radar really behaves beyond its spec sheet."""
 
 
-class LidarBehaviour(_Model):
+class MruBehaviour(_Outages):
+    """How the MRU really behaves beyond its spec sheet (bias and lag: `mismatch`)."""
+
+
+class LidarBehaviour(_Outages):
     """How the LiDAR really behaves beyond its spec sheet."""
-
-    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the LiDAR gives nothing")
-
-    @field_validator("outages_s")
-    @classmethod
-    def _windows(cls, v):
-        return _check_windows(v, "lidar.outages_s")
 
     weak_return_noise_gain: float = Field(3.0, ge=1, description="range noise grows as sqrt(I_ref/I) up to this factor")
     intensity_noise: float = Field(0.0, ge=0, description="relative 1-sigma intensity noise")
