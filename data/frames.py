@@ -57,6 +57,16 @@ class MruLog:
     rpy_rate_radps: np.ndarray  # (N,3)
     max_gap_s: float = 0.1  # beyond this gap between samples the log has no attitude
 
+    @classmethod
+    def from_columns(cls, cols: dict[str, np.ndarray]) -> "MruLog":
+        """From the columns of an mru.csv; gaps longer than 0.1 s, or 5 sample periods if that
+        is longer, hold no attitude."""
+        t = np.asarray(cols["t"], dtype=float)
+        period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        return cls(t, np.column_stack([cols["roll"], cols["pitch"], cols["yaw"]]),
+                   np.column_stack([cols["roll_rate"], cols["pitch_rate"], cols["yaw_rate"]]),
+                   max_gap_s=max(0.1, 5.0 * period))
+
     def attitude(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Attitude and rates at time t, linearly interpolated; None when t falls outside the
         log or inside a gap longer than max_gap_s (the caller records a missing measurement)."""
@@ -112,6 +122,7 @@ class SourceMeta:
     name: str = "recording"
     processing: dict = field(default_factory=dict)  # processing settings the source asks for (raw keys)
     provenance: dict | None = None
+    t_start_s: float = 0.0  # the source's first time stamp: outputs and scoring start here
 
     @property
     def T_crane_boomtip(self) -> np.ndarray:

@@ -199,5 +199,10 @@ class Installation(_Model):
     def T_boomtip_sensor(self) -> dict[str, np.ndarray]:
         return {"lidar": self.lidar.mount.matrix(), "radar": self.radar.mount.matrix()}
 
+    def levelling_bias_sigma_rad(self, sensor: str) -> float:
+        """1-sigma of a sensor's constant levelling tilt: its mount survey and the MRU's static
+        accuracy (independent), a bias that no averaging over frames removes."""
+        return math.radians(math.hypot(getattr(self, sensor).mount.accuracy_deg, self.mru.bias_accuracy_deg))
+
     def sensors(self) -> tuple[str, ...]:
         return tuple(s for s in ("lidar", "radar") if getattr(self, s).enabled)

@@ -31,7 +31,7 @@ class HookProcessing(_Model):
     detector: HookConfig = HookConfig()
     rope: RopeConfig = RopeConfig()
     filter: HookFilterConfig = HookFilterConfig()
-    estimators: tuple[str, ...] = HOOK_ESTIMATORS
+    estimators: tuple[Literal["ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"], ...] = HOOK_ESTIMATORS
 
 
 class Processing(_Model):

@@ -59,6 +59,8 @@ class Scenario(_Model):
     def _hook_needs_a_lidar(self) -> "Scenario":
         if self.world.hook.enabled and not self.installation.lidar.enabled:
             raise ValueError("world.hook.enabled needs installation.lidar.enabled")
+        if self.world.hook.enabled and self.installation.radar.enabled:
+            raise ValueError("the hook scene simulates no radar: set installation.radar.enabled: false")
         return self
 
 

@@ -46,7 +46,7 @@ class HeaveFilterConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    # ~ a 2 m, 10 s heave under jerk_psd_from_sea_state's rule; derive it from the scenario instead.
+    # ~ a 2 m, 10 s heave under jerk_psd_from_sea_state's rule; fusion.tuning sizes it from a sea state.
     jerk_psd: float = Field(0.2, gt=0.0, description="q, white-jerk PSD [m^2/s^5]")
     gate_chi2_probability: float = Field(0.9999, gt=0.0, lt=1.0)
     max_delay_s: float = Field(1.0, ge=0.0, description="oldest accepted t_acq behind the newest")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = ["ProcessNoiseConfig", "MeasurementNoiseConfig", "InitialUncertaintyConfig", "HookFilterConfig"]
 
@@ -21,6 +21,7 @@ class ProcessNoiseConfig(BaseModel):
     0.1 deg encoder noise dominate it); on a 60 s hook-2-like run the absolute hook velocity
     RMSE drops from (1.6, 1.0, 3.5) to (1.4, 0.6, 2.6) cm/s with no gated fix.
     """
+    model_config = ConfigDict(extra="forbid")  # a misspelt key is an error, not a default
 
     sigma_sway_acc_rad_s2: float = 1e-4
     sigma_deflection_acc_rad_s2: float = 3e-3
@@ -41,6 +42,7 @@ class ProcessNoiseConfig(BaseModel):
 
 class MeasurementNoiseConfig(BaseModel):
     """Filter R (document 002 eqs. 4.31-4.33, with its safety margins)."""
+    model_config = ConfigDict(extra="forbid")  # a misspelt key is an error, not a default
 
     sigma_lidar_m: float = 0.015
     sigma_slew_rad: float = 2e-3
@@ -51,6 +53,7 @@ class MeasurementNoiseConfig(BaseModel):
 
 
 class InitialUncertaintyConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt key is an error, not a default
     sigma_sway_rad: float = 0.01
     sigma_sway_rate_rad_s: float = 0.05
     sigma_joint_rate: float = 0.02  # rad/s or m/s
@@ -61,6 +64,7 @@ class InitialUncertaintyConfig(BaseModel):
 
 
 class HookFilterConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt key is an error, not a default
     process: ProcessNoiseConfig = Field(default_factory=ProcessNoiseConfig)
     measurement: MeasurementNoiseConfig = Field(default_factory=MeasurementNoiseConfig)
     initial: InitialUncertaintyConfig = Field(default_factory=InitialUncertaintyConfig)

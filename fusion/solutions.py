@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -31,7 +32,7 @@ SOLUTIONS: dict[str, tuple[str, ...]] = {
 class FusionConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    solutions: tuple[str, ...] = tuple(SOLUTIONS)
+    solutions: tuple[Literal["deck_lidar", "deck_radar", "reflectors_lidar", "doppler_radar", "fused"], ...] = tuple(SOLUTIONS)
     output_rate_hz: float = Field(100.0, gt=0)
     gate_chi2_probability: float = Field(0.9999, gt=0, lt=1)
     max_delay_s: float = Field(1.0, ge=0, description="oldest measurement the filters still place in sequence")
@@ -83,7 +84,8 @@ def filter_config(cfg: FusionConfig, q: float) -> HeaveFilterConfig:
 
 
 def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, duration_s: float,
-                 sea_state: tuple[float, float] | None = None, methods: tuple[str, ...] | None = None) -> Estimates:
+                 sea_state: tuple[float, float] | None = None, methods: tuple[str, ...] | None = None,
+                 t_start_s: float = 0.0) -> Estimates:
     """One solution over every method's measurements (`source` = method name), causally, on
     the output grid of integer ticks of 1 / output_rate_hz. `methods` overrides the
     solution's own sources (a fused solution falling back on the radar's deck)."""
@@ -97,8 +99,9 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
         first = next((m for m in measurements if m.source == "deck_radar" and np.isfinite(m.value)), None)
         initial_D = first.value if first else None
     filt = HeaveFilter(filter_config(cfg, jerk_psd(cfg, sea_state)), initial_D=initial_D)
-    n_out = int(np.floor(duration_s * cfg.output_rate_hz + 1e-9)) + 1
-    ticks = np.arange(n_out)
+    first = int(np.ceil(t_start_s * cfg.output_rate_hz - 1e-6))
+    last = int(np.floor((t_start_s + duration_s) * cfg.output_rate_hz + 1e-6))
+    ticks = np.arange(first, max(last, first - 1) + 1)
     t_out = ticks / cfg.output_rate_hz
     x = np.full((len(t_out), 3), np.nan)
     var = np.full((len(t_out), 3), np.nan)
@@ -106,12 +109,12 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     sys_var_D = 0.0  # the latest accepted D's systematic variance: a bias the filter cannot see
     j = 0
     t0 = time.perf_counter()
-    for k, t in enumerate(t_out):
+    for k, (tick, t) in enumerate(zip(ticks, t_out)):
         # Compare in ticks of the output grid: 15 * 0.01 > 0.15 in floating point.
-        while j < len(inputs) and inputs[j].t_arrival_s * cfg.output_rate_hz <= k + 1e-6:
+        while j < len(inputs) and inputs[j].t_arrival_s * cfg.output_rate_hz <= tick + 1e-6:
             st = filt.add(inputs[j])
             statuses[st] = statuses.get(st, 0) + 1
-            if st == "accepted" and inputs[j].quantity == "D":
+            if st in ("accepted", "reinitialised") and inputs[j].quantity == "D":
                 sys_var_D = inputs[j].sigma_systematic ** 2
             j += 1
         if np.isfinite(filt.last_time_s) and t * cfg.output_rate_hz >= filt.last_time_s * cfg.output_rate_hz - 1e-6:

@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from boomtip.data.sea_spectrum import jonswap
+from boomtip.fusion.heave_filter import jerk_psd_from_sea_state
 
 WORKING_LIMIT_HS_M = 4.0
 WORKING_LIMIT_TP_S = 7.0
@@ -34,8 +35,8 @@ def relative_heave_jerk_psd(hs_m: float, tp_s: float, gamma: float = 3.3) -> flo
     wp = 2 * np.pi / tp_s
     edges = np.linspace(0.4 * wp, 3.0 * wp, 65)
     w = (edges[:-1] + edges[1:]) / 2
-    var_D = 2.0 * jonswap(w, hs_m, tp_s, gamma) * np.diff(edges)  # A_k^2 / 2 of the relative heave
-    return float(np.sum(var_D * w**5))
+    amplitude_D = np.sqrt(4.0 * jonswap(w, hs_m, tp_s, gamma) * np.diff(edges))  # sqrt(2 S_D dw), S_D = 2 S
+    return jerk_psd_from_sea_state(zip(amplitude_D, 2 * np.pi / w))
 
 
 def default_jerk_psd() -> float:

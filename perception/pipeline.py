@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -50,7 +51,7 @@ SENSOR_IDS = {"lidar": 1, "radar": 2}
 class PipelineConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    methods: tuple[str, ...] = METHODS
+    methods: tuple[Literal["deck_lidar", "deck_radar", "reflectors_lidar", "doppler_radar", "doppler_radar_rot"], ...] = METHODS
     deck_lidar: DeckConfig = LIDAR_DECK
     deck_radar: DeckConfig = RADAR_DECK
     reflectors: ReflectorConfig = ReflectorConfig()
@@ -109,9 +110,6 @@ class HeavePipeline:
         self.cfg = cfg or PipelineConfig()
         self.seed = seed
         T_crane_boomtip, T_boomtip_sensor = installation.T_crane_boomtip(), installation.T_boomtip_sensor()
-        unknown = set(self.cfg.methods) - set(METHODS)
-        if unknown:
-            raise ValueError(f"unknown method(s) {sorted(unknown)}; expected some of {', '.join(METHODS)}")
         self.p_tip = {s: tip_in_sensor(T_boomtip_sensor[s]) for s in ("lidar", "radar")}
         # The mount is fixed: sensor axes -> crane-vessel axes once, the MRU attitude per frame.
         self.R_crane_sensor = {s: mount_rotation(T_crane_boomtip, T_boomtip_sensor[s]) for s in ("lidar", "radar")}
@@ -119,8 +117,7 @@ class HeavePipeline:
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
         self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
-        self.bias_sigma_rad = {s: math.radians(math.hypot(getattr(installation, s).mount.accuracy_deg,
-                                                          installation.mru.bias_accuracy_deg)) for s in ("lidar", "radar")}
+        self.bias_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
         if "marker_height_m" not in self.cfg.reflectors.model_fields_set:  # the markers as the crew laid them
             self.cfg = self.cfg.model_copy(update={"reflectors": self.cfg.reflectors.model_copy(
                 update={"marker_height_m": installation.markers.height_m})})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -10,6 +11,8 @@ from typing import Optional
 import typer
 
 from boomtip.data.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
+from rich.markup import escape
+
 from boomtip.tools.cli_bench import bench_app
 from boomtip.tools.cli_common import (ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario,
                                        terminate_like_interrupt, user_errors)
@@ -75,7 +78,7 @@ def _print_kpis(kpis: dict) -> None:
     seed = kpis['seed'] if kpis.get('seed') is not None else '-'
     print(f"\n{kpis['scenario']} (seed {seed}, {kpis['duration_s']:.0f} s)\n")
     for w in kpis.get("warnings", []):
-        console.print(f"[bold yellow]warning:[/] {w}", highlight=False)
+        console.print("[bold yellow]warning:[/] " + escape(w), highlight=False)
     if "hook" in kpis:
         h = kpis["hook"]
         seg = h["segmentation"]
@@ -196,10 +199,14 @@ SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address tc
 
 
 def _study(tasks, out: Path, grid_keys: list[str], labels: dict, kpis: list[str], executor: str, workers, scheduler,
-           resume: bool, force: bool, scenario_dump: dict | None) -> list[dict]:
-    from boomtip.tools.study_run import make_executor, plot_kpis, prepare_study_dir, run_study, write_summary, write_sweep_json
+           resume: bool, force: bool, scenario_dump: dict | None, inputs: tuple[Path, ...] = ()) -> list[dict]:
+    from boomtip.tools.study_run import (check_executor, make_executor, plot_kpis, prepare_study_dir, run_study,
+                                         write_summary, write_sweep_json)
 
-    done = prepare_study_dir(out, force, resume)
+    check_executor(executor)
+    study = {"scenario": scenario_dump, "grid": grid_keys, "tasks": [[t.id, list(t.overrides), t.duration_s, t.recording]
+                                                                     for t in tasks]}
+    done = prepare_study_dir(out, force, resume, json.loads(json.dumps(study)), inputs)
     with progress_bar(len(tasks), "tasks") as advance, make_executor(executor, workers, scheduler) as pool:
         rows = run_study(tasks, out, grid_keys, pool, done, advance)
     summary = write_summary(out, rows, grid_keys)
@@ -210,7 +217,7 @@ def _study(tasks, out: Path, grid_keys: list[str], labels: dict, kpis: list[str]
     console.print(f"wrote {out}: runs.csv ({len(rows)} runs, {len(failed)} failed), summary.csv, sweep.json"
                   + "".join(f", {p.name}" for p in plots))
     for r in failed[:5]:
-        console.print(f"  failed: {r['task']}: {r['error']}", highlight=False)
+        console.print("  failed: " + escape(f"{r['task']}: {r['error']}"), highlight=False)
     return rows
 
 
@@ -267,7 +274,8 @@ def batch(
         for p in paths:
             Recording(p)  # refuse an unreadable recording before spawning anything
         tasks = [Task(f"{i}:{p}", "", (), None, 0, {"recording": str(p)}, recording=str(p.resolve())) for i, p in enumerate(paths)]
-        _study(tasks, out, ["recording"], {}, list(kpi or []), executor, workers, scheduler, resume, force, None)
+        _study(tasks, out, ["recording"], {}, list(kpi or []), executor, workers, scheduler, resume, force, None,
+               inputs=tuple(paths))
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -9,6 +9,7 @@ from typing import Iterator
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from boomtip.data.io.pcd import PcdError
@@ -28,11 +29,12 @@ def user_errors() -> Iterator[None]:
     try:
         yield
     except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
-        console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)  # a key's [a, b] is not markup
         raise typer.Exit(2) from None
     except OSError as exc:  # a read-only or full disk: say so; the staging folder is already gone
         where = f" {exc.filename}" if exc.filename else ""
-        console.print(f"[bold red]error:[/] cannot write{where}: {exc.strerror or exc}; nothing was replaced", highlight=False)
+        console.print("[bold red]error:[/] " + escape(f"cannot read or write{where}: {exc.strerror or exc}; nothing was replaced"),
+                      highlight=False)
         raise typer.Exit(2) from None
 
 

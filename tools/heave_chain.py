@@ -74,7 +74,7 @@ class HeaveChain:
         self.rows.extend(res.measurements)
         return res
 
-    def finish(self, duration_s: float) -> HeaveResult:
+    def finish(self, duration_s: float, t_start_s: float = 0.0) -> HeaveResult:
         duration = max((r.t_s for r in self.rows), default=0.0) if duration_s <= 0 else duration_s
         meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
         have = {m.source for m in meas}
@@ -93,7 +93,7 @@ class HeaveChain:
                 if set(methods) & ran:  # its sensor ran but never measured D: say so
                     warnings.append(f"{name}: no distance source in this run; no estimate")
                 continue
-            estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods)
+            estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods, t_start_s)
         return HeaveResult(self.rows, estimates, sources, warnings)
 
     # -- outputs -------------------------------------------------------------------------
@@ -103,11 +103,17 @@ class HeaveChain:
         return ["measurements.csv", "estimates.csv"]
 
     def kpis(self, result: HeaveResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
+        warnings = list(result.warnings)
+        if truth is not None and not {"D", "D_dot"} <= set(truth.columns):
+            warnings.append("the truth has no D and D_dot columns (a hook recording?): nothing scored")
+            truth = None
         kpis: dict = {"measurements": measurement_kpis(result.rows, truth), "sources": result.sources}
-        if result.warnings:
-            kpis["warnings"] = list(result.warnings)
+        if warnings:
+            kpis["warnings"] = warnings
         if truth is not None:
-            kpis["solutions"] = {n: solution_kpis(e, truth, result.rows, SOLUTIONS[n], windows) for n, e in result.estimates.items()}
+            used = {n: tuple(v["D"] + v["D_dot"]) for n, v in result.sources.items()}  # the methods each one fused
+            kpis["solutions"] = {n: solution_kpis(e, truth, result.rows, used.get(n, SOLUTIONS[n]), windows)
+                                 for n, e in result.estimates.items()}
             kpis["solutions_note"] = f"solution errors exclude the first {WARMUP_S:g} s (filter convergence)"
             kpis["truth_max_amplitude"] = truth_amplitudes(truth)
         return kpis

@@ -97,8 +97,7 @@ class HookChain:
         self.estimators = processing.hook.estimators
         self.filter_cfg = processing.hook.filter
         if "levelling_bias_sigma_rad" not in self.filter_cfg.model_fields_set:  # the kit's stated accuracy
-            sigma = math.radians(math.hypot(inst.lidar.mount.accuracy_deg, inst.mru.bias_accuracy_deg))
-            self.filter_cfg = self.filter_cfg.model_copy(update={"levelling_bias_sigma_rad": sigma})
+            self.filter_cfg = self.filter_cfg.model_copy(update={"levelling_bias_sigma_rad": inst.levelling_bias_sigma_rad("lidar")})
         self.seed = processing.seed
         self.params = nominal_crane_params(inst.crane)
         enc, m = source.encoders, source.mru
@@ -113,6 +112,7 @@ class HookChain:
         self.tracker = HookTracker(enc["t"], self.enc_table, m.t_s, self.mru_table, params=self.params)
         self.T_ts = inst.lidar.mount.matrix()
         self.frames: list[HookFrameResult] = []
+        self.warnings: list[str] = []
         self.last: tuple[float, np.ndarray] | None = None
 
     def process(self, frame: Frame) -> HookFrameResult | None:
@@ -191,8 +191,14 @@ class HookChain:
                 row["rope_accepted"] = self.tracker.correct_rope(rope.direction, rope.cov)
         return rope
 
-    def finish(self, duration_s: float) -> HookResult:
+    def finish(self, duration_s: float, t_start_s: float = 0.0) -> HookResult:
         fr = self.frames
+        if not fr:  # no LiDAR frame at all: the encoders alone do not make a hook estimate
+            empty = np.zeros((0, 3))
+            meas = HookMeasurements(np.zeros(0), empty, self.enc["t"], self.enc_table, self.mru.t_s, self.mru_table,
+                                    lidar_cov_m2=np.zeros((0, 3, 3)))
+            self.warnings.append("no LiDAR frame in this run: no hook estimate")
+            return HookResult([], meas, {})
         rope_ok = [r.rope is not None and r.rope.ok for r in fr]
         meas = HookMeasurements(
             t_lidar=np.array([r.row["t"] for r in fr]),
@@ -228,7 +234,7 @@ class HookChain:
             seg.update(outputs.segmentation_kpis(rows, ok, sparse, truth))
         hook["segmentation"] = seg
         hook["rope"] = outputs.rope_kpis(rows, truth)
-        return {"hook": hook}
+        return {"hook": hook, **({"warnings": list(self.warnings)} if self.warnings else {})}
 
     def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
         if not result.runs or truth is None:  # the CSVs and kpis.json say what was estimated

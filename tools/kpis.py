@@ -56,7 +56,7 @@ def consistency(est: Estimates, truth: Truth, keep: np.ndarray) -> dict:
 
 def solution_kpis(est: Estimates, truth: Truth, rows: list[Measurement], methods: tuple[str, ...],
                   windows: list[tuple[float, float]] = ()) -> dict:
-    keep = est.t_s >= WARMUP_S
+    keep = est.t_s >= (est.t_s[0] if len(est.t_s) else 0.0) + WARMUP_S  # from the source's first time stamp
     errors = consistency(est, truth, keep)
     used = [r for r in rows if r.method in methods]
     cycles = len({(r.t_s, r.method.split("_")[-1]) for r in used}) or 1

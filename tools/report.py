@@ -110,8 +110,8 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
         ax0.legend(ncol=6, fontsize=8, loc="upper right")
         ax0.set_title(f"{q}: truth and estimates")
         # Doppler-only D drifts by design; the limit follows the others so their errors stay readable.
-        lim = _robust_limit([(e.x[:, qi] - truth.at(q, e.t_s)) * scale for n, e in estimates.items()
-                             if not (q == "D" and n == "doppler_radar") or len(estimates) == 1], e.t_s >= WARMUP_S)
+        lim = _robust_limit([((e.x[:, qi] - truth.at(q, e.t_s)) * scale, e.t_s >= WARMUP_S) for n, e in estimates.items()
+                             if not (q == "D" and n == "doppler_radar") or len(estimates) == 1])
         ax1.set_ylim(-lim, lim)
         ax1.axvspan(0, WARMUP_S, color="0.9", label="not scored")
         ax1.axhline(0, color="black", lw=0.5)
@@ -166,7 +166,10 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
     return paths
 
 
-def _robust_limit(errs: list[np.ndarray], keep: np.ndarray) -> float:
-    vals = np.concatenate([np.abs(e[keep]) for e in errs if len(e) == len(keep)])
+def _robust_limit(errs: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """A y-limit for the bulk of the scored errors: (errors, kept mask) per estimate."""
+    if not errs:
+        return 1.0
+    vals = np.concatenate([np.abs(e[keep]) for e, keep in errs])
     vals = vals[np.isfinite(vals)]
     return float(np.percentile(vals, 99.5) * 1.2) if len(vals) else 1.0

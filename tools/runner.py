@@ -102,7 +102,7 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
         viz.log_frame(chain.process(frame))
         if progress:
             progress(1)
-    result = chain.finish(source.duration_s)
+    result = chain.finish(source.duration_s, source.meta.t_start_s)
     written = chain.write(staging, result)
     kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth, outage_windows(source))}
     if source.truth is not None and source.truth.end_s < source.duration_s - 0.05:

@@ -65,8 +65,16 @@ def axis_from_grid(text: str) -> Axis:
     parts = [p.strip() for p in raw.split(",") if p.strip()]
     if not key or not parts:
         raise ValueError(f"--grid '{text}': expected KEY=V1,V2,... with at least one value")
-    values = tuple(yaml.safe_load(p) for p in parts)
+    values = tuple(_number_or_yaml(p, yaml) for p in parts)
     return Axis(key, values, tuple((f"{key}={p}",) for p in parts), key)
+
+
+def _number_or_yaml(text: str, yaml):
+    """`1e-3` is a string to YAML 1.1 but a number to anyone writing a grid."""
+    try:
+        return float(text) if not text.lstrip("+-").isdigit() else int(text)
+    except ValueError:
+        return yaml.safe_load(text)
 
 
 def axis_from_preset(name: str, values: list[float] | None = None) -> Axis:
@@ -141,9 +149,9 @@ def run_task(task: Task) -> dict:
             from boomtip.data.scenario import load_scenario
             from boomtip.data.sources import simulation_for
 
-            extra = list(task.overrides) + [f"seed={task.seed}"]
-            if task.duration_s is not None:
-                extra.append(f"duration_s={task.duration_s}")
+            # the seed and duration first, so a grid over either (an override) wins
+            extra = [f"seed={task.seed}"] + ([f"duration_s={task.duration_s}"] if task.duration_s is not None else [])
+            extra += list(task.overrides)
             source = simulation_for(load_scenario(task.scenario, extra))
         with tempfile.TemporaryDirectory() as tmp:
             res = run_into(source, Path(tmp), report=False)
@@ -171,7 +179,7 @@ def summarise(rows: list[dict], grid_keys: list[str]) -> list[dict]:
     skip = set(grid_keys) | {"task", "seed", "status", "error"}
     out = []
     for point, members in groups.items():
-        keys = [k for k in members[0] if k not in skip and is_number(members[0][k])]
+        keys = list(dict.fromkeys(k for m in members for k, v in m.items() if k not in skip and is_number(v)))
         for key in keys:
             vals = np.array([m[key] for m in members if is_number(m.get(key))], dtype=float)
             vals = vals[np.isfinite(vals)]

@@ -13,10 +13,17 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from boomtip.data.io.pcd import atomic_write_bytes
-from boomtip.data.io.recording import RecordingError, write_json
+import json
+
+from boomtip.data.io.recording import RecordingError, check_output_folder, write_json
 from boomtip.tools.study import TIMING_KEYS, Task, run_task, summarise
 
 FIRST_COLUMNS = ("task", "seed", "status", "error", "wall_s")
+
+
+def check_executor(kind: str) -> None:
+    if kind not in ("local", "dask"):
+        raise RecordingError(f"--executor '{kind}': expected local or dask")
 
 
 @contextmanager
@@ -27,6 +34,7 @@ def make_executor(kind: str = "local", workers: int | None = None, scheduler: st
     import os
 
     n = max(1, workers or os.cpu_count() or 1)
+    check_executor(kind)
     if kind == "local":
         import multiprocessing
 
@@ -46,18 +54,27 @@ def make_executor(kind: str = "local", workers: int | None = None, scheduler: st
         raise ValueError(f"--executor '{kind}': expected local or dask")
 
 
-def prepare_study_dir(out: Path, force: bool, resume: bool) -> list[dict]:
-    """The rows already finished (with --resume); refuses to touch a non-empty folder
-    otherwise, unless --force."""
-    if str(out).strip() in ("", "."):
-        raise RecordingError(f"--out '{out}': name an output folder")
+def prepare_study_dir(out: Path, force: bool, resume: bool, study: dict, inputs: tuple[Path, ...] = ()) -> list[dict]:
+    """The rows already finished (with --resume, of the same study only); refuses to touch a
+    non-empty folder otherwise, unless --force, and never a folder that holds the current one,
+    the home folder or an input."""
+    check_output_folder(out, inputs)
     if out.exists() and any(out.iterdir()):
         if resume:
+            try:
+                before = json.loads((out / "study.json").read_text())
+            except (OSError, ValueError):
+                raise RecordingError(f"{out}: not a study folder (no readable study.json); nothing to resume") from None
+            if before != study:
+                changed = sorted(k for k in set(before) | set(study) if before.get(k) != study.get(k))
+                raise RecordingError(f"{out}: --resume with a different study ({', '.join(changed)} changed); "
+                                     "use another --out or --force")
             return [r for r in read_rows(out / "runs.csv") if r.get("status") == "ok"]
         if not force:
             raise RecordingError(f"{out} is not empty; pass --resume to finish its study or --force to replace it")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "study.json", study)
     return []
 
 

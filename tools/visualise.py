@@ -41,12 +41,19 @@ def _start(rec, path: Path, blueprint, tip_radius_m: float) -> None:
 
 
 class RerunLogger:
-    def __init__(self, path: Path, source: FrameSource) -> None:
+    """A heave run in rerun. The full LiDAR cloud is logged `full_cloud_hz` times a second and
+    the points around the wire (where the deck is measured) every frame; radar frames (a few
+    hundred detections) and the series are kept whole: 60 s stay a few tens of MB."""
+
+    def __init__(self, path: Path, source: FrameSource, full_cloud_hz: float = 1.0, near_wire_m: float = 8.0) -> None:
         import rerun as rr
         import rerun.blueprint as rrb
 
         self.rr = rr
         self.meta = source.meta
+        self.full_cloud_dt = 1.0 / full_cloud_hz
+        self.near_wire_m = near_wire_m
+        self._last_full = -np.inf
         self.rec = rr.RecordingStream("boomtip")
         blueprint = rrb.Blueprint(
             rrb.Horizontal(
@@ -75,7 +82,12 @@ class RerunLogger:
         pts = self._to_tip(res, f.points_sensor)
         if f.sensor == "lidar":
             inten = np.log10(np.maximum(f.fields.get("intensity", np.ones(len(f))), 1e-3))
-            rec.log("tip/lidar", rr.Points3D(pts, colors=_colormap(inten, -1.5, 1.5, "viridis"), radii=0.06))
+            keep = slice(None)
+            if f.t_s - self._last_full >= self.full_cloud_dt - 1e-9:
+                self._last_full = f.t_s
+            else:  # between full clouds, only the points around the wire
+                keep = np.einsum("ij,ij->i", pts[:, :2], pts[:, :2]) < self.near_wire_m**2
+            rec.log("tip/lidar", rr.Points3D(pts[keep], colors=_colormap(inten[keep], -1.5, 1.5, "viridis"), radii=0.06))
             deck = res.deck_lidar
             if deck is not None and deck.status == "ok":
                 self._log_plane("tip/deck_plane", res, deck.plane_sensor, deck.D_m, [80, 160, 255, 90])

@@ -31,14 +31,20 @@ def cloud_files(root: Path) -> list[Path]:
 
 
 def times_from_names(files: list[Path]) -> np.ndarray:
-    out = []
+    out, integers = [], []
     for p in files:
         stem = p.stem
         if not _NUMBER.match(stem):
             raise RecordingError(f"{p}: the file name is not a time (integer ns or decimal seconds) and the folder "
                                  f"has no {' or '.join(TIMES_FILES)}")
-        out.append(int(stem) * 1e-9 if stem.lstrip("+-").isdigit() else float(stem))
-    return np.array(out, dtype=float)
+        integers.append(stem.lstrip("+-").isdigit())
+        out.append(int(stem) * 1e-9 if integers[-1] else float(stem))
+    t = np.array(out, dtype=float)
+    if all(integers) and len(t) > 1 and np.max(np.diff(np.sort(t))) < 1e-6:
+        # 000000.bin, 000001.bin, ...: frame numbers, not nanoseconds (a sensor frame takes ms)
+        raise RecordingError(f"{files[0].parent}: the file names count frames ({files[0].name}, {files[1].name}, ...); "
+                             f"give their times in a {TIMES_FILES[0]} (one time in seconds per file)")
+    return t
 
 
 def read_cloud(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -79,7 +85,8 @@ class FolderSource(FrameSource):
         other = "radar" if sensor == "lidar" else "lidar"
         installation = installation.model_copy(update={other: getattr(installation, other).model_copy(update={"enabled": False})})
         duration = float(self.t_s[-1] - self.t_s[0]) + 1.0 / getattr(installation, sensor).rate_hz
-        self.meta = SourceMeta(installation=installation, duration_s=duration, name=self.root.name)
+        self.meta = SourceMeta(installation=installation, duration_s=duration, name=self.root.name,
+                               t_start_s=float(self.t_s[0]))
         self.mru = self._mru(installation)
         self.truth = None
 
@@ -99,9 +106,7 @@ class FolderSource(FrameSource):
     def _mru(self, installation: Installation) -> MruLog:
         path = self.root / "mru.csv"
         if path.is_file():
-            m = read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS)
-            return MruLog(m["t"], np.column_stack([m["roll"], m["pitch"], m["yaw"]]),
-                          np.column_stack([m["roll_rate"], m["pitch_rate"], m["yaw_rate"]]))
+            return MruLog.from_columns(read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS))
         if installation.attitude != "level":
             raise RecordingError(f"{self.root}: no mru.csv; give one, or set `attitude: level` in the installation "
                                  "file if the boom-tip frame is level (no attitude stream)")

@@ -4,6 +4,7 @@ model): a guess from the path, `--format` to force one, and a selection of the f
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -71,16 +72,18 @@ class Selection(FrameSource):
         if every < 1 or start_s < 0 or (duration_s is not None and duration_s <= 0):
             raise RecordingError(f"--start {start_s}, --duration {duration_s}, --every {every}: expected start >= 0, "
                                  "duration > 0 and every >= 1")
-        self.source, self.start_s, self.every = source, start_s, every
-        self.end_s = start_s + duration_s if duration_s is not None else float("inf")
-        self.meta, self.mru, self.truth, self.encoders = source.meta, source.mru, source.truth, source.encoders
-
-    @property
-    def duration_s(self) -> float:
-        return min(self.end_s, self.source.duration_s)
+        t0 = source.meta.t_start_s
+        self.source, self.every = source, every
+        self.start_s = t0 + start_s  # --start counts from the source's first time stamp
+        self.end_s = self.start_s + duration_s if duration_s is not None else float("inf")
+        src_end = t0 + source.duration_s
+        self.meta = replace(source.meta, t_start_s=self.start_s, duration_s=max(min(self.end_s, src_end) - self.start_s, 0.0))
+        self.mru, self.truth, self.encoders = source.mru, source.truth, source.encoders
+        share = self.meta.duration_s / max(source.duration_s, 1e-9)
+        self._len = max(1, int(len(source) * share) // every)
 
     def __len__(self) -> int:
-        return max(1, len(self.source) // self.every)
+        return self._len
 
     def __iter__(self) -> Iterator[Frame]:
         seen = {"lidar": 0, "radar": 0}

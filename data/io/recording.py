@@ -29,6 +29,7 @@ from boomtip.data.installation import Installation
 from boomtip.data.keys import format_validation, leaf_keys
 
 FORMAT_VERSION = 2
+MAX_DURATION_S = 30 * 86400.0  # a month of recording; beyond is a corrupt meta.json
 # Physical bounds of the logs (rad, rad/s, m): a value beyond them is a corrupt sample, refused
 # with its line. Roll and pitch within +-90 deg; no vessel turns at 5 rad/s; a luffing boom
 # stays within +-90 deg; no crane pays out 5 km of rope.
@@ -44,12 +45,9 @@ class RecordingError(ValueError):
 # Output folders: atomic, never clobbering without --force
 
 
-def prepare_output(out: Path, force: bool, inputs: tuple[Path, ...] = ()) -> Path:
-    """Check that OUT may be written and return a fresh staging folder beside it.
-
-    Results are written into the staging folder and moved into place by `commit_output`, so
-    an interrupted run never leaves a half-written OUT.
-    """
+def check_output_folder(out: Path, inputs: tuple[Path, ...] = ()) -> Path:
+    """The resolved output folder, refused when replacing it (--force) could delete more than
+    results: the current folder or one of its parents, the home folder, the root, an input."""
     if str(out).strip() in ("", "."):
         raise RecordingError(f"--out '{out}': name a folder for the results (not the current folder)")
     out = Path(out).resolve()
@@ -60,6 +58,16 @@ def prepare_output(out: Path, force: bool, inputs: tuple[Path, ...] = ()) -> Pat
         inp = Path(inp).resolve()
         if out == inp or inp in out.parents or out in inp.parents:
             raise RecordingError(f"--out {out} overlaps the input {inp}; refusing to write over an input")
+    return out
+
+
+def prepare_output(out: Path, force: bool, inputs: tuple[Path, ...] = ()) -> Path:
+    """Check that OUT may be written and return a fresh staging folder beside it.
+
+    Results are written into the staging folder and moved into place by `commit_output`, so
+    an interrupted run never leaves a half-written OUT.
+    """
+    out = check_output_folder(out, inputs)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
         raise RecordingError(f"--out {out} exists and is not empty; pass --force to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -255,7 +263,9 @@ class Recording(FrameSource):
             raise RecordingError(f"{self.root}: no such recording folder")
         meta_path = self.root / "meta.json"
         try:
-            meta = json.loads(meta_path.read_text())
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        except UnicodeDecodeError as exc:
+            raise RecordingError(f"{meta_path}: byte {exc.start}: not UTF-8 text; expected JSON") from None
         except FileNotFoundError:
             raise RecordingError(f"{meta_path}: missing; is {self.root} a boomtip recording?") from None
         except json.JSONDecodeError as exc:
@@ -269,13 +279,7 @@ class Recording(FrameSource):
         mru = read_csv(self.root / "mru.csv", MRU_COLUMNS, bounds=MRU_BOUNDS)
         if len(mru["t"]) < 2:
             raise RecordingError(f"{self.root / 'mru.csv'}: {len(mru['t'])} samples; the attitude needs at least 2")
-        rate = self.meta.installation.mru.rate_hz
-        self.mru = MruLog(
-            mru["t"],
-            np.column_stack([mru["roll"], mru["pitch"], mru["yaw"]]),
-            np.column_stack([mru["roll_rate"], mru["pitch_rate"], mru["yaw_rate"]]),
-            max_gap_s=max(0.1, 5.0 / rate),
-        )
+        self.mru = MruLog.from_columns(mru)
         hook = (self.root / "encoders.csv").exists()
         if hook:
             self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS, bounds=ENCODER_BOUNDS)
@@ -298,8 +302,8 @@ class Recording(FrameSource):
         if not isinstance(processing, dict):
             raise RecordingError(f"{meta_path}: 'processing' must be a mapping of processing settings")
         duration = meta.get("duration_s")
-        if not isinstance(duration, (int, float)) or not math.isfinite(duration) or duration < 0:
-            raise RecordingError(f"{meta_path}: 'duration_s' must be a finite number of seconds >= 0, got {duration!r}")
+        if not isinstance(duration, (int, float)) or not math.isfinite(duration) or not 0 <= duration <= MAX_DURATION_S:
+            raise RecordingError(f"{meta_path}: 'duration_s' must be seconds between 0 and {MAX_DURATION_S:g}, got {duration!r}")
         prov = meta.get("provenance")
         return SourceMeta(installation=installation, duration_s=float(duration), name=str(meta.get("name", "recording")),
                           processing=processing, provenance=prov.get("scenario") if isinstance(prov, dict) else None)

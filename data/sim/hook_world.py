@@ -19,7 +19,7 @@ from boomtip.data.crane_model import CraneParams
 from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
 from boomtip.data.sim.crane_truth import CraneTruth, simulate_crane
 from boomtip.data.sim.vessel_waves import CallableVesselMotion
-from boomtip.data.frames import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, Frame, Truth
+from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Frame, Truth
 from boomtip.data.block_model import lower_block_parts, rope_mesh
 from boomtip.data.scenario import Scenario
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
@@ -153,7 +153,7 @@ class HookSimulation(Simulation):
     def lidar_frame(self, index: int, t_s: float) -> Frame:
         return self._lidar_frame_from(index, t_s, self._scene_poses)
 
-    def radar_frame(self, index: int, t_s: float) -> Frame:  # pragma: no cover - hook scenarios have no radar
+    def radar_frame(self, index: int, t_s: float) -> Frame:  # refused by the scenario: the hook scene has no radar
         raise NotImplementedError("hook scenarios simulate no radar (set radar.enabled: false)")
 
     # -- logs ----------------------------------------------------------------------------

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from boomtip.fusion.hook_run import with_levelling_bias
 
@@ -49,3 +50,32 @@ def test_a_nan_encoder_or_mru_sample_updates_nothing_and_never_poisons_the_state
     np.testing.assert_array_equal(f.P, P0)
     f.update_encoders(0.3, float("nan"), 60.0)  # the finite part is used
     assert np.all(np.isfinite(f.x)) and not np.array_equal(f.P, P0)
+
+
+def test_the_run_reports_the_bias_and_the_chain_takes_it_from_the_installation():
+    import math
+
+    from boomtip.data.crane_model import CraneParams
+    from boomtip.data.scenario import load_scenario
+    from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
+    from boomtip.data.sim.crane_truth import simulate_crane
+    from boomtip.data.sim.hook_measurements import measurements_from_truth
+    from boomtip.data.sim.hook_world import HookSimulation
+    from boomtip.data.processing import Processing
+    from boomtip.fusion.hook_config import HookFilterConfig
+    from boomtip.fusion.hook_run import run_hook_filter
+    from boomtip.tools.hook_chain import HookChain
+
+    params = CraneParams()
+    spec = HOOK_SCENARIOS["hook-2"](params)
+    meas = measurements_from_truth(simulate_crane(params, spec.joints, spec.vessel, duration_s=6.0), seed=1)
+    plain = run_hook_filter(meas, "ekf", "flexible", params, HookFilterConfig())
+    biased = run_hook_filter(meas, "ekf", "flexible", params, HookFilterConfig(levelling_bias_sigma_rad=2e-4))
+    np.testing.assert_allclose(biased.p_rel, plain.p_rel)  # the estimate itself is untouched
+    np.testing.assert_allclose(biased.cov_p, with_levelling_bias(plain.p_rel, plain.cov_p, 2e-4), rtol=1e-9, atol=1e-15)
+    sim = HookSimulation(load_scenario("hook-2", ["duration_s=0.3"]))
+    inst = sim.meta.installation
+    chain = HookChain(sim, Processing())
+    expect = math.radians(math.hypot(inst.lidar.mount.accuracy_deg, inst.mru.bias_accuracy_deg))
+    assert expect > 0 and chain.filter_cfg.levelling_bias_sigma_rad == pytest.approx(expect)
+    assert HookChain(sim, Processing(hook={"filter": {"levelling_bias_sigma_rad": 0.0}})).filter_cfg.levelling_bias_sigma_rad == 0.0

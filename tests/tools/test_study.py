@@ -72,8 +72,11 @@ def test_a_sweep_on_dask_gives_the_local_rows_and_resumes(tmp_path):
     assert {row["lidar.rate_hz"] for row in summary} == {"5", "10"}
     meta = json.loads((tmp_path / "local" / "sweep.json").read_text())
     assert meta["tasks"] == 4 and meta["ok"] == 4 and meta["scenario"]["name"] == "sts-empty"
-    # a non-empty --out is refused; --resume keeps the finished runs and does the rest
+    # a non-empty --out is refused; --resume keeps the finished runs and does the rest, of the same study only
     assert runner.invoke(app, [*args, "--out", str(tmp_path / "local")]).exit_code == 2
+    other = ["sweep", *SHORT, "--grid", "lidar.rate_hz=5,20", "--seeds", "2", "--workers", "2"]
+    r = runner.invoke(app, [*other, "--out", str(tmp_path / "local"), "--resume"])
+    assert r.exit_code == 2 and "different study" in r.output
     full = (tmp_path / "local" / "runs.csv").read_text().splitlines()
     (tmp_path / "local" / "runs.csv").write_text("\n".join(full[:3]) + "\n")  # two of four kept
     r = runner.invoke(app, [*args, "--out", str(tmp_path / "local"), "--resume"])
@@ -83,13 +86,28 @@ def test_a_sweep_on_dask_gives_the_local_rows_and_resumes(tmp_path):
 
 
 def test_batch_processes_many_recordings(tmp_path):
-    for name in ("a", "b"):
-        assert runner.invoke(app, ["simulate", *SHORT, "--out", str(tmp_path / name)]).exit_code == 0
+    for name, seed in (("a", "1"), ("b", "2")):
+        assert runner.invoke(app, ["simulate", *SHORT, "--seed", seed, "--set", "lidar.range_noise_m=0.02",
+                                   "--out", str(tmp_path / name)]).exit_code == 0
     r = runner.invoke(app, ["batch", str(tmp_path / "a"), str(tmp_path / "b"), str(tmp_path / "a"), "--out",
                             str(tmp_path / "batch"), "--workers", "1"])
     assert r.exit_code == 0, r.output
     rows = _rows(tmp_path / "batch" / "runs.csv")
     assert [row["status"] for row in rows] == ["ok", "ok", "ok"]
     assert rows[0]["measurements.deck_lidar.mae"] == rows[2]["measurements.deck_lidar.mae"]  # same recording
+    assert rows[0]["measurements.deck_lidar.mae"] != rows[1]["measurements.deck_lidar.mae"]  # another one
     r = runner.invoke(app, ["batch", str(tmp_path / "nope"), "--out", str(tmp_path / "b2")])
     assert r.exit_code == 2 and "nope" in r.output
+
+
+def test_force_never_deletes_the_current_folder_or_a_parent(tmp_path, monkeypatch):
+    work = tmp_path / "work"
+    work.mkdir()
+    (tmp_path / "keep.txt").write_text("mine")
+    monkeypatch.chdir(work)
+    for out in ("..", ".", str(tmp_path)):
+        r = runner.invoke(app, ["sweep", *SHORT, "--grid", "lidar.rate_hz=5", "--out", out, "--force"])
+        assert r.exit_code == 2 and "name a folder" in r.output or "parents" in r.output, r.output
+    r = runner.invoke(app, ["sweep", *SHORT, "--grid", "lidar.rate_hz=5", "--out", "s", "--executor", "nope"])
+    assert r.exit_code == 2 and "--executor" in r.output
+    assert (tmp_path / "keep.txt").read_text() == "mine" and work.is_dir()

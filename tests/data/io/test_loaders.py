@@ -94,15 +94,19 @@ def test_level_attitude_and_times_from_names_or_a_file(tmp_path):
 def test_kitti_bin_and_a_selection_of_frames(tmp_path):
     folder = tmp_path / "kitti"
     folder.mkdir()
-    for k in range(6):
+    for k in range(6):  # KITTI names count frames; their times are in times.txt
         pts = np.column_stack([_ground(seed=k), np.full(4000, 0.3)]).astype(np.float32)
-        pts.tofile(folder / f"{k * 100_000_000:013d}.bin")
+        pts.tofile(folder / f"{k:06d}.bin")
     inst = tmp_path / "i.yaml"
     inst.write_text("attitude: level\nradar: {enabled: false}\n")
+    with pytest.raises(RecordingError, match="count frames"):
+        open_source(folder, installation=load_installation(inst))
+    (folder / "times.txt").write_text("\n".join(f"{0.1 * k:.1f}" for k in range(6)) + "\n")
     frames = list(open_source(folder, installation=load_installation(inst), start_s=0.1, duration_s=0.35, every=2))
     assert [round(f.t_s, 3) for f in frames] == [0.1, 0.3]
     assert frames[0].fields["intensity"][0] == pytest.approx(0.3) and frames[0].points_sensor.shape == (4000, 3)
-    (folder / f"{7 * 100_000_000:013d}.bin").write_bytes(b"\x00" * 10)
+    (folder / "000006.bin").write_bytes(b"\x00" * 10)
+    (folder / "times.txt").write_text("\n".join(f"{0.1 * k:.1f}" for k in range(7)) + "\n")
     bad = list(open_source(folder, installation=load_installation(inst)))[-1]
     assert bad.error is not None and "multiple of 4" in bad.error
 
@@ -119,3 +123,18 @@ def test_formats_not_read_yet_say_so(tmp_path, name, fmt):
     (tmp_path / name).write_bytes(b"\x00")
     with pytest.raises(RecordingError, match=f"the {fmt} loader is not built yet"):
         guess_format(tmp_path / name)
+
+
+def test_absolute_time_stamps_start_the_outputs_at_the_first_frame(tmp_path):
+    folder = tmp_path / "epoch"
+    folder.mkdir()
+    t0_ns = 1_700_000_000_000_000_000  # a ROS export: nanoseconds since 1970
+    for k in range(10):
+        write_pcd(folder / f"{t0_ns + k * 100_000_000}.pcd", _ground(seed=k), {"intensity": np.ones(4000, np.float32)})
+    inst = tmp_path / "level.yaml"
+    inst.write_text("attitude: level\nradar: {enabled: false}\ncrane: {geometry: {boom_tip_m: [0, 0, 0]}}\n")
+    r = runner.invoke(app, ["process", str(folder), "--installation", str(inst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    with open(tmp_path / "o" / "estimates.csv") as fh:
+        rows = [row for row in csv.DictReader(fh) if row["solution"] == "fused"]
+    assert len(rows) >= 90 and abs(float(rows[0]["t"]) - 1.7e9) < 1.0 and float(rows[-1]["D"]) == pytest.approx(12.5, abs=0.01)
