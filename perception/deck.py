@@ -20,6 +20,8 @@ from boomtip.perception.timing import StageTimes
 class DeckConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
+    prior_band_m: float = Field(1.5, gt=0, description="with a prior and no plane near it: search the points this far "
+                                "beyond the tolerance about it along the wire (a tilted deck spans more than its D)")
     preprocess: PreprocessConfig = PreprocessConfig(min_range_m=2.0)
     multi_plane: MultiPlaneConfig = MultiPlaneConfig()
     min_points: int = Field(50, ge=3, description="fewer points after preprocessing: no measurement")
@@ -73,6 +75,8 @@ def detect_deck(
     rng: np.random.Generator | None = None,
     times: StageTimes | None = None,
     prefix: str = "deck",
+    prior_D_m: float | None = None,
+    prior_tol_m: float = 0.5,
 ) -> DeckResult:
     """The feeder deck plane in one frame and D, the distance from the tip down the wire to it.
 
@@ -83,6 +87,11 @@ def detect_deck(
     cfg: default :class:`DeckConfig` (``LIDAR_DECK`` / ``RADAR_DECK`` are tuned per sensor).
     rng: drives the RANSAC (default: seeded, the same result every call).
     times: collects the stages' times under ``prefix``.
+    prior_D_m: where the deck is expected (another method's D in the same frame, or the last
+        deck carried forward): of the deck-like planes found, the one whose D lies nearest it,
+        within prior_tol_m, is the deck; none within it is no measurement. Without a prior, the
+        lowest deck-like plane. A sea that returns echoes is a large plane below the deck: the
+        prior is what keeps the deck from being taken for it.
     Returns a :class:`DeckResult`; without a measurement D_m is NaN and status says why.
     """
     points_sensor = as_points(points_sensor)
@@ -100,7 +109,13 @@ def detect_deck(
             result = multi_plane_deck(pts, -wire_dir_sensor, cfg.multi_plane, rng)
             deck = result.deck if result is not None else None
         else:
-            deck = lowest_large_plane(pts, -wire_dir_sensor, cfg, rng)
+            candidates = deck_like_planes(pts, -wire_dir_sensor, cfg, rng)
+            deck = candidates[-1] if candidates else None  # the lowest
+            if prior_D_m is not None:
+                deck = _nearest_the_prior(pts, candidates, wire_dir_sensor, p_tip_sensor, prior_D_m, prior_tol_m, cfg, rng)
+                if deck is None:
+                    return DeckResult(float("nan"), None, None, pts, f"no deck plane within {prior_tol_m:.2f} m of the "
+                                      f"expected D = {prior_D_m:.2f} m")
     if deck is None:
         return DeckResult(float("nan"), None, None, pts, "no deck plane")
     with times.stage(f"{prefix}.intersect"):
@@ -109,6 +124,31 @@ def detect_deck(
             return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
         sigma = plane_sigma_at(pts[deck.inlier_mask], deck.plane, p_tip_sensor + D * wire_dir_sensor)
     return DeckResult(D, deck.plane, deck, pts, "ok", sigma)
+
+
+def _nearest_the_prior(pts, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng) -> PlaneFit | None:
+    """Of the candidates, the plane whose D lies nearest the prior, within tol_m. When none does
+    (a larger plane below, the sea, hid the deck from the downward search), the deck is sought
+    among the points in a band about the prior along the wire."""
+    def D(c):
+        d = heave_distance(c.plane, wire, p_tip)
+        return abs(d - prior_D_m) if np.isfinite(d) else np.inf
+
+    best = min(candidates, key=D, default=None)
+    if best is not None and D(best) <= tol_m:
+        return best
+    along = (pts - p_tip) @ wire
+    band = np.flatnonzero(np.abs(along - prior_D_m) <= tol_m + cfg.prior_band_m)
+    if len(band) < cfg.min_points:
+        return None
+    mp = cfg.multi_plane
+    fit = ransac_plane(pts[band], mp.ransac, rng, axis=-wire, max_axis_angle_deg=mp.max_tilt_deg)
+    if fit is None:
+        return None
+    mask = np.zeros(len(pts), dtype=bool)
+    mask[band[fit.inlier_mask]] = True
+    plane = PlaneFit(fit.plane, mask, fit.inlier_ratio, fit.rms_m, fit.iterations)
+    return plane if D(plane) <= tol_m and deck_like(pts[mask], plane.plane, wire, cfg.min_extent_m) else None
 
 
 def deck_like(inliers: np.ndarray, plane: np.ndarray, wire_dir: np.ndarray, min_extent_m: float) -> bool:
@@ -130,17 +170,24 @@ def deck_like(inliers: np.ndarray, plane: np.ndarray, wire_dir: np.ndarray, min_
 
 
 def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> PlaneFit | None:
-    """The feeder deck: the lowest near-horizontal plane holding at least min_area_fraction of
-    the first (largest) plane's points. Same metric as Algorithm 3 with the improved
-    selection, but each search runs only on the points below the current best plane."""
+    """The lowest of :func:`deck_like_planes` (None when there is none)."""
+    planes = deck_like_planes(pts, up_sensor, cfg, rng)
+    return planes[-1] if planes else None
+
+
+def deck_like_planes(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> list[PlaneFit]:
+    """Candidates for the feeder deck, from the top down: the deck-like near-horizontal planes
+    holding at least min_area_fraction of the first (largest) plane's points, each search run
+    only on the points below the plane before (Algorithm 3's metric with the improved
+    selection). Without a prior the deck is the lowest of them."""
     mp = cfg.multi_plane
     wire = -up_sensor
     current = ransac_plane(pts, mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
     if current is None:
-        return None
+        return []
     # Planes that are not deck-like (a patch of the crane's own deck off to the side, a strip
     # of hull) still bound the search: only what lies below them can be the feeder deck.
-    best = current if deck_like(pts[current.inlier_mask], current.plane, wire, cfg.min_extent_m) else None
+    found = [current] if deck_like(pts[current.inlier_mask], current.plane, wire, cfg.min_extent_m) else []
     need = max(mp.min_inliers, int(mp.min_area_fraction * current.n_inliers))
     for _ in range(mp.max_planes - 1):
         # Normals point towards the sensor, so points below the plane have negative distance.
@@ -154,5 +201,5 @@ def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, 
         mask[below[cand.inlier_mask]] = True
         current = PlaneFit(cand.plane, mask, cand.inlier_ratio, cand.rms_m, cand.iterations)
         if deck_like(pts[mask], current.plane, wire, cfg.min_extent_m):
-            best = current
-    return best
+            found.append(current)
+    return found  # from the top down

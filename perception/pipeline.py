@@ -60,6 +60,7 @@ class PipelineConfig(BaseModel):
     normal_window_s: float = Field(1.0, gt=0, description="window of deck normals used for the deck's spin")
     max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
     max_abs_D_dot_mps: float = Field(15.0, gt=0, description="no sea moves a deck faster: beyond it a D-dot is implausible")
+    deck_prior_tol_m: float = Field(0.5, gt=0, description="a deck plane must lie this near its prior (the reflectors' D)")
 
 
 @dataclass
@@ -169,9 +170,8 @@ class HeavePipeline:
         results: dict[str, tuple[float, float, str]] = {}
         p_tip = self.p_tip[frame.sensor]
         if frame.sensor == "lidar":
-            if "deck_lidar" in wanted:
-                out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_lidar, rng, times, "deck")
-                results["deck_lidar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "lidar", R_ls)
+            # Reflectors first: their D (markers lie on the deck) is the deck search's prior, so
+            # a sea that returns echoes below the deck is not taken for it.
             if "reflectors_lidar" in wanted:
                 intensity = frame.fields.get("intensity")
                 if intensity is None:
@@ -182,6 +182,11 @@ class HeavePipeline:
                     if ref.status == "ok":
                         sigma = math.hypot(sigma, attitude_sigma_D(ref.D_m, ref.plane_sensor, wire, self.mru_sigma_rad))
                     results["reflectors_lidar"] = (ref.D_m, sigma, ref.status)
+            if "deck_lidar" in wanted:
+                prior, tol = self._deck_prior(frame.t_s, "lidar", out.reflectors)
+                out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_lidar, rng, times, "deck",
+                                                    prior_D_m=prior, prior_tol_m=tol)
+                results["deck_lidar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "lidar", R_ls)
         else:
             if "deck_radar" in wanted:
                 out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck")
@@ -195,6 +200,16 @@ class HeavePipeline:
             if row.ok and fit is not None:
                 row.sigma_systematic = attitude_sigma_D(row.value, fit.plane_sensor, wire, self.bias_sigma_rad[frame.sensor])
         return out
+
+    def _deck_prior(self, t_s: float, sensor: str, reflectors: ReflectorResult | None) -> tuple[float | None, float]:
+        """Where the deck is expected: this frame's reflector D, else the last deck of this
+        sensor carried forward (the tolerance grows with its age at the sea's fastest D-dot)."""
+        if reflectors is not None and reflectors.status == "ok" and self._implausible(sensor, "D", reflectors.D_m, 1.0) is None:
+            return reflectors.D_m, self.cfg.deck_prior_tol_m
+        last = self.last_deck.get(sensor)
+        if last is not None and t_s - last[0] <= self.cfg.max_deck_age_s:
+            return last[1], self.cfg.deck_prior_tol_m + self.cfg.max_abs_D_dot_mps * (t_s - last[0])
+        return None, 0.0
 
     def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:
         if deck.status != "ok":

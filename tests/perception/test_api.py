@@ -178,3 +178,39 @@ def test_import_is_cheap_and_never_touches_the_simulator():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[:4] == ["False", "True", "[]", "[]"], out
+
+
+def test_a_prior_keeps_the_deck_from_being_taken_for_the_sea_below_it():
+    """A sea that returns echoes is a larger plane 4 m below the deck: the lowest plane is the
+    sea; with the reflectors' D as prior the deck is found, and a prior far from every plane
+    gives no measurement instead of a wrong one."""
+    from boomtip.perception import detect_deck
+
+    rng = np.random.default_rng(5)
+    # sensor x looks down (default mount): the deck at x = 40 m (30 x 20 m), the sea at x = 44 m
+    deck = np.column_stack([40 + rng.normal(0, 0.01, 3000), rng.uniform(-15, 15, 3000), rng.uniform(-10, 10, 3000)])
+    sea = np.column_stack([44 + rng.normal(0, 0.02, 9000), rng.uniform(-60, 60, 9000), rng.uniform(-40, 40, 9000)])
+    sea = sea[~((np.abs(sea[:, 1]) < 15) & (np.abs(sea[:, 2]) < 10))]  # the deck hides the sea below it
+    pts = np.vstack([deck, sea])
+    wire, tip = np.array([1.0, 0.0, 0.0]), np.zeros(3)
+    assert abs(detect_deck(pts, wire, tip).D_m - 44.0) < 0.05  # no prior: the lowest, the sea
+    res = detect_deck(pts, wire, tip, prior_D_m=40.1)
+    assert res.status == "ok" and abs(res.D_m - 40.0) < 0.01
+    res = detect_deck(pts, wire, tip, prior_D_m=30.0)
+    assert res.status.startswith("no deck plane within") and not np.isfinite(res.D_m)
+
+
+def test_sea_clutter_is_not_taken_for_the_deck(tmp_path):
+    from typer.testing import CliRunner
+
+    from boomtip.tools.cli import app
+
+    out = tmp_path / "clutter"
+    r = CliRunner().invoke(app, ["run", "-s", "sts-loaded", "--duration", "6", "--set", "sea.clutter=true",
+                                 "--set", "sea.clutter_probability=0.5", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    import json
+
+    k = json.loads((out / "kpis.json").read_text())
+    assert k["measurements"]["deck_lidar"]["max"] < 0.01 and k["measurements"]["deck_lidar"]["valid_fraction"] > 0.95
+    assert k["solutions"]["fused"]["max_D_m"] < 0.01  # was 4.4 m: the sea taken for the deck
