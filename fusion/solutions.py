@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement
 from boomtip.fusion.tuning import default_jerk_psd, relative_heave_jerk_psd
+from boomtip.fusion.wave_predictor import fit_ar, forecast
 
 SOLUTIONS: dict[str, tuple[str, ...]] = {
     "deck_lidar": ("deck_lidar",),
@@ -44,6 +45,11 @@ class FusionConfig(BaseModel):
         None, gt=0, description="white-jerk PSD q [m^2/s^5]; null: from processing.sea_state, else the "
         "working limit (Hs 4 m, Tp 7 s)",
     )
+    wave_predictor: bool = Field(True, description="bridge a silence of every sensor with an AR model of the recent D")
+    predict_after_s: float = Field(1.0, gt=0, description="silence after which the wave predictor takes over")
+    predictor_history_s: float = Field(60.0, gt=5, description="the recent D the AR model is fitted to")
+    predictor_rate_hz: float = Field(4.0, gt=0, description="the AR model's sample rate")
+    predictor_order: int = Field(12, ge=2, le=64)
     floor_sigma_D_dot_mps: float = Field(
         3e-3, ge=0, description="the same for D-dot: the rotation-aware Doppler's deck spin comes from a 1 s window "
         "of deck normals, an error its velocity fit cannot see (1.4-3.5 mm/s rms in the evaluation scenarios)",
@@ -106,12 +112,15 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     x = np.full((len(t_out), 3), np.nan)
     var = np.full((len(t_out), 3), np.nan)
     statuses: dict[str, int] = {}
+    waves = _WaveBridge(cfg)
     sys_var_D = 0.0  # the latest accepted D's systematic variance: a bias the filter cannot see
     j = 0
     t0 = time.perf_counter()
     for k, (tick, t) in enumerate(zip(ticks, t_out)):
         # Compare in ticks of the output grid: 15 * 0.01 > 0.15 in floating point.
         while j < len(inputs) and inputs[j].t_arrival_s * cfg.output_rate_hz <= tick + 1e-6:
+            for seed in waves.handover(filt.last_time_s):  # the bridge's end state re-seeds the filter
+                filt.add(seed)
             st = filt.add(inputs[j])
             statuses[st] = statuses.get(st, 0) + 1
             if st in ("accepted", "reinitialised") and inputs[j].quantity == "D":
@@ -122,5 +131,67 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
             x[k] = xk
             var[k] = np.diag(Pk)
             var[k, 0] += sys_var_D
+            if cfg.wave_predictor and name != "doppler_radar":
+                waves.step(tick, t, t - filt.last_time_s, x[k], var[k])
     filter_ms = (time.perf_counter() - t0) * 1e3
     return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses)
+
+
+class _WaveBridge:
+    """Keeps the recent D on the predictor's grid while the sensors speak; when every one has
+    been silent for `predict_after_s`, replaces the constant-acceleration extrapolation by the
+    AR forecast (fusion.wave_predictor) from the last fresh sample, variance and all."""
+
+    def __init__(self, cfg: FusionConfig) -> None:
+        self.cfg = cfg
+        self.every = max(1, int(round(cfg.output_rate_hz / cfg.predictor_rate_hz)))
+        self.dt = self.every / cfg.output_rate_hz
+        self.keep = int(cfg.predictor_history_s / self.dt)
+        self.hist: list[float] = []
+        self.hist_var = 0.0
+        self.t_last = float("nan")
+        self.model = None
+        self.fc: tuple[np.ndarray, np.ndarray] | None = None
+        self.last_out: tuple[float, float, float, float, float] | None = None
+
+    def handover(self, t_filter_s: float) -> list[Measurement]:
+        """When the sensors speak again after a bridge: the forecast's last D and D-dot as
+        measurements, so the filter (whose extrapolation ran away meanwhile) restarts there."""
+        if not self.model or self.last_out is None:
+            return []
+        t, D, V, var_D, var_V = self.last_out
+        self.model = self.fc = self.last_out = None
+        if not t > t_filter_s:
+            return []
+        return [Measurement(t, t, "D", D, float(np.sqrt(var_D)), "wave_predictor"),
+                Measurement(t, t, "D_dot", V, float(np.sqrt(var_V)), "wave_predictor")]
+
+    def step(self, tick: int, t: float, silence_s: float, x: np.ndarray, var: np.ndarray) -> None:
+        if silence_s <= self.cfg.predict_after_s:
+            self.model = self.fc = self.last_out = None
+            # history only from estimates a measurement has just corrected (not extrapolations)
+            if tick % self.every == 0 and silence_s <= 0.5 * self.cfg.predict_after_s:
+                if self.hist and abs(t - self.t_last - self.dt) > 1e-6:
+                    self.hist = []  # a hole in the history: start it again
+                self.hist.append(float(x[0]))
+                self.hist = self.hist[-self.keep:]
+                self.t_last, self.hist_var = t, float(var[0])
+            return
+        if self.model is None:
+            enough = len(self.hist) >= max(3 * self.cfg.predictor_order, self.keep // 3)  # 20 s of a 60 s history
+            self.model = fit_ar(np.array(self.hist), self.cfg.predictor_order, self.dt) if enough else False
+        if not self.model:
+            return
+        u = (t - self.t_last) / self.dt  # forecast steps since the last fresh sample
+        need = int(np.ceil(u)) + 2
+        if self.fc is None or len(self.fc[0]) < need:
+            self.fc = forecast(self.model, np.array(self.hist), max(need, 2 * (len(self.fc[0]) if self.fc else 8)))
+        grid = np.arange(1, len(self.fc[0]) + 1)
+        values = np.concatenate([[self.hist[-1]], self.fc[0]])
+        variance = np.concatenate([[0.0], self.fc[1]])
+        x[0] = np.interp(u, np.concatenate([[0.0], grid]), values)
+        x[1] = np.interp(u, np.concatenate([[0.0], grid]), np.gradient(values, self.dt))
+        x[2] = np.nan
+        var[0] = np.interp(u, np.concatenate([[0.0], grid]), variance) + self.hist_var
+        var[1] = var[0] * (2 * np.pi / 8.0) ** 2  # D-dot of a wave of ~8 s: its D's sigma times omega
+        self.last_out = (t, float(x[0]), float(x[1]), float(var[0]), float(var[1]))
