@@ -28,6 +28,7 @@ bench: setup
 	$(BIN)/boomtip bench raycast --json runs/bench/raycast.json --force
 	$(BIN)/boomtip bench perception --json runs/bench/perception.json --force
 	$(BIN)/boomtip bench fusion --json runs/bench/fusion.json --force
+	$(BIN)/boomtip bench sweep --json runs/bench/sweep.json --force
 
 clean:
 	rm -rf $(VENV) runs *.egg-info

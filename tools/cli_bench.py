@@ -127,6 +127,6 @@ def bench_sweep_cmd(
     for kind in ("local", "dask"):
         k = r[kind]
         print(f"  {kind:5s} 1 worker: {k['wall_s']:6.2f} s wall, tasks' own {k['tasks_own_s']:6.2f} s, "
-              f"overhead {1e3 * k['overhead_per_task_s']:6.1f} ms/task")
+              f"overhead {1e3 * k['overhead_per_task_s']:6.1f} ms/task (against the local worker's own time)")
     print(f"  local 2 workers: {r['two_workers_wall_s']:6.2f} s wall")
     print(f"  ratio {r['ratio']:.2f} (two workers / one)")
