@@ -22,6 +22,7 @@ class Label(IntEnum):
     FEEDER_BULWARK = 12
     REFLECTOR = 13
     FALSE_BRIGHT = 14  # bright patch that is not a deck marker
+    SPRAY = 15  # a weak return from spray in the air
     CARGO = 20
     HOOK = 30
     ROPE = 31

@@ -97,8 +97,12 @@ def lidar_measure(
     sea_body: int | None,
     sea_probability: float,
     rng: np.random.Generator,
+    spray=None,
+    origin_z_world: np.ndarray | float = 0.0,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label."""
+    """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label. With `spray`
+    (world.sea.spray) some rays return early from droplets in its height band (world z), given
+    the rays' origin heights `origin_z_world`."""
     keep = (hits.range_m >= cfg.min_range_m) & (hits.range_m <= cfg.max_range_m)  # a miss (inf) fails the max
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
         sea = keep & (hits.body == sea_body)
@@ -110,14 +114,29 @@ def lidar_measure(
     r = hits.range_m[idx]
     cos_inc = np.clip(hits.cos_incidence[idx], 1e-3, 1.0)
     intensity = faces.reflectivity[f] * cos_inc  # diffuse (Lambert)
+    label = faces.label[f].astype(np.int32)
+    if spray is not None and spray.probability > 0 and len(idx):
+        # a droplet at a height z in the band, met by a downward ray before its surface
+        z0 = np.broadcast_to(np.asarray(origin_z_world, dtype=float), hits.range_m.shape)[idx]
+        down = -dirs_world[idx, 2]
+        z = rng.uniform(*spray.height_m, len(idx))
+        r_spray = np.where(down > 1e-3, (z0 - z) / np.maximum(down, 1e-3), np.inf)
+        hit = (rng.random(len(idx)) < spray.probability) & (r_spray > cfg.min_range_m) & (r_spray < r)
+        r = np.where(hit, r_spray, r)
+        intensity = np.where(hit, spray.reflectivity, intensity)
+        label = np.where(hit, int(Label.SPRAY), label)
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
     # incidence. Only the few retro hits need the transcendental functions.
-    retro_i = np.flatnonzero(faces.retro[f])
+    retro_i = np.flatnonzero(faces.retro[f] & (label != int(Label.SPRAY)))
     if len(retro_i):
         inc = np.arccos(cos_inc[retro_i])
         lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
         intensity[retro_i] = np.maximum(lobe, intensity[retro_i])
     intensity *= (INTENSITY_REFERENCE_RANGE_M / r) ** 2
+    if cfg.extinction_per_km > 0:  # rain or fog: the light is attenuated out and back
+        intensity *= np.exp(-2e-3 * cfg.extinction_per_km * r)
+        seen = intensity >= cfg.detection_threshold
+        idx, r, intensity, label = idx[seen], r[seen], intensity[seen], label[seen]
     n = len(idx)
     noise = rng.standard_normal(2 * n) if (cfg.intensity_noise > 0 or cfg.range_noise_m > 0) else None
     if cfg.intensity_noise > 0:
@@ -133,7 +152,7 @@ def lidar_measure(
     fields = {
         "intensity": intensity.astype(np.float32),
         "t": t_offset.astype(np.float32),
-        "label": faces.label[f].astype(np.int32),
+        "label": label,
     }
     return points, fields
 

@@ -176,8 +176,10 @@ class Simulation(FrameSource):
             dirs_w = np.einsum("kij,kj->ki", R_ws[pose_index], pat.dirs_sensor)
             origins_w = p_ws[pose_index]
         hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index, scales, fixed_hits)
+        sea = self.scenario.world.sea
         points, fields = lidar_measure(
-            cfg, hits, pat, dirs_w, w.faces, w.sea_index, self.scenario.world.sea.clutter_probability, self._rng("lidar", index)
+            cfg, hits, pat, dirs_w, w.faces, w.sea_index, sea.clutter_probability, self._rng("lidar", index),
+            spray=sea.spray, origin_z_world=np.asarray(origins_w)[..., 2],
         )
         return Frame("lidar", index, t_s, points, fields)
 

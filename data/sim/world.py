@@ -96,10 +96,27 @@ class FeederVessel(Vessel):
     reflectors: Reflectors = Reflectors()
 
 
+class Spray(_Model):
+    """Spray in the air above the sea: a fraction of the LiDAR's rays return early and weakly
+    from droplets at a height within the band (world z above the waterline)."""
+
+    probability: float = Field(0.0, ge=0, le=1, description="chance that a ray returns from spray first")
+    height_m: tuple[float, float] = Field((0.5, 8.0), description="the band of heights the spray fills")
+    reflectivity: float = Field(0.02, ge=0, le=1)
+
+    @model_validator(mode="after")
+    def _band(self) -> "Spray":
+        lo, hi = self.height_m
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ValueError(f"sea.spray.height_m: expected [low, high] with low < high, got {[lo, hi]}")
+        return self
+
+
 class Sea(_Model):
     clutter: bool = Field(False, description="LiDAR/radar returns from the sea surface")
     clutter_probability: float = Field(0.02, ge=0, le=1)
     reflectivity: float = Field(0.05, ge=0, le=1)
+    spray: Spray = Spray()
 
 
 Windows = list[tuple[float, float]]
@@ -135,6 +152,8 @@ class LidarBehaviour(_Outages):
     dropout_probability: float = Field(0.0, ge=0, lt=1)
     retro_gain: float = Field(25.0, gt=0, description="retro-reflector peak gain over a white diffuse target")
     retro_lobe_deg: float = Field(25.0, gt=0, le=90)
+    extinction_per_km: float = Field(0.0, ge=0, le=100, description="rain or fog: two-way attenuation exp(-2 alpha r)")
+    detection_threshold: float = Field(0.002, ge=0, description="weaker returns (after attenuation) are not detected")
     motion_during_sweep: bool = Field(False, description="move the scene while the frame is scanned")
 
 

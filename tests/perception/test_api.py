@@ -207,7 +207,8 @@ def test_sea_clutter_is_not_taken_for_the_deck(tmp_path):
 
     out = tmp_path / "clutter"
     r = CliRunner().invoke(app, ["run", "-s", "sts-loaded", "--duration", "6", "--set", "sea.clutter=true",
-                                 "--set", "sea.clutter_probability=0.5", "--out", str(out)])
+                                 "--set", "sea.clutter_probability=0.5", "--set", "sea.spray.probability=0.1",
+                                 "--out", str(out)])
     assert r.exit_code == 0, r.output
     import json
 

@@ -725,3 +725,23 @@ def test_motion_during_sweep_points_lie_on_meshes_at_their_own_time(bodies_empty
     assert np.max(d) < 1e-3
     d_frozen = mesh_distances(sim, "lidar", f, n_max=120)
     assert np.max(d_frozen) > 1e-2  # without the per-point time it would be wrong
+
+
+def test_spray_returns_early_and_weakly_from_its_height_band():
+    from boomtip.data.meshes import Label
+
+    s = load_scenario("sts-empty", ["duration_s=0.2", "sea.spray.probability=0.2", "sea.spray.height_m=[2, 6]"])
+    sim = Simulation(s)
+    f = sim.lidar_frame(0, 0.0)
+    spray = f.fields["label"] == int(Label.SPRAY)
+    assert 0.03 < spray.mean() < 0.2  # 20 % of the rays that reach below the band
+    T = sim.world.T_crane_boomtip @ sim.world.T_boomtip_sensor["lidar"]
+    st = sim.world.crane_motion.states(np.array([0.0]))
+    R_wc, p_wc = st.R[0], st.position_m[0]
+    z = (f.points_sensor[spray] @ (R_wc @ T[:3, :3]).T + R_wc @ T[:3, 3] + p_wc)[:, 2]
+    assert z.min() >= 2.0 - 0.05 and z.max() <= 6.0 + 0.05  # in the band (range noise aside)
+    assert np.median(f.fields["intensity"][spray]) < 0.1 * np.median(f.fields["intensity"][~spray])
+    # and with fog the far, weak returns fade out
+    fog = Simulation(load_scenario("sts-empty", ["duration_s=0.2", "lidar.extinction_per_km=40"])).lidar_frame(0, 0.0)
+    clear = Simulation(load_scenario("sts-empty", ["duration_s=0.2"])).lidar_frame(0, 0.0)
+    assert len(fog) < len(clear) and fog.fields["intensity"].max() < clear.fields["intensity"].max()
