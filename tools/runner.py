@@ -98,13 +98,18 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
              report: bool = True, progress: Callable[[int], None] | None = None) -> RunResult:
     chain = build_chain(source, processing_for(source, processing))
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
+    frames = 0
     for frame in source:
         viz.log_frame(chain.process(frame))
+        frames += 1
         if progress:
             progress(1)
     result = chain.finish(source.duration_s, source.meta.t_start_s)
     written = chain.write(staging, result)
     kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth, outage_windows(source))}
+    if frames == 0:
+        kpis.setdefault("warnings", []).append(f"{source.meta.name}: no frame to process (an empty recording?): "
+                                               "no measurement, no estimate")
     if source.truth is not None and source.truth.end_s < source.duration_s - 0.05:
         kpis.setdefault("warnings", []).append(f"the truth ends at {source.truth.end_s:.2f} s of "
                                                f"{source.duration_s:.2f} s: only its span is scored")
