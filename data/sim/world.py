@@ -204,6 +204,16 @@ class Mismatch(_Model):
         return self
 
 
+# A scenario that says nothing of its mismatch still deviates from its installation, as a real
+# rig does (its survey, its MRU, its clocks, its crane); `mismatch: {}` is a perfect world.
+DEFAULT_MISMATCH = Mismatch(
+    lidar_mount_rpy_deg=(0.01, -0.01, 0.02), radar_mount_rpy_deg=(-0.02, 0.02, 0.01), mru_bias_deg=(0.005, -0.005, 0.02),
+    mru_lag_s=0.002, lidar_clock_offset_s=0.001, radar_clock_offset_s=-0.001, boom_stiffness=0.95, boom_damping=1.1,
+    hook_mass=1.02, boom_mass=0.97, rope_ea_n=1.5e11, wind_mps=(4.0, -2.0),
+    encoder_bias_deg=EncoderBias(slew=0.004, luff=-0.004),
+)
+
+
 class World(_Model):
     truth_rate_hz: float = Field(200.0, gt=0, le=10000)
     crane: CraneVessel = CraneVessel()
@@ -213,7 +223,7 @@ class World(_Model):
     radar: RadarBehaviour = RadarBehaviour()
     mru: MruBehaviour = MruBehaviour()
     hook: HookScene = HookScene()
-    mismatch: Mismatch = Mismatch()
+    mismatch: Mismatch = DEFAULT_MISMATCH
 
 
 # ---------------------------------------------------------------------------------------

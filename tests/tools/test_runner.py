@@ -84,6 +84,11 @@ def test_every_built_in_scenario_deviates_from_its_installation():
 
     for name in available_scenarios():
         assert load_scenario(name).world.mismatch != Mismatch(), name
+    from boomtip.data.scenario import Scenario
+    from boomtip.data.sim.world import DEFAULT_MISMATCH
+
+    assert Scenario().world.mismatch == DEFAULT_MISMATCH != Mismatch()  # a scenario that says nothing deviates too
+    assert load_scenario("sts-loaded", ["mismatch={}"]).world.mismatch == Mismatch()  # a perfect world, on request
 
 
 def test_a_recording_without_an_installation_is_refused_naming_the_key(tmp_path):
