@@ -11,18 +11,17 @@ section that has it. Angles are degrees here (the YAML/CLI edge), radians inside
 
 from __future__ import annotations
 
-import difflib
 import math
 from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from boomtip.data.installation import Installation, _Model
 from boomtip.data.keys import format_validation, leaf_keys, nearest_keys
 from boomtip.data.processing import Processing
-from boomtip.data.sim.world import DOFS, World
+from boomtip.data.sim.world import World
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 from boomtip.data.frames import FrameSource
 from boomtip.data.scenario import Scenario

@@ -7,8 +7,8 @@ from functools import reduce
 import pytest
 import yaml
 
+from boomtip.data.sim.world import DOFS
 from boomtip.data.scenario import (
-    DOFS,
     Scenario,
     ScenarioError,
     available_scenarios,
