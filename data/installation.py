@@ -109,6 +109,11 @@ class RadarSpec(_Model):
     detection_probability: float = Field(1.0, gt=0, le=1)
     false_alarms_per_scan: float = Field(0.0, ge=0)
     max_abs_range_rate_mps: float = Field(10.0, gt=0, description="largest range rate the radar reports")
+    range_rate_resolution_mps: float = Field(0.0, ge=0, le=10, description="Doppler bin width (data sheet), 0 = not quantised")
+    velocity_field: str = Field("", description="recorded clouds: the field holding the radial velocity ('' = guess: "
+                                "range_rate, doppler, radial_velocity, velocity, v_r)")
+    velocity_sign: Literal[1, -1] = Field(1, description="recorded clouds: +1 if that field grows with the range "
+                                          "(receding targets positive), -1 if approaching targets are positive")
     mount: Mount = Mount(xyz_m=(0.3, 0.0, -0.5))
 
     @model_validator(mode="after")
@@ -177,6 +182,7 @@ class CraneSpec(_Model):
 class MarkerSpec(_Model):
     """Retro-reflective deck markers the crew lays on the feeder deck (known tape)."""
 
+    enabled: bool = Field(True, description="markers are laid on the deck (false: the reflectors method does not run)")
     height_m: float = Field(0.002, ge=0, le=0.5, description="markers' height above the deck (tape thickness)")
 
 

@@ -3,7 +3,7 @@ by intersecting the wire (straight down from the boom tip) with it (eq. 4.8)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -123,7 +123,10 @@ def detect_deck(
         if not np.isfinite(D) or D <= 0:
             return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
         sigma = plane_sigma_at(pts[deck.inlier_mask], deck.plane, p_tip_sensor + D * wire_dir_sensor)
-    return DeckResult(D, deck.plane, deck, pts, "ok", sigma)
+    status = "ok"
+    if deck.capped:  # still a measurement, but the search did not reach its confidence
+        status = f"ok (RANSAC capped at {deck.iterations} of {min(deck.needed, 1e9):.0f} hypotheses)"
+    return DeckResult(D, deck.plane, deck, pts, status, sigma)
 
 
 def _nearest_the_prior(pts, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng) -> PlaneFit | None:
@@ -147,7 +150,7 @@ def _nearest_the_prior(pts, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng)
         return None
     mask = np.zeros(len(pts), dtype=bool)
     mask[band[fit.inlier_mask]] = True
-    plane = PlaneFit(fit.plane, mask, fit.inlier_ratio, fit.rms_m, fit.iterations)
+    plane = replace(fit, inlier_mask=mask)
     return plane if D(plane) <= tol_m and deck_like(pts[mask], plane.plane, wire, cfg.min_extent_m) else None
 
 
@@ -199,7 +202,7 @@ def deck_like_planes(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rn
             break
         mask = np.zeros(len(pts), dtype=bool)
         mask[below[cand.inlier_mask]] = True
-        current = PlaneFit(cand.plane, mask, cand.inlier_ratio, cand.rms_m, cand.iterations)
+        current = replace(cand, inlier_mask=mask)
         if deck_like(pts[mask], current.plane, wire, cfg.min_extent_m):
             found.append(current)
     return found  # from the top down

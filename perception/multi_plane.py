@@ -8,7 +8,7 @@ perception.plane, whose RANSAC (:func:`~boomtip.perception.plane.ransac_plane`) 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -127,13 +127,7 @@ def multi_plane_deck(
         full_mask = np.zeros(n_all, dtype=bool)
         full_mask[remaining[fit.inlier_mask]] = True
         candidates.append(
-            PlaneFit(
-                plane=fit.plane,
-                inlier_mask=full_mask,
-                inlier_ratio=fit.inlier_ratio,
-                rms_m=fit.rms_m,
-                iterations=fit.iterations,
-            )
+            replace(fit, inlier_mask=full_mask)
         )
         near = np.abs(sub_pts @ fit.plane[:3] + fit.plane[3]) < removal_thr
         near |= fit.inlier_mask

@@ -55,12 +55,23 @@ class PipelineConfig(BaseModel):
     deck_lidar: DeckConfig = LIDAR_DECK
     deck_radar: DeckConfig = RADAR_DECK
     reflectors: ReflectorConfig = ReflectorConfig()
-    doppler: DopplerConfig = DopplerConfig(inlier_threshold_mps=0.25, start="trimmed")
+    doppler: DopplerConfig = DopplerConfig(start="trimmed")  # its band: from the radar's spec unless set here
+    doppler_band_sigmas: float = Field(4.0, gt=0, description="Doppler inlier band: this many sigmas of the radar's "
+                                       "stated range-rate noise and Doppler bin (uniform within a bin)")
+    doppler_band_floor_mps: float = Field(0.1, gt=0, description="narrowest Doppler band: what the rigid-deck model "
+                                          "leaves unexplained (the deck's spin across the footprint)")
     doppler_preprocess: PreprocessConfig = PreprocessConfig(min_range_m=2.0, max_range_m=150.0)
     normal_window_s: float = Field(1.0, gt=0, description="window of deck normals used for the deck's spin")
     max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
     max_abs_D_dot_mps: float = Field(15.0, gt=0, description="no sea moves a deck faster: beyond it a D-dot is implausible")
     deck_prior_tol_m: float = Field(0.5, gt=0, description="a deck plane must lie this near its prior (the reflectors' D)")
+
+
+def doppler_band_mps(radar, cfg: PipelineConfig) -> float:
+    """Half-width of the Doppler inlier band from the radar's data sheet: its range-rate noise
+    and Doppler bin (a uniform error of bin / sqrt(12)), never below the model's own floor."""
+    sigma = math.hypot(radar.range_rate_noise_mps, radar.range_rate_resolution_mps / math.sqrt(12.0))
+    return max(cfg.doppler_band_floor_mps, cfg.doppler_band_sigmas * sigma)
 
 
 @dataclass
@@ -78,7 +89,8 @@ class Measurement:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        """A measurement: "ok", or "ok (...)" with a remark (a capped RANSAC)."""
+        return self.status == "ok" or self.status.startswith("ok (")
 
 
 @dataclass
@@ -119,19 +131,24 @@ class HeavePipeline:
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
         self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
         self.bias_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
+        if "inlier_threshold_mps" not in self.cfg.doppler.model_fields_set:
+            self.cfg = self.cfg.model_copy(update={"doppler": self.cfg.doppler.model_copy(
+                update={"inlier_threshold_mps": doppler_band_mps(installation.radar, self.cfg)})})
         if "marker_height_m" not in self.cfg.reflectors.model_fields_set:  # the markers as the crew laid them
             self.cfg = self.cfg.model_copy(update={"reflectors": self.cfg.reflectors.model_copy(
                 update={"marker_height_m": installation.markers.height_m})})
 
     def _wants(self, sensor: str) -> list[str]:
-        return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor]
+        return [m for m in self.cfg.methods if SENSOR_OF[m] == sensor
+                and (m != "reflectors_lidar" or self.installation.markers.enabled)]
 
     def _rows(self, frame: Frame, results: dict[str, tuple[float, float, str]], times: StageTimes) -> list[Measurement]:
         rows = []
         for m, (v, s, status) in results.items():
-            if status == "ok":
-                status = self._implausible(frame.sensor, QUANTITY[m], v, s) or status
-                if status != "ok":
+            if status == "ok" or status.startswith("ok ("):
+                bad = self._implausible(frame.sensor, QUANTITY[m], v, s)
+                status = bad or status
+                if bad:
                     v, s = np.nan, np.nan
             rows.append(Measurement(frame.t_s, m, QUANTITY[m], v, s, times.total(*STAGES[m]), status))
         return rows
@@ -212,12 +229,12 @@ class HeavePipeline:
         return None, 0.0
 
     def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:
-        if deck.status != "ok":
+        if not (deck.status == "ok" or deck.status.startswith("ok (")):
             return (np.nan, np.nan, deck.status)
         self.normals[sensor].add(t_s, R_ls @ deck.plane_sensor[:3])
         self.last_deck[sensor] = (t_s, deck.D_m)
         sigma = math.hypot(deck.sigma_m, attitude_sigma_D(deck.D_m, deck.plane_sensor, wire, self.mru_sigma_rad))
-        return (deck.D_m, sigma, "ok")
+        return (deck.D_m, sigma, deck.status)
 
     def _doppler(self, frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out) -> dict:
         res: dict[str, tuple[float, float, str]] = {}
