@@ -123,6 +123,7 @@ class SourceMeta:
     processing: dict = field(default_factory=dict)  # processing settings the source asks for (raw keys)
     provenance: dict | None = None
     t_start_s: float = 0.0  # the source's first time stamp: outputs and scoring start here
+    notes: list[str] = field(default_factory=list)  # what the loader had to assume (the report repeats them)
 
     @property
     def T_crane_boomtip(self) -> np.ndarray:

@@ -68,6 +68,7 @@ class HeaveChain:
         self.rows: list[Measurement] = []
         self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
                       if inst.attitude == "level" else [])
+        self.source_notes = source.meta.notes  # the loader may add to it while frames are read
 
     def process(self, frame: Frame) -> FrameResult:
         res = self.pipeline.process(frame)
@@ -79,7 +80,7 @@ class HeaveChain:
         meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
         have = {m.source for m in meas}
         ran = {r.method for r in self.rows}
-        estimates, sources, warnings = {}, {}, list(self.notes)
+        estimates, sources, warnings = {}, {}, list(self.notes) + list(self.source_notes)
         for name in self.fusion.solutions:
             methods = solution_sources(name, have)
             if methods != SOLUTIONS[name]:

@@ -67,6 +67,18 @@ def read_cloud(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return pts, {}
 
 
+def attitude_stream(root: Path, installation: Installation, t0_s: float, t1_s: float) -> MruLog:
+    """The MRU log of a recording without one of its own: an `mru.csv` beside the clouds, or,
+    with `attitude: level` in the installation, a level boom-tip frame over [t0, t1]."""
+    path = root / "mru.csv"
+    if path.is_file():
+        return MruLog.from_columns(read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS))
+    if installation.attitude != "level":
+        raise RecordingError(f"{root}: no mru.csv; give one, or set `attitude: level` in the installation "
+                             "file if the boom-tip frame is level (no attitude stream)")
+    return MruLog(np.array([t0_s - 1.0, t1_s + 1.0]), np.zeros((2, 3)), np.zeros((2, 3)), max_gap_s=np.inf)
+
+
 class FolderSource(FrameSource):
     def __init__(self, root: str | Path, installation: Installation, sensor: str = "lidar") -> None:
         self.root = Path(root)
@@ -87,7 +99,7 @@ class FolderSource(FrameSource):
         duration = float(self.t_s[-1] - self.t_s[0]) + 1.0 / getattr(installation, sensor).rate_hz
         self.meta = SourceMeta(installation=installation, duration_s=duration, name=self.root.name,
                                t_start_s=float(self.t_s[0]))
-        self.mru = self._mru(installation)
+        self.mru = attitude_stream(self.root, installation, float(self.t_s[0]), float(self.t_s[-1]))
         self.truth = None
 
     def _times_file(self, path: Path) -> np.ndarray:
@@ -102,16 +114,6 @@ class FolderSource(FrameSource):
         if not np.all(np.isfinite(t)):
             raise RecordingError(f"{path}: a time is not finite")
         return t
-
-    def _mru(self, installation: Installation) -> MruLog:
-        path = self.root / "mru.csv"
-        if path.is_file():
-            return MruLog.from_columns(read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS))
-        if installation.attitude != "level":
-            raise RecordingError(f"{self.root}: no mru.csv; give one, or set `attitude: level` in the installation "
-                                 "file if the boom-tip frame is level (no attitude stream)")
-        t = np.array([self.t_s[0] - 1.0, self.t_s[-1] + 1.0])
-        return MruLog(t, np.zeros((2, 3)), np.zeros((2, 3)), max_gap_s=np.inf)
 
     def __len__(self) -> int:
         return len(self.files)
