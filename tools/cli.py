@@ -52,18 +52,25 @@ def simulate(
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds to simulate (overrides duration_s)."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (overrides seed)."),
     set_: Optional[list[str]] = SetOpt,
+    format: str = typer.Option("boomtip", "--format", help="boomtip (PCD folder), mcap, ros2 (sqlite3) or ros1 (.bag)."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
 ) -> None:
-    """Simulate a scenario and write a recording (PCD frames, MRU log, ground truth)."""
+    """Simulate a scenario and write a recording (frames, MRU log, encoders, ground truth)."""
     from boomtip.data.io.recording import write_recording
+    from boomtip.data.io.ros_writer import KINDS, write_bag
     from boomtip.data.sources import simulation_for
 
     with user_errors():
+        if format not in ("boomtip", *KINDS):
+            raise ScenarioError(f"--format {format!r}: expected boomtip, {', '.join(KINDS)}")
         s = resolve_scenario(scenario, set_, duration, seed)
         t0 = time.perf_counter()
         sim = simulation_for(s)
         with progress_bar(len(sim), "simulating") as advance:
-            meta = write_recording(sim, out, force=force, progress=advance)
+            if format == "boomtip":
+                meta = write_recording(sim, out, force=force, progress=advance)
+            else:
+                meta = write_bag(sim, out, format, force=force, progress=advance)
         wall = time.perf_counter() - t0
     frames = meta["frames"]
     console.print(
@@ -134,10 +141,15 @@ def run(
 
 @app.command()
 def process(
-    recording: Path = typer.Argument(..., help="A boomtip recording, or a folder of .pcd/.ply/.bin clouds."),
+    recording: Path = typer.Argument(..., help="A boomtip recording, a folder of .pcd/.ply/.bin clouds, an Ouster "
+                                     ".pcap, a ROS 1 .bag, a ROS 2 bag folder or an .mcap."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
-    format: Optional[str] = typer.Option(None, "--format", help="Force a loader: boomtip, folder (default: guessed)."),
+    format: Optional[str] = typer.Option(None, "--format", help="Force a loader: boomtip, folder, ouster, ros1, ros2, "
+                                         "mcap (default: guessed from the path)."),
     installation: Optional[Path] = typer.Option(None, "--installation", help="Installation YAML (sensors, mounts, crane)."),
+    topic: Optional[list[str]] = typer.Option(None, "--topic", help="Bags: ROLE=NAME for lidar, radar, mru, encoders "
+                                              "(default: guessed by message type)."),
+    meta: Optional[Path] = typer.Option(None, "--meta", help="Ouster: the sensor-metadata JSON (default: beside the pcap)."),
     start: Optional[float] = typer.Option(None, "--start", help="Skip the frames before this time (s)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Process this many seconds from --start."),
     every: int = typer.Option(1, "--every", help="Every N-th frame of each sensor."),
@@ -146,11 +158,11 @@ def process(
 ) -> None:
     """Run perception + fusion on a recording (any format the loaders read)."""
     from boomtip.data.io.installation_file import load_installation
-    from boomtip.data.io.loaders import open_source
+    from boomtip.data.io.loaders import open_source, parse_topics
 
     with user_errors():
         inst = load_installation(installation) if installation else None
-        source = open_source(recording, format, inst, start, duration, every)
+        source = open_source(recording, format, inst, start, duration, every, topics=parse_topics(topic), meta=meta)
         _run_and_report(source, out, force, rerun, inputs=(recording,))
 
 

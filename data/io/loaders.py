@@ -13,7 +13,7 @@ from boomtip.data.installation import Installation
 from boomtip.data.io.recording import RecordingError
 
 
-def _boomtip(path: Path, installation: Installation | None) -> FrameSource:
+def _boomtip(path: Path, installation: Installation | None, options: dict) -> FrameSource:
     from boomtip.data.io.recording import Recording
 
     rec = Recording(path)
@@ -22,17 +22,35 @@ def _boomtip(path: Path, installation: Installation | None) -> FrameSource:
     return rec
 
 
-def _folder(path: Path, installation: Installation | None) -> FrameSource:
+def _needs(path: Path, installation: Installation | None, what: str) -> Installation:
+    if installation is None:
+        raise RecordingError(f"{path}: {what} carries no installation; pass --installation FILE.yaml "
+                             "(`boomtip installation --template` prints one)")
+    return installation
+
+
+def _folder(path: Path, installation: Installation | None, options: dict) -> FrameSource:
     from boomtip.data.io.folder import FolderSource
 
-    if installation is None:
-        raise RecordingError(f"{path}: a folder of clouds carries no installation; pass --installation FILE.yaml "
-                             "(`boomtip installation --template` prints one)")
-    return FolderSource(path, installation)
+    return FolderSource(path, _needs(path, installation, "a folder of clouds"))
 
 
-LOADERS: dict[str, Callable[[Path, Installation | None], FrameSource]] = {"boomtip": _boomtip, "folder": _folder}
-PLANNED = {".pcap": "ouster", ".bag": "ros1", ".mcap": "mcap", ".db3": "ros2"}
+def _ouster(path: Path, installation: Installation | None, options: dict) -> FrameSource:
+    from boomtip.data.io.ouster import OusterPcapSource
+
+    return OusterPcapSource(path, _needs(path, installation, "an Ouster pcap"), options.get("meta"))
+
+
+def _ros(path: Path, installation: Installation | None, options: dict) -> FrameSource:
+    from boomtip.data.io.rosbag import RosBagSource
+
+    return RosBagSource(path, installation, options.get("topics"))
+
+
+# ROS 1 bags, ROS 2 bags and MCAP files share one reader (rosbags); the names say what the user has.
+LOADERS: dict[str, Callable[[Path, Installation | None, dict], FrameSource]] = {
+    "boomtip": _boomtip, "folder": _folder, "ouster": _ouster, "ros1": _ros, "ros2": _ros, "mcap": _ros}
+SUFFIXES = {".pcap": "ouster", ".bag": "ros1", ".mcap": "mcap", ".db3": "ros2"}
 
 
 def guess_format(path: Path) -> str:
@@ -41,24 +59,52 @@ def guess_format(path: Path) -> str:
     if path.is_dir():
         from boomtip.data.io.folder import cloud_files
 
+        if (path / "metadata.yaml").is_file():
+            return "ros2"
         if cloud_files(path):
             return "folder"
-        raise RecordingError(f"{path}: neither a boomtip recording (meta.json) nor a folder of .pcd/.ply/.bin files")
-    if path.suffix.lower() in PLANNED:
-        raise RecordingError(f"{path}: the {PLANNED[path.suffix.lower()]} loader is not built yet; formats read: "
-                             f"{', '.join(LOADERS)}")
+        inner = [p for p in path.iterdir() if p.suffix.lower() in SUFFIXES]
+        if len(inner) == 1:
+            return SUFFIXES[inner[0].suffix.lower()]
+        raise RecordingError(f"{path}: neither a boomtip recording (meta.json), a ROS 2 bag (metadata.yaml), a folder "
+                             "of .pcd/.ply/.bin files, nor a folder holding one .bag, .mcap or .pcap")
     if not path.exists():
         raise RecordingError(f"{path}: no such recording")
-    raise RecordingError(f"{path}: a single file; put it in a folder (the folder loader reads .pcd/.ply/.bin)")
+    if path.suffix.lower() in SUFFIXES:
+        return SUFFIXES[path.suffix.lower()]
+    raise RecordingError(f"{path}: a single {path.suffix or 'extensionless'} file; formats read: a boomtip recording, "
+                         "a folder of .pcd/.ply/.bin, an Ouster .pcap, a ROS .bag, a ROS 2 bag folder, an .mcap")
+
+
+def _inner_file(path: Path, kind: str) -> Path:
+    """A folder holding just one bag/pcap (as `simulate --format ros1` writes) reads as that file."""
+    if path.is_dir() and kind in ("ros1", "ouster", "mcap") and not (path / "metadata.yaml").is_file():
+        inner = [p for p in path.iterdir() if SUFFIXES.get(p.suffix.lower()) == kind]
+        if len(inner) == 1:
+            return inner[0]
+    return path
+
+
+def parse_topics(items: list[str] | None) -> dict[str, str]:
+    topics: dict[str, str] = {}
+    for item in items or []:
+        role, sep, name = item.partition("=")
+        if not sep or not role or not name:
+            raise RecordingError(f"--topic {item!r}: expected ROLE=NAME, e.g. --topic lidar=/os_cloud_node/points")
+        topics[role.strip()] = name.strip()
+    return topics
 
 
 def open_source(path: str | Path, format: str | None = None, installation: Installation | None = None,
-                start_s: float | None = None, duration_s: float | None = None, every: int = 1) -> FrameSource:
+                start_s: float | None = None, duration_s: float | None = None, every: int = 1,
+                topics: dict[str, str] | None = None, meta: Path | None = None) -> FrameSource:
     path = Path(path)
     kind = format or guess_format(path)
     if kind not in LOADERS:
         raise RecordingError(f"--format {kind!r}: expected one of {', '.join(LOADERS)}")
-    source = LOADERS[kind](path, installation)
+    if topics and LOADERS[kind] is not _ros:
+        raise RecordingError(f"--topic: the {kind} loader has no topics (only ros1, ros2, mcap)")
+    source = LOADERS[kind](_inner_file(path, kind), installation, {"topics": topics or {}, "meta": meta})
     if start_s is not None or duration_s is not None or every != 1:
         source = Selection(source, start_s or 0.0, duration_s, every)
     return source

@@ -118,11 +118,15 @@ def test_unknown_keys_in_an_installation_file_name_the_key(tmp_path):
         load_installation(p)
 
 
-@pytest.mark.parametrize("name, fmt", [("x.pcap", "ouster"), ("x.bag", "ros1"), ("x.mcap", "mcap")])
-def test_formats_not_read_yet_say_so(tmp_path, name, fmt):
-    (tmp_path / name).write_bytes(b"\x00")
-    with pytest.raises(RecordingError, match=f"the {fmt} loader is not built yet"):
-        guess_format(tmp_path / name)
+@pytest.mark.parametrize("name, fmt", [("x.pcap", "ouster"), ("x.bag", "ros1"), ("x.mcap", "mcap"), ("x.db3", "ros2")])
+def test_formats_are_guessed_from_the_path_and_garbage_is_refused_by_name(tmp_path, name, fmt):
+    (tmp_path / name).write_bytes(b"garbage")
+    (tmp_path / "x.json").write_text("{}")
+    assert guess_format(tmp_path / name) == fmt
+    inst = tmp_path / "inst.yaml"
+    inst.write_text(installation_template())
+    r = runner.invoke(app, ["process", str(tmp_path / name), "--installation", str(inst), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and name in r.output and "Traceback" not in r.output, r.output
 
 
 def test_absolute_time_stamps_start_the_outputs_at_the_first_frame(tmp_path):

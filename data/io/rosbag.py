@@ -1,0 +1,262 @@
+"""ROS 1 bags, ROS 2 bags (sqlite3 or MCAP storage) and bare MCAP files as a frame source,
+through rosbags (no ROS install).
+
+Roles and their message types: `lidar` and `radar` are sensor_msgs/PointCloud2, `mru` is
+sensor_msgs/Imu (orientation and body rates), `encoders` is sensor_msgs/JointState (joints
+`slew`, `luff`, `hoist`), and boomtip's own bags add `truth` (std_msgs/Float64MultiArray, one
+row per message, columns in the layout's label) and `meta` (std_msgs/String, the recording's
+meta.json). Topics come from `--topic ROLE=NAME` or are guessed by message type; when two
+topics could fill a role, the error lists them. The streams (Imu, JointState, truth) are
+read in one pass up front, they are small; clouds are decoded one at a time as iterated.
+Frame times are the header stamps; a bag whose stamps are zero falls back to the bag's
+receive time, and the report says so.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from boomtip.data.frames import HOOK_TRUTH_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.installation import Installation
+from boomtip.data.io.recording import MRU_BOUNDS, RecordingError
+from boomtip.data.io.ros_messages import RADAR_VELOCITY_FIELDS, CloudError, cloud_to_frame, decode_cloud, mru_from_imu
+
+ROLES = {"lidar": "sensor_msgs/msg/PointCloud2", "radar": "sensor_msgs/msg/PointCloud2", "mru": "sensor_msgs/msg/Imu",
+         "encoders": "sensor_msgs/msg/JointState", "truth": "std_msgs/msg/Float64MultiArray", "meta": "std_msgs/msg/String"}
+JOINTS = ("slew", "luff", "hoist")
+
+
+def _stamp_s(header) -> float:
+    return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
+
+
+def _cloud_fields(msg) -> list[tuple[str, int, int, int]]:
+    return [(f.name, int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields]
+
+
+class RosBagSource(FrameSource):
+    def __init__(self, path: str | Path, installation: Installation | None, topics: dict[str, str] | None = None) -> None:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+
+        self.path = Path(path)
+        if not self.path.exists():
+            raise RecordingError(f"{self.path}: no such bag")
+        self._typestore = get_typestore(Stores.ROS2_HUMBLE)  # for ROS 2 bags that do not carry their definitions
+        try:
+            with AnyReader([self.path], default_typestore=self._typestore) as reader:
+                self.topics = {c.topic: c.msgtype for c in reader.connections}
+                counts = {c.topic: c.msgcount for c in reader.connections}
+                self.role_topic = self._roles(topics or {})
+                # a cloud topic that never carried a message (a writer's unused connection) is no sensor
+                self.role_topic = {r: t for r, t in self.role_topic.items()
+                                   if r not in ("lidar", "radar") or counts[t] > 0 or r in (topics or {})}
+                self._bag_span_s = (reader.start_time * 1e-9, reader.end_time * 1e-9)
+                streams = self._read_streams(reader)
+        except RecordingError:
+            raise
+        except Exception as exc:  # rosbags raises its own error types for every unreadable bag
+            raise RecordingError(f"{self.path}: not a readable ROS bag or MCAP file: {type(exc).__name__}: {exc}") from None
+        self._len = sum(counts[self.role_topic[r]] for r in ("lidar", "radar") if r in self.role_topic)
+        own = streams.get("meta")
+        notes: list[str] = []
+        if installation is None and own is None:
+            raise RecordingError(f"{self.path}: the bag carries no installation; pass --installation FILE.yaml "
+                                 "(`boomtip installation --template` prints one)")
+        if installation is None:
+            installation = Installation.model_validate(own["installation"])
+        installation = self._enable_roles(installation)
+        self.velocity_field = installation.radar.velocity_field
+        self.velocity_sign = float(installation.radar.velocity_sign)
+        self._stamp_clock = self._first_stamps()
+        if not self._stamp_clock:
+            notes.append(f"{self.path.name}: the cloud header stamps are zero; frames are timed by the bag's receive time")
+        t0, t1 = self._span
+        if "mru" in streams:
+            self.mru = streams["mru"]
+        elif installation.attitude == "level":
+            self.mru = MruLog(np.array([t0 - 1.0, t1 + 1.0]), np.zeros((2, 3)), np.zeros((2, 3)), max_gap_s=np.inf)
+        else:
+            raise RecordingError(f"{self.path}: no sensor_msgs/Imu topic for the attitude (topics: {self._listing()}); "
+                                 "pass --topic mru=NAME, or set `attitude: level` in the installation file")
+        self.encoders = streams.get("encoders")
+        self.truth = streams.get("truth")
+        processing = own.get("processing", {}) if own else {}
+        prov = own.get("provenance", {}).get("scenario") if own else None
+        self.meta = SourceMeta(installation=installation, duration_s=max(t1 - t0, 0.0), processing=processing,
+                               name=(own or {}).get("name", self.path.stem), provenance=prov, t_start_s=t0, notes=notes)
+
+    # -- topics ------------------------------------------------------------------------------
+    def _listing(self) -> str:
+        return ", ".join(f"{t} ({m.split('/')[-1]})" for t, m in sorted(self.topics.items())) or "none"
+
+    def _roles(self, given: dict[str, str]) -> dict[str, str]:
+        roles: dict[str, str] = {}
+        for role, topic in given.items():
+            if role not in ROLES:
+                raise RecordingError(f"--topic {role}={topic}: unknown role; expected one of {', '.join(ROLES)}")
+            if topic not in self.topics:
+                raise RecordingError(f"--topic {role}={topic}: {self.path} has no such topic; topics: {self._listing()}")
+            if self.topics[topic] != ROLES[role]:
+                raise RecordingError(f"--topic {role}={topic}: a {self.topics[topic]}, expected {ROLES[role]}")
+            roles[role] = topic
+        for role, msgtype in ROLES.items():
+            if role in roles or role in ("lidar", "radar"):
+                continue
+            cands = [t for t, m in self.topics.items() if m == msgtype and t not in roles.values()]
+            if role in ("truth", "meta"):
+                cands = [t for t in cands if t.startswith("/boomtip/")]
+            if len(cands) > 1:
+                raise RecordingError(f"{self.path}: {len(cands)} {msgtype} topics could be the {role}: {', '.join(cands)}; "
+                                     f"choose one with --topic {role}=NAME")
+            if cands:
+                roles[role] = cands[0]
+        clouds = [t for t, m in self.topics.items() if m == ROLES["lidar"] and t not in roles.values()]
+        free = [r for r in ("lidar", "radar") if r not in roles]
+        if free and clouds:
+            named = {r: [t for t in clouds if r in t.lower()] for r in free}
+            for r in free:
+                if len(named[r]) == 1:
+                    roles[r] = named[r][0]
+            left = [t for t in clouds if t not in roles.values()]
+            free = [r for r in free if r not in roles]
+            if len(left) == 1 and free == ["lidar", "radar"]:
+                roles["lidar"] = left[0]  # one cloud topic whose name says nothing: a LiDAR
+            elif len(left) > 1 and free == ["lidar", "radar"]:
+                raise RecordingError(f"{self.path}: cannot tell which PointCloud2 topic is the {' or '.join(free)}: "
+                                     f"{', '.join(left)}; choose with --topic lidar=NAME --topic radar=NAME")
+            # other cloud topics (a second LiDAR, a camera's depth cloud) are left unread
+        if "lidar" not in roles and "radar" not in roles:
+            raise RecordingError(f"{self.path}: no sensor_msgs/PointCloud2 topic; topics: {self._listing()}")
+        return roles
+
+    def _enable_roles(self, inst: Installation) -> Installation:
+        for sensor in ("lidar", "radar"):
+            spec = getattr(inst, sensor)
+            if sensor not in self.role_topic and spec.enabled:
+                inst = inst.model_copy(update={sensor: spec.model_copy(update={"enabled": False})})
+            elif sensor in self.role_topic and not spec.enabled:
+                raise RecordingError(f"installation.{sensor}.enabled is false, but {self.path} has {sensor} frames on "
+                                     f"{self.role_topic[sensor]}")
+        return inst
+
+    # -- streams -----------------------------------------------------------------------------
+    def _read_streams(self, reader) -> dict:
+        wanted = {self.role_topic[r]: r for r in ("mru", "encoders", "truth", "meta") if r in self.role_topic}
+        if not wanted:
+            return {}
+        rows: dict[str, list] = {r: [] for r in wanted.values()}
+        conns = [c for c in reader.connections if c.topic in wanted]
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            role = wanted[conn.topic]
+            msg = reader.deserialize(raw, conn.msgtype)
+            if role == "meta":
+                rows[role].append(msg.data)
+            elif role == "truth":
+                rows[role].append((msg.layout.dim[0].label if msg.layout.dim else "", np.asarray(msg.data, float)))
+            elif role == "mru":
+                q, w = msg.orientation, msg.angular_velocity
+                rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, q.x, q.y, q.z, q.w, w.x, w.y, w.z))
+            else:
+                rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, list(msg.name), np.asarray(msg.position, float)))
+        out: dict = {}
+        for topic, role in wanted.items():
+            if rows[role]:
+                out[role] = getattr(self, f"_{role}")(rows[role], topic)
+        return out
+
+    def _meta(self, rows: list[str], topic: str) -> dict:
+        try:
+            meta = json.loads(rows[0])
+        except json.JSONDecodeError as exc:
+            raise RecordingError(f"{self.path}: {topic}: not the JSON of a boomtip meta: {exc}") from None
+        if not isinstance(meta, dict) or "installation" not in meta:
+            raise RecordingError(f"{self.path}: {topic}: expected a JSON object with an 'installation'")
+        return meta
+
+    def _mru(self, rows: list[tuple], topic: str) -> MruLog:
+        a = np.array(rows, dtype=float)
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        norm = np.linalg.norm(a[:, 1:5], axis=1)
+        ok = np.isfinite(a).all(axis=1) & (np.abs(norm - 1.0) < 1e-3)
+        if not ok.any():
+            raise RecordingError(f"{self.path}: {topic}: no Imu message with a finite unit orientation quaternion")
+        a = a[ok]
+        rpy, rates = mru_from_imu(a[:, 1:5], a[:, 5:8])
+        bounds = np.array([MRU_BOUNDS[k] for k in ("roll", "pitch", "yaw")])
+        bad = np.flatnonzero(np.any(np.abs(rpy) > bounds, axis=1) | ~np.isfinite(rates).all(axis=1))
+        if len(bad):
+            raise RecordingError(f"{self.path}: {topic}: message at t = {a[bad[0], 0]:.3f} s: attitude "
+                                 f"{np.degrees(rpy[bad[0]]).round(1).tolist()} deg is beyond the MRU's range")
+        return MruLog.from_columns({"t": a[:, 0], **{k: rpy[:, i] for i, k in enumerate(("roll", "pitch", "yaw"))},
+                                    **{k: rates[:, i] for i, k in enumerate(("roll_rate", "pitch_rate", "yaw_rate"))}})
+
+    def _encoders(self, rows: list[tuple], topic: str) -> dict[str, np.ndarray]:
+        names = rows[0][1]
+        missing = [j for j in JOINTS if j not in names]
+        if missing:
+            raise RecordingError(f"{self.path}: {topic}: joints {names}; the crane's encoders are named "
+                                 f"{', '.join(JOINTS)} (missing {', '.join(missing)})")
+        idx = [names.index(j) for j in JOINTS]
+        t = np.array([r[0] for r in rows])
+        pos = np.array([r[2][idx] if len(r[2]) > max(idx) else np.full(3, np.nan) for r in rows])
+        keep = np.isfinite(pos).all(axis=1)
+        order = np.argsort(t[keep], kind="stable")
+        return {"t": t[keep][order], **{j: pos[keep][order, i] for i, j in enumerate(JOINTS)}}
+
+    def _truth(self, rows: list[tuple], topic: str) -> Truth:
+        names = tuple(rows[0][0].split(","))
+        if names not in (TRUTH_COLUMNS, HOOK_TRUTH_COLUMNS):
+            raise RecordingError(f"{self.path}: {topic}: truth columns {names[:4]}...: not boomtip's truth table")
+        table = np.array([r[1] for r in rows if len(r[1]) == len(names)])
+        return Truth({k: table[:, i] for i, k in enumerate(names)})
+
+    # -- frames ------------------------------------------------------------------------------
+    def _cloud_messages(self, limit: int | None = None) -> Iterator[tuple[str, int, object]]:
+        from rosbags.highlevel import AnyReader
+
+        topic_role = {self.role_topic[r]: r for r in ("lidar", "radar") if r in self.role_topic}
+        with AnyReader([self.path], default_typestore=self._typestore) as reader:
+            conns = [c for c in reader.connections if c.topic in topic_role]
+            for k, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
+                if limit is not None and k >= limit:
+                    return
+                yield topic_role[conn.topic], t_ns, reader.deserialize(raw, conn.msgtype)
+
+    def _first_stamps(self) -> bool:
+        """Whether the clouds carry header stamps: frames are then timed by them, else by the
+        bag's receive time; the span follows the same clock."""
+        first = [(t_ns, _stamp_s(msg.header)) for _, t_ns, msg in self._cloud_messages(limit=8)]
+        stamped = bool(first) and all(s > 0 for _, s in first)
+        shift = (first[0][1] - first[0][0] * 1e-9) if stamped else 0.0
+        self._span = (self._bag_span_s[0] + shift, self._bag_span_s[1] + shift)
+        return stamped
+
+    def __len__(self) -> int:
+        return self._len
+
+    def __iter__(self) -> Iterator[Frame]:
+        index = {"lidar": 0, "radar": 0}
+        for sensor, t_ns, msg in self._cloud_messages():
+            i = index[sensor]
+            index[sensor] += 1
+            t_s = _stamp_s(msg.header) if self._stamp_clock else t_ns * 1e-9
+            where = f"{self.path}: {self.role_topic[sensor]} message {i}"
+            try:
+                cloud = decode_cloud(_cloud_fields(msg), msg.data, int(msg.height), int(msg.width), int(msg.point_step),
+                                     int(msg.row_step), bool(msg.is_bigendian))
+                points, fields = cloud_to_frame(cloud, sensor, self.velocity_field, self.velocity_sign, t_s)
+            except CloudError as exc:
+                yield Frame(sensor, i, t_s, np.zeros((0, 3)), {}, path=where, error=f"{where}: {exc}")
+                continue
+            if sensor == "radar" and "range_rate" not in fields:
+                yield Frame(sensor, i, t_s, np.zeros((0, 3)), {}, path=where,
+                            error=f"{where}: no velocity field (tried {', '.join(RADAR_VELOCITY_FIELDS)}); set "
+                                  "radar.velocity_field in the installation")
+                continue
+            yield Frame(sensor, i, t_s, points, fields, path=where)
+

@@ -1,0 +1,165 @@
+"""ROS 1 bags, ROS 2 bags and MCAP: what `simulate --format` writes reads back to the estimates
+of the boomtip recording of the same run; topics are guessed by type or chosen; bags from
+other software (unnamed topics, zero stamps, a radar's own velocity field) read or are refused
+with the topics listed."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from boomtip.data.io.installation_file import installation_template
+from boomtip.data.io.loaders import guess_format, open_source
+from boomtip.data.io.recording import RecordingError
+from boomtip.data.io.ros_messages import encode_cloud
+from boomtip.tools.cli import app
+
+runner = CliRunner()
+
+
+def _ok(args):
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0, r.output
+    return r
+
+
+@pytest.fixture(scope="module")
+def sts(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bags")
+    _ok(["simulate", "-s", "sts-loaded", "--duration", "2", "--out", str(root / "rec")])
+    _ok(["process", str(root / "rec"), "--out", str(root / "rec_out")])
+    return root
+
+
+@pytest.mark.parametrize("kind, name", [("mcap", "b_mcap/b_mcap.mcap"), ("ros2", "b_ros2"), ("ros1", "b_ros1/b_ros1.bag")])
+def test_each_bag_kind_reads_back_to_the_recordings_estimates(sts, kind, name):
+    out = sts / f"b_{kind}"
+    _ok(["simulate", "-s", "sts-loaded", "--duration", "2", "--out", str(out), "--format", kind])
+    path = sts / name
+    assert guess_format(path) == kind
+    _ok(["process", str(path), "--out", str(sts / f"p_{kind}")])
+    assert (sts / f"p_{kind}" / "estimates.csv").read_bytes() == (sts / "rec_out" / "estimates.csv").read_bytes()
+    src = open_source(path)
+    assert src.truth is not None and src.meta.provenance is not None and len(src) == 20 + 40
+    assert src.meta.installation == open_source(sts / "rec").meta.installation
+
+
+def test_rerun_opens_the_mcap(sts):
+    mcap = sts / "b_mcap" / "b_mcap.mcap"
+    if not mcap.exists():
+        _ok(["simulate", "-s", "sts-loaded", "--duration", "2", "--out", str(sts / "b_mcap"), "--format", "mcap"])
+    r = subprocess.run([sys.executable, "-m", "rerun", "mcap", "convert", str(mcap), "-o", str(sts / "m.rrd")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert (sts / "m.rrd").stat().st_size > 1e6
+
+
+def test_a_hook_run_carries_its_encoders(tmp_path):
+    _ok(["simulate", "-s", "hook-2", "--duration", "2", "--out", str(tmp_path / "rec")])
+    _ok(["simulate", "-s", "hook-2", "--duration", "2", "--out", str(tmp_path / "bag"), "--format", "mcap"])
+    src = open_source(tmp_path / "bag")
+    assert src.encoders is not None and not src.meta.installation.radar.enabled
+    _ok(["process", str(tmp_path / "rec"), "--out", str(tmp_path / "a")])
+    _ok(["process", str(tmp_path / "bag"), "--out", str(tmp_path / "b")])
+
+    def table(p):
+        with open(p) as fh:
+            rows = list(csv.reader(fh))
+        return rows[0], np.array([[float(x) for x in r[2:]] for r in rows[1:]])
+    head_a, a = table(tmp_path / "a" / "hook_estimates.csv")
+    head_b, b = table(tmp_path / "b" / "hook_estimates.csv")
+    # the recording's CSV streams carry 6 significant digits, the bag full doubles
+    assert head_a == head_b and a.shape == b.shape and np.max(np.abs(a - b)) < 1e-4
+
+
+# --- bags from other software ---------------------------------------------------------------
+def _foreign_bag(path, clouds: dict[str, str], stamp_zero=False, imu=True, radar_field="doppler"):
+    """A ROS 2 bag as a driver stack writes it: topics of its own names."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    T = store.types
+    rng = np.random.default_rng(0)
+    with Writer(path, version=9) as w:
+        conns = {t: w.add_connection(t, "sensor_msgs/msg/PointCloud2", typestore=store) for t in clouds}
+        imu_conn = w.add_connection("/imu/data", "sensor_msgs/msg/Imu", typestore=store) if imu else None
+        for k in range(10):
+            t = 100.0 + 0.1 * k
+            sec, nsec = (0, 0) if stamp_zero else (int(t), int(round((t % 1) * 1e9)))
+            hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="s")
+            for topic, kind in clouds.items():
+                pts = np.column_stack([rng.uniform(-5, 5, 300), rng.uniform(-5, 5, 300), np.full(300, -12.0)])
+                fields = {"intensity": np.ones(300, np.float32)} if kind == "lidar" else {radar_field: np.full(300, -0.3, np.float32)}
+                spec, data, step = encode_cloud(pts, fields)
+                PF = T["sensor_msgs/msg/PointField"]
+                msg = T["sensor_msgs/msg/PointCloud2"](header=hdr, height=1, width=300, fields=[PF(name=n, offset=o, datatype=d, count=c) for n, o, d, c in spec],
+                                                       is_bigendian=False, point_step=step, row_step=step * 300,
+                                                       data=np.frombuffer(data, np.uint8), is_dense=True)
+                w.write(conns[topic], int(t * 1e9), store.serialize_cdr(msg, "sensor_msgs/msg/PointCloud2"))
+            if imu:
+                Q, V = T["geometry_msgs/msg/Quaternion"], T["geometry_msgs/msg/Vector3"]
+                m = T["sensor_msgs/msg/Imu"](header=hdr, orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+                                             angular_velocity=V(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=np.zeros(9),
+                                             linear_acceleration=V(x=0.0, y=0.0, z=9.81), linear_acceleration_covariance=np.zeros(9))
+                w.write(imu_conn, int(t * 1e9), store.serialize_cdr(m, "sensor_msgs/msg/Imu"))
+
+
+@pytest.fixture
+def inst(tmp_path):
+    p = tmp_path / "inst.yaml"
+    p.write_text(installation_template().replace("attitude: mru", "attitude: mru"))
+    from boomtip.data.io.installation_file import load_installation
+    return load_installation(p)
+
+
+def test_two_unnamed_clouds_are_refused_with_the_topics_listed_until_chosen(tmp_path, inst):
+    _foreign_bag(tmp_path / "bag", {"/front/points": "lidar", "/rear/points": "lidar"})
+    with pytest.raises(RecordingError, match=r"cannot tell which PointCloud2 topic.*/front/points, /rear/points.*--topic"):
+        open_source(tmp_path / "bag", installation=inst)
+    src = open_source(tmp_path / "bag", installation=inst, topics={"lidar": "/rear/points"})
+    frames = list(src)
+    assert len(frames) == 10 and {f.sensor for f in frames} == {"lidar"} and not src.meta.installation.radar.enabled
+    assert frames[0].t_s == pytest.approx(100.0) and src.mru.attitude(100.5) is not None
+    with pytest.raises(RecordingError, match=r"--topic lidar=/nope: .* has no such topic; topics: /front/points"):
+        open_source(tmp_path / "bag", installation=inst, topics={"lidar": "/nope"})
+    with pytest.raises(RecordingError, match=r"--topic mru=/front/points: a sensor_msgs/msg/PointCloud2, expected sensor_msgs/msg/Imu"):
+        open_source(tmp_path / "bag", installation=inst, topics={"mru": "/front/points"})
+
+
+def test_radar_and_lidar_by_name_a_velocity_field_and_zero_stamps(tmp_path, inst):
+    _foreign_bag(tmp_path / "bag", {"/os/lidar_points": "lidar", "/ars548/radar_points": "radar"}, stamp_zero=True)
+    src = open_source(tmp_path / "bag", installation=inst)
+    frames = list(src)
+    radar = [f for f in frames if f.sensor == "radar"]
+    assert len(radar) == 10 and np.all(radar[0].fields["range_rate"] == np.float32(-0.3))
+    assert frames[0].t_s == pytest.approx(100.0)  # the bag's receive time
+    assert any("header stamps are zero" in n for n in src.meta.notes)
+    flipped = inst.model_copy(update={"radar": inst.radar.model_copy(update={"velocity_sign": -1})})
+    radar = [f for f in open_source(tmp_path / "bag", installation=flipped) if f.sensor == "radar"]
+    assert np.all(radar[0].fields["range_rate"] == np.float32(0.3))
+    r = runner.invoke(app, ["process", str(tmp_path / "bag"), "--out", str(tmp_path / "o"), "--installation",
+                            str(tmp_path / "inst.yaml")])
+    assert r.exit_code == 0 and "header stamps are zero" in r.output, r.output
+
+
+def test_no_attitude_stream_needs_attitude_level(tmp_path, inst):
+    _foreign_bag(tmp_path / "bag", {"/points": "lidar"}, imu=False)
+    with pytest.raises(RecordingError, match=r"no sensor_msgs/Imu topic.*topics: /points \(PointCloud2\).*attitude: level"):
+        open_source(tmp_path / "bag", installation=inst)
+    level = inst.model_copy(update={"attitude": "level"})
+    assert len(list(open_source(tmp_path / "bag", installation=level))) == 10
+    with pytest.raises(RecordingError, match="carries no installation; pass --installation"):
+        open_source(tmp_path / "bag")
+
+
+def test_an_unknown_velocity_field_makes_missing_frames_with_the_reason(tmp_path, inst):
+    _foreign_bag(tmp_path / "bag", {"/radar": "radar"}, radar_field="snr_db")
+    frames = list(open_source(tmp_path / "bag", installation=inst))
+    assert len(frames) == 10 and all(f.error and "no velocity field" in f.error and "radar.velocity_field" in f.error
+                                     for f in frames)
