@@ -130,3 +130,53 @@ def bench_sweep_cmd(
               f"overhead {1e3 * k['overhead_per_task_s']:6.1f} ms/task (against the local worker's own time)")
     print(f"  local 2 workers: {r['two_workers_wall_s']:6.2f} s wall")
     print(f"  ratio {r['ratio']:.2f} (two workers / one)")
+
+
+@bench_app.command("io")
+def bench_io_cmd(
+    pcap: Optional[Path] = typer.Option(None, "--pcap", help="An Ouster pcap (its metadata JSON beside it); default: "
+                                        "the OS1-128 capture in tests/data/real/ouster."),
+    frames: int = typer.Option(60, "--frames", min=1, help="Frames to read (the pcap is read again until there are)."),
+    rate_hz: float = typer.Option(20.0, "--rate-hz", help="The frame rate the real-time ratio assumes."),
+    mcap_s: float = typer.Option(5.0, "--mcap-s", help="Also time reading an MCAP of this many simulated seconds (0: skip)."),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """Loader read rates: an Ouster pcap against real time and against ouster-sdk's own loop; an MCAP."""
+    from boomtip.tools.bench_io import bench_io
+
+    with user_errors():
+        r = bench_io(pcap, frames, rate_hz, mcap_s)
+        write_bench_json(json_path, r, force)
+    print(f"io  {r['pcap']}: {r['frames']} frames of {r['points_per_frame']:.0f} points")
+    print(f"  boomtip loader:     {r['pcap_ms_per_frame']:6.2f} ms/frame")
+    print(f"  ouster-sdk's loop:  {r['ouster_sdk_ms_per_frame']:6.2f} ms/frame (overhead {r['overhead_vs_ouster_sdk']:.2f}x)")
+    print(f"  ratio {r['ratio']:.1f}x real time at {r['assumed_rate_hz']:g} Hz")
+    if "mcap_ratio" in r:
+        print(f"  MCAP: {r['mcap_frames']} frames of {r['mcap_duration_s']:g} s read in {r['mcap_wall_s']:.2f} s: "
+              f"{r['mcap_ratio']:.1f}x real time")
+
+
+@bench_app.command("ground")
+def bench_ground_cmd(
+    pcap: Optional[list[Path]] = typer.Option(None, "--pcap", help="Ouster pcaps (default: the three in tests/data/real/ouster)."),
+    seeds: int = typer.Option(20, "--seeds", min=1),
+    tolerance_m: float = typer.Option(0.01, "--tolerance-m", help="|D - Open3D's D| counted as agreeing."),
+    reference_iterations: int = typer.Option(20000, "--reference-iterations", min=100),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """Real LiDAR scans, the ground as the deck: deck D over seeds against Open3D's exhaustive segment_plane."""
+    from boomtip.tools.bench_io import bench_ground
+
+    with user_errors():
+        r = bench_ground(pcap, seeds, tolerance_m, reference_iterations)
+        write_bench_json(json_path, r, force)
+    print(f"ground  {seeds} seeds, band {100 * r['threshold_m']:.0f} cm, reference: Open3D segment_plane with "
+          f"{r['reference_iterations']} hypotheses, no early stop")
+    print(f"  {'scan':40s} {'ground':>6s} {'D ref':>7s} {'<=tol':>6s} {'max err':>8s} {'ms':>6s} | Open3D 1000: {'<=tol':>5s} {'max err':>8s} {'ms':>6s}")
+    for s in r["scans"]:
+        print(f"  {s['scan']:40s} {100 * s['ground_fraction']:5.1f}% {s['D_reference_m']:7.3f} {s['within_tolerance']:4d}/{seeds} "
+              f"{100 * s['max_error_m']:6.1f}cm {s['deck_ms']:6.1f} | {s['open3d_default_within_tolerance']:9d}/{seeds} "
+              f"{100 * s['open3d_default_max_error_m']:6.1f}cm {s['open3d_default_ms']:6.1f}")
+    print(f"  worst scan: {r['worst_within_tolerance']}/{seeds} within {100 * tolerance_m:g} cm; ratio (Open3D ms / ours) {r['ratio']:.1f}x")
