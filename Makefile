@@ -8,12 +8,16 @@ SCENARIO ?= sts-loaded
 
 .PHONY: setup run test bench clean
 
-$(BIN)/boomtip: pyproject.toml
+OUSTER_SDK ?= ouster-sdk==1.0.1
+
+$(BIN)/boomtip: pyproject.toml Makefile
 	bash tools/install_system_deps.sh
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "boomtip needs Python >= 3.11, found " + sys.version' 
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[test]"
+	$(BIN)/python -m pip install -q -e ".[test,ouster]"
+	# without its pins, which conflict with rerun-sdk's (see pyproject.toml)
+	$(BIN)/python -m pip install -q --no-deps "$(OUSTER_SDK)"
 	@touch $(BIN)/boomtip
 
 setup: $(BIN)/boomtip
