@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import heave_distance, plane_sigma_at
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
-from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane
+from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane, refine_plane_biweight
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes
 
@@ -32,6 +32,9 @@ class DeckConfig(BaseModel):
         "(the lowest large horizontal plane) a plane above the current best can never win",
     )
     below_margin_m: float = Field(0.3, ge=0, description="'below' search: points this far beyond the plane")
+    biweight_iterations: int = Field(10, ge=0, description="after the search, this many biweight IRLS rounds refine "
+                                     "the deck plane (0: the inlier band's least squares alone)")
+    biweight_scale: float = Field(2.0, gt=0, description="biweight scale, in RANSAC inlier bands")
     min_extent_m: float = Field(
         4.0, gt=0, description="a deck spans at least this much in both in-plane directions "
         "(2 sigma of its inliers): a strip of hull side or a bulwark top does not",
@@ -118,6 +121,13 @@ def detect_deck(
                                       f"expected D = {prior_D_m:.2f} m")
     if deck is None:
         return DeckResult(float("nan"), None, None, pts, "no deck plane")
+    if cfg.biweight_iterations:
+        with times.stage(f"{prefix}.refine"):
+            thr = cfg.multi_plane.ransac.distance_threshold_m
+            plane = refine_plane_biweight(pts, deck.plane, cfg.biweight_scale * thr, cfg.biweight_iterations)
+            mask = np.abs(pts @ plane[:3] + plane[3]) < thr
+            if np.count_nonzero(mask) >= 3:
+                deck = replace(deck, plane=plane, inlier_mask=mask)
     with times.stage(f"{prefix}.intersect"):
         D = heave_distance(deck.plane, wire_dir_sensor, p_tip_sensor)
         if not np.isfinite(D) or D <= 0:

@@ -39,9 +39,9 @@ METHODS = ("deck_lidar", "deck_radar", "reflectors_lidar", "doppler_radar", "dop
 QUANTITY = {"deck_lidar": "D", "deck_radar": "D", "reflectors_lidar": "D", "doppler_radar": "D_dot", "doppler_radar_rot": "D_dot"}
 SENSOR_OF = {"deck_lidar": "lidar", "reflectors_lidar": "lidar", "deck_radar": "radar", "doppler_radar": "radar", "doppler_radar_rot": "radar"}
 STAGES = {
-    "deck_lidar": ("attitude", "deck.preprocess", "deck.planes", "deck.intersect"),
+    "deck_lidar": ("attitude", "deck.preprocess", "deck.planes", "deck.refine", "deck.intersect"),
     "reflectors_lidar": ("attitude", "reflectors.threshold", "reflectors.markers", "reflectors.plane"),
-    "deck_radar": ("attitude", "radar_deck.preprocess", "radar_deck.planes", "radar_deck.intersect"),
+    "deck_radar": ("attitude", "radar_deck.preprocess", "radar_deck.planes", "radar_deck.refine", "radar_deck.intersect"),
     "doppler_radar": ("attitude", "doppler.preprocess", "doppler.fit", "doppler.document"),
     "doppler_radar_rot": ("attitude", "doppler.preprocess", "doppler.fit", "doppler.rotation"),
 }

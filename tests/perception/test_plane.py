@@ -345,3 +345,43 @@ def test_select_deck_plane_rules():
     assert select_deck_plane(pts, fits, up, MultiPlaneConfig(), d_window_m=(30, 38)).deck_index == 2
     assert select_deck_plane(pts, fits[5:], up, MultiPlaneConfig()) is None  # nothing below the sensor
     assert select_deck_plane(pts, [], up, MultiPlaneConfig()) is None
+
+
+def test_ransac_budget_follows_a_small_inlier_share_and_a_cap_is_reported():
+    """5 % of the points on the plane: about 55,000 hypotheses for a 1e-3 chance of missing it
+    (a fixed 1,000 would find it in 12 % of the searches); a smaller cap says it stopped short."""
+    from boomtip.perception.plane import _needed_iterations
+
+    rng = np.random.default_rng(5)
+    plane_pts = np.column_stack([rng.uniform(-10, 10, (500, 2)), np.zeros(500)])
+    pts = np.vstack([plane_pts, rng.uniform(-10, 10, (9500, 3))])
+    assert 5.4e4 < _needed_iterations(0.05, 0.999) < 5.6e4
+    fit = ransac_plane(pts, RansacConfig(distance_threshold_m=0.02, max_time_ms=1e4), rng)
+    assert fit is not None and not fit.capped and abs(fit.plane[2]) > 0.9999 and abs(fit.plane[3]) < 0.005
+    assert fit.iterations >= 0.9 * fit.needed
+    capped = ransac_plane(pts, RansacConfig(distance_threshold_m=0.02, max_iterations=1000), rng)
+    assert capped is None or (capped.capped and capped.iterations == 1000)
+    timed = ransac_plane(pts, RansacConfig(distance_threshold_m=0.02, max_time_ms=0.001), rng)
+    assert timed is None or (timed.capped and timed.iterations == 128)  # one batch, then the clock
+
+
+def test_biweight_refinement_converges_to_one_plane_from_any_start():
+    """A cambered surface (z = -0.002 x^2, 5 cm of sag over 10 m) has many near-equal consensus
+    planes; the biweight reaches the same one from starts 3 cm and 0.3 deg apart."""
+    from boomtip.perception.plane import refine_plane_biweight
+
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(-5, 5, (20000, 2))
+    z = -10.0 - 0.002 * xy[:, 0] ** 2 + 0.005 * rng.standard_normal(20000)
+    pts = np.vstack([np.column_stack([xy, z]), rng.uniform(-5, 5, (5000, 3))])
+    results = []
+    for dz, tilt in [(0.0, 0.0), (0.03, 0.0), (-0.03, 0.3), (0.0, -0.3)]:
+        n = tilted_normal(tilt, 0.0)
+        start = np.concatenate([n, [10.0 + dz]])
+        results.append(refine_plane_biweight(pts, start, 0.16))
+    D = np.array([p[3] / p[2] for p in results])
+    assert np.ptp(D) < 1e-3 and all(angle_deg(p[:3], results[0][:3]) < 0.01 for p in results)
+    # and on a flat plane with outliers it is the plane
+    flat = np.vstack([np.column_stack([xy, np.full(20000, -10.0)]), rng.uniform(-5, 5, (5000, 3))])
+    p = refine_plane_biweight(flat, np.array([0.0, 0.0, 1.0, 10.02]), 0.16)
+    assert abs(p[3] / p[2] - 10.0) < 1e-6 and angle_deg(p[:3], np.array([0, 0, 1.0])) < 1e-4
