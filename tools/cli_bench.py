@@ -180,3 +180,29 @@ def bench_ground_cmd(
               f"{100 * s['max_error_m']:6.1f}cm {s['deck_ms']:6.1f} | {s['open3d_default_within_tolerance']:9d}/{seeds} "
               f"{100 * s['open3d_default_max_error_m']:6.1f}cm {s['open3d_default_ms']:6.1f}")
     print(f"  worst scan: {r['worst_within_tolerance']}/{seeds} within {100 * tolerance_m:g} cm; ratio (Open3D ms / ours) {r['ratio']:.1f}x")
+
+
+@bench_app.command("hook")
+def bench_hook_cmd(
+    scenario: str = typer.Option("hook-2", "--scenario", "-s"),
+    duration: float = typer.Option(20.0, "--duration", help="Seconds of the scenario to run."),
+    set_: Optional[list[str]] = SetOpt,
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """A hook run taken apart: simulation, perception, each estimator, outputs, against real time."""
+    from boomtip.tools.bench_hook import bench_hook
+
+    with user_errors():
+        r = bench_hook(scenario, duration, set_)
+        write_bench_json(json_path, r, force)
+    print(f"hook  {r['program']}, {r['duration_s']:g} s, {r['lidar_frames']} LiDAR frames")
+    print(f"  {'part':28s} {'wall s':>8s} {'x real time':>12s}")
+    for part in ("simulation", "perception", "estimators", "end_to_end"):
+        print(f"  {part:28s} {r['wall_s'][part]:8.2f} {r['realtime_factor'][part]:11.2f}x")
+    print(f"  {'outputs':28s} {r['wall_s']['outputs']:8.2f}")
+    for name, e in r["estimators"].items():
+        print(f"  {name:28s} {e['runtime_s']:8.2f} {e['percent_of_real_time']:10.2f} % of real time")
+    print(f"  block segmentation + fit: {r['block_ms_per_frame']['mean']:.1f} ms/frame (p95 {r['block_ms_per_frame']['p95']:.1f}); "
+          f"rope fit {r['rope_ms_per_frame']['mean']:.1f} ms/frame; peak RSS {r['peak_rss_mb']:.0f} MB")
+    print(f"  ratio {r['ratio']:.2f}x real time end to end")

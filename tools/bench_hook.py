@@ -1,0 +1,78 @@
+"""`boomtip bench hook`: where a hook run's time goes, as simulated seconds per wall second.
+
+The run is `boomtip run -s hook-2` taken apart: the simulator's frames (ray casting and the
+sensor model), the chain's perception per LiDAR frame (rope fit, block segmentation and
+model fit, tracker), each estimator over the whole run, and the outputs. The baseline is
+real time: a ratio above 1 keeps up with the sensors.
+"""
+
+from __future__ import annotations
+
+import resource
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+# the per-frame stages of block segmentation and fit (perception.hook), and of the rope fit
+BLOCK_STAGES = ("hook.sparse", "hook.gate", "hook.planes", "hook.cluster", "hook.fit")
+ROPE_STAGES = ("rope.gate", "rope.ransac", "rope.fit")
+
+
+def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: list[str] | None = None) -> dict:
+    from boomtip.data.scenario import load_scenario
+    from boomtip.data.sources import simulation_for
+    from boomtip.tools.runner import build_chain, outage_windows, processing_for, run_labels
+
+    s = load_scenario(program, [f"duration_s={duration_s}", *(overrides or [])])
+    sim = simulation_for(s)
+    chain = build_chain(sim, processing_for(sim))
+    if chain.name != "hook":
+        raise ValueError(f"{program}: not a hook scenario (its chain is {chain.name})")
+    wall_sim = wall_perc = 0.0
+    stage_ms: dict[str, list[float]] = defaultdict(list)
+    frames = 0
+    it = iter(sim)
+    while True:
+        t0 = time.perf_counter()
+        frame = next(it, None)
+        wall_sim += time.perf_counter() - t0
+        if frame is None:
+            break
+        t0 = time.perf_counter()
+        res = chain.process(frame)
+        wall_perc += time.perf_counter() - t0
+        if res is not None and res.times is not None:
+            frames += 1
+            for k in set(BLOCK_STAGES + ROPE_STAGES) | set(res.times.ms):
+                stage_ms[k].append(res.times.ms.get(k, 0.0))
+    t0 = time.perf_counter()
+    result = chain.finish(sim.duration_s, sim.meta.t_start_s)
+    wall_filters = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        chain.write(Path(tmp), result)
+        kpis = {**run_labels(sim, chain.name), **chain.kpis(result, sim.truth, outage_windows(sim))}
+        chain.report(Path(tmp), kpis, result, sim.truth)
+    wall_out = time.perf_counter() - t0
+    total = wall_sim + wall_perc + wall_filters + wall_out
+    per_frame = {k: float(np.mean(v)) for k, v in sorted(stage_ms.items())}
+    block = np.sum([stage_ms[k] for k in BLOCK_STAGES], axis=0)
+    rope = np.sum([stage_ms[k] for k in ROPE_STAGES], axis=0)
+    estimators = {name: {"runtime_s": run.runtime_s, "percent_of_real_time": 100.0 * run.realtime_fraction,
+                         "realtime_factor": 1.0 / max(run.realtime_fraction, 1e-12)} for name, run in result.runs.items()}
+    return {
+        "program": program, "duration_s": duration_s, "lidar_frames": frames,
+        "wall_s": {"simulation": wall_sim, "perception": wall_perc, "estimators": wall_filters, "outputs": wall_out,
+                   "end_to_end": total},
+        "realtime_factor": {"simulation": duration_s / wall_sim, "perception": duration_s / wall_perc,
+                            "estimators": duration_s / wall_filters, "end_to_end": duration_s / total},
+        "estimators": estimators,
+        "block_ms_per_frame": {"mean": float(np.mean(block)), "p95": float(np.percentile(block, 95))},
+        "rope_ms_per_frame": {"mean": float(np.mean(rope)), "p95": float(np.percentile(rope, 95))},
+        "stage_ms_per_frame": per_frame,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "ratio": duration_s / total,
+    }
