@@ -33,6 +33,9 @@ bench: setup
 	$(BIN)/boomtip bench perception --json runs/bench/perception.json --force
 	$(BIN)/boomtip bench fusion --json runs/bench/fusion.json --force
 	$(BIN)/boomtip bench sweep --json runs/bench/sweep.json --force
+	$(BIN)/boomtip bench io --json runs/bench/io.json --force
+	$(BIN)/boomtip bench ground --json runs/bench/ground.json --force
+	$(BIN)/boomtip bench hook --json runs/bench/hook.json --force
 
 clean:
 	rm -rf $(VENV) runs *.egg-info
