@@ -12,7 +12,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import heave_distance, plane_sigma_at
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
-from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane, refine_plane_biweight
+from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane
+from boomtip.perception.plane_refine import refine_plane_biweight
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes
 

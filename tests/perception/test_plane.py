@@ -368,7 +368,7 @@ def test_ransac_budget_follows_a_small_inlier_share_and_a_cap_is_reported():
 def test_biweight_refinement_converges_to_one_plane_from_any_start():
     """A cambered surface (z = -0.002 x^2, 5 cm of sag over 10 m) has many near-equal consensus
     planes; the biweight reaches the same one from starts 3 cm and 0.3 deg apart."""
-    from boomtip.perception.plane import refine_plane_biweight
+    from boomtip.perception.plane_refine import refine_plane_biweight
 
     rng = np.random.default_rng(8)
     xy = rng.uniform(-5, 5, (20000, 2))
