@@ -8,6 +8,7 @@ from typing import Optional
 
 import typer
 
+from boomtip.data.scenario import ScenarioError
 from boomtip.tools.cli_common import SetOpt, resolve_scenario, user_errors
 
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: each prints a ratio against a baseline measured in the same run.")
