@@ -256,7 +256,7 @@ def test_document_error_is_periodic_and_rotation_aware_is_exact():
         return R, p
 
     def velocity(t):
-        th, ph = A_p * math.sin(om * t), A_r * math.sin(om * t + 0.7)
+        th = A_p * math.sin(om * t)  # the roll angle does not enter the rate below
         th_d, ph_d = A_p * om * math.cos(om * t), A_r * om * math.cos(om * t + 0.7)
         w = th_d * np.array([0.0, 1.0, 0.0]) + ph_d * Rotation.from_euler("Y", th).apply([1.0, 0.0, 0.0])
         _, p = pose(t)
