@@ -224,8 +224,8 @@ class HeavePipeline:
         if reflectors is not None and reflectors.status == "ok" and self._implausible(sensor, "D", reflectors.D_m, 1.0) is None:
             return reflectors.D_m, self.cfg.deck_prior_tol_m
         last = self.last_deck.get(sensor)
-        if last is not None and t_s - last[0] <= self.cfg.max_deck_age_s:
-            return last[1], self.cfg.deck_prior_tol_m + self.cfg.max_abs_D_dot_mps * (t_s - last[0])
+        if last is not None and abs(t_s - last[0]) <= self.cfg.max_deck_age_s:  # abs: a frame may come late
+            return last[1], self.cfg.deck_prior_tol_m + self.cfg.max_abs_D_dot_mps * abs(t_s - last[0])
         return None, 0.0
 
     def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:

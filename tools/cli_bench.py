@@ -138,7 +138,7 @@ def bench_io_cmd(
     pcap: Optional[Path] = typer.Option(None, "--pcap", help="An Ouster pcap (its metadata JSON beside it); default: "
                                         "the OS1-128 capture in tests/data/real/ouster."),
     frames: int = typer.Option(60, "--frames", min=1, help="Frames to read (the pcap is read again until there are)."),
-    rate_hz: float = typer.Option(20.0, "--rate-hz", help="The frame rate the real-time ratio assumes."),
+    rate_hz: float = typer.Option(20.0, "--rate-hz", min=0.1, help="The frame rate the real-time ratio assumes."),
     mcap_s: float = typer.Option(5.0, "--mcap-s", help="Also time reading an MCAP of this many simulated seconds (0: skip)."),
     json_path: Optional[Path] = JsonOpt,
     force: bool = ForceOpt,

@@ -67,12 +67,22 @@ def read_cloud(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return pts, {}
 
 
+def check_overlap(log: MruLog, t0_s: float, t1_s: float, where: str) -> None:
+    """An attitude log that shares no time with the frames is another clock (a sensor's time
+    since boot against the host's UTC, say): every frame would be missing its attitude."""
+    if len(log.t_s) and (log.t_s[-1] < t0_s or log.t_s[0] > t1_s):
+        raise RecordingError(f"{where}: the attitude spans {log.t_s[0]:.3f} to {log.t_s[-1]:.3f} s, the frames "
+                             f"{t0_s:.3f} to {t1_s:.3f} s: no overlap, so the two are on different clocks")
+
+
 def attitude_stream(root: Path, installation: Installation, t0_s: float, t1_s: float) -> MruLog:
     """The MRU log of a recording without one of its own: an `mru.csv` beside the clouds, or,
     with `attitude: level` in the installation, a level boom-tip frame over [t0, t1]."""
     path = root / "mru.csv"
     if path.is_file():
-        return MruLog.from_columns(read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS))
+        log = MruLog.from_columns(read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS))
+        check_overlap(log, t0_s, t1_s, str(path))
+        return log
     if installation.attitude != "level":
         raise RecordingError(f"{root}: no mru.csv; give one, or set `attitude: level` in the installation "
                              "file if the boom-tip frame is level (no attitude stream)")

@@ -137,7 +137,9 @@ class Selection(FrameSource):
             if frame.t_s < self.start_s:
                 continue
             if frame.t_s >= self.end_s:
-                break
+                if frame.t_s >= self.end_s + 1.0:  # a bag's frames come in receive order: a lagging one may follow
+                    break
+                continue
             k = seen[frame.sensor]
             seen[frame.sensor] += 1
             if k % self.every == 0:

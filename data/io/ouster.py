@@ -75,7 +75,7 @@ class OusterPcapSource(FrameSource):
             raise RecordingError(f"{self.pcap}: no LiDAR frame for the sensor in {self.meta_json.name}")
         first = next(iter(self._frames(limit=1)))
         if first.error is not None:
-            raise RecordingError(first.error)
+            raise RecordingError(f"{first.error}; is {self.meta_json.name} this capture's metadata?")
         self.t_start_s = first.t_s
         self._capture_to_sensor_s = 0.0 if self._use_capture else self.t_start_s - float(self._capture_s[0])
         installation = installation.model_copy(update={"radar": installation.radar.model_copy(update={"enabled": False})})
@@ -148,4 +148,10 @@ class OusterPcapSource(FrameSource):
         col_t = np.where(column_ns > 0, column_ns * 1e-9 - t_s, 0.0).astype(np.float32)
         t_point = np.broadcast_to(col_t[None, :], rng.shape).reshape(-1).take(keep)
         fields = {"intensity": refl.reshape(-1).take(keep).astype(np.float32), "t": t_point}
+        valid_cols = int(np.count_nonzero(np.asarray(scan.status) & 1))
+        if not scan.complete(self.info.format.column_window):
+            # a capture cut mid-frame, lost packets, or metadata of another lidar mode
+            return Frame("lidar", i, t_s, np.zeros((0, 3)), {}, path=str(self.pcap),
+                         error=f"{self.pcap}: frame {i}: incomplete, {valid_cols} of {self.info.format.columns_per_frame} "
+                               "columns (lost packets, a cut capture, or metadata of another lidar mode)")
         return Frame("lidar", i, t_s, points, fields, path=str(self.pcap))

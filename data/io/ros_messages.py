@@ -51,6 +51,11 @@ def decode_cloud(fields: list[tuple[str, int, int, int]], data: np.ndarray | byt
     dtype = cloud_dtype(fields, point_step, big_endian)
     if not {"x", "y", "z"} <= set(dtype.names or ()):
         raise CloudError(f"fields {[f[0] for f in fields]}: no x, y, z")
+    for name in ("x", "y", "z"):
+        sub = dtype.fields[name][0]
+        if sub.shape != () or sub.kind != "f":
+            raise CloudError(f"field {name!r} is {sub.base.name}{list(sub.shape) or ''}: expected one float (metres) "
+                             "per point")
     if height == 0 or width == 0:
         return np.zeros(0, dtype=dtype)
     rows = buf[: height * row_step].reshape(height, row_step)[:, : width * point_step]
@@ -92,15 +97,22 @@ def cloud_to_frame(cloud: np.ndarray, sensor: str, velocity_field: str = "", vel
                 break
         tname = next((n for n in LIDAR_TIME_FIELDS if n in names and cloud[n].ndim == 1), None)
         if tname is not None:
-            t = cloud[tname][keep]
-            t = t.astype(np.float64) * 1e-9 if t.dtype.kind in "iu" else t.astype(np.float64)
-            if len(t) and np.nanmedian(t) > 1e6:  # absolute time stamps (s since the epoch)
+            t = cloud[tname][keep].astype(np.float64)
+            med = float(np.nanmedian(t)) if len(t) else 0.0
+            # integers are ns (Ouster's driver); so are floats beyond 1e15 (Livox's absolute ns)
+            if cloud[tname].dtype.kind in "iu" or med > 1e15:
+                t, med = t * 1e-9, med * 1e-9
+            if med > 1e6:  # absolute time stamps (s since the epoch)
                 t = t - stamp_s
-            fields["t"] = t.astype(np.float32)
+            if len(t) and np.nanmax(np.abs(t)) <= 10.0:  # else not a per-point time offset: left out
+                fields["t"] = t.astype(np.float32)
         if "label" in names:
             fields["label"] = cloud["label"][keep]
         return xyz, fields
     vname = velocity_field or next((n for n in RADAR_VELOCITY_FIELDS if n in names), "")
+    for name in {vname, "range", "azimuth", "elevation"} & set(names):
+        if cloud[name].ndim != 1:
+            raise CloudError(f"radar field {name!r} has {cloud[name].shape[1]} values per point; expected one")
     if vname:
         if vname not in names:
             raise CloudError(f"radar velocity field {vname!r} not in the cloud's fields {list(names)}")

@@ -85,7 +85,8 @@ def write_bag(source: FrameSource, out: Path, kind: str = "mcap", force: bool = 
     msgs = _Messages(store, ros1)
     counts = {"lidar": 0, "radar": 0}
     try:
-        bag_path = staging / (f"{out.name}.bag" if ros1 else out.name)
+        stem = out.stem if out.suffix.lower() in (".mcap", ".bag", ".db3") else out.name  # --out x.mcap: x.mcap/x.mcap
+        bag_path = staging / (f"{stem}.bag" if ros1 else stem)
         if ros1:
             from rosbags.rosbag1 import Writer
             writer = Writer(bag_path)

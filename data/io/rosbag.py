@@ -22,7 +22,11 @@ import numpy as np
 
 from boomtip.data.frames import HOOK_TRUTH_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.installation import Installation
-from boomtip.data.io.recording import MRU_BOUNDS, RecordingError
+from pydantic import ValidationError
+
+from boomtip.data.io.folder import check_overlap
+from boomtip.data.io.recording import ENCODER_BOUNDS, MRU_BOUNDS, RecordingError
+from boomtip.data.keys import format_validation, leaf_keys
 from boomtip.data.io.ros_messages import RADAR_VELOCITY_FIELDS, CloudError, cloud_to_frame, decode_cloud, mru_from_imu
 
 ROLES = {"lidar": "sensor_msgs/msg/PointCloud2", "radar": "sensor_msgs/msg/PointCloud2", "mru": "sensor_msgs/msg/Imu",
@@ -59,16 +63,25 @@ class RosBagSource(FrameSource):
                 streams = self._read_streams(reader)
         except RecordingError:
             raise
+        except KeyError as exc:  # a channel whose schema encoding rosbags does not know (json, protobuf)
+            raise RecordingError(f"{self.path}: a channel's schema encoding {exc} is not a ROS message definition; "
+                                 "boomtip reads ROS 1 / ROS 2 (ros2msg, cdr) channels only") from None
         except Exception as exc:  # rosbags raises its own error types for every unreadable bag
-            raise RecordingError(f"{self.path}: not a readable ROS bag or MCAP file: {type(exc).__name__}: {exc}") from None
+            hint = {".bag": " (`rosbag reindex` may repair an unindexed ROS 1 bag)",
+                    ".mcap": " (`mcap recover` may repair a truncated MCAP)"}.get(self.path.suffix.lower(), "")
+            raise RecordingError(f"{self.path}: not a readable ROS bag or MCAP file: {type(exc).__name__}: {exc}{hint}") from None
         self._len = sum(counts[self.role_topic[r]] for r in ("lidar", "radar") if r in self.role_topic)
         own = streams.get("meta")
-        notes: list[str] = []
+        notes: list[str] = list(getattr(self, "_stream_notes", []))
         if installation is None and own is None:
             raise RecordingError(f"{self.path}: the bag carries no installation; pass --installation FILE.yaml "
                                  "(`boomtip installation --template` prints one)")
         if installation is None:
-            installation = Installation.model_validate(own["installation"])
+            try:
+                installation = Installation.model_validate(own["installation"])
+            except ValidationError as exc:
+                raise RecordingError(format_validation(exc, f"{self.path}: {self.role_topic['meta']}", "installation.",
+                                                       keys=leaf_keys(Installation(), "installation"))) from None
         installation = self._enable_roles(installation)
         self.velocity_field = installation.radar.velocity_field
         self.velocity_sign = float(installation.radar.velocity_sign)
@@ -78,6 +91,7 @@ class RosBagSource(FrameSource):
         t0, t1 = self._span
         if "mru" in streams:
             self.mru = streams["mru"]
+            check_overlap(self.mru, t0, t1, f"{self.path}: {self.role_topic['mru']}")
         elif installation.attitude == "level":
             self.mru = MruLog(np.array([t0 - 1.0, t1 + 1.0]), np.zeros((2, 3)), np.zeros((2, 3)), max_gap_s=np.inf)
         else:
@@ -85,8 +99,10 @@ class RosBagSource(FrameSource):
                                  "pass --topic mru=NAME, or set `attitude: level` in the installation file")
         self.encoders = streams.get("encoders")
         self.truth = streams.get("truth")
-        processing = own.get("processing", {}) if own else {}
-        prov = own.get("provenance", {}).get("scenario") if own else None
+        processing = own.get("processing") if own else None
+        processing = processing if isinstance(processing, dict) else {}
+        prov = own.get("provenance") if own else None
+        prov = prov.get("scenario") if isinstance(prov, dict) else None
         self.meta = SourceMeta(installation=installation, duration_s=max(t1 - t0, 0.0), processing=processing,
                                name=(own or {}).get("name", self.path.stem), provenance=prov, t_start_s=t0, notes=notes)
 
@@ -151,9 +167,14 @@ class RosBagSource(FrameSource):
             return {}
         rows: dict[str, list] = {r: [] for r in wanted.values()}
         conns = [c for c in reader.connections if c.topic in wanted]
+        bad: dict[str, int] = {}
         for conn, t_ns, raw in reader.messages(connections=conns):
             role = wanted[conn.topic]
-            msg = reader.deserialize(raw, conn.msgtype)
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception:  # one corrupt message of a stream: skipped and counted, the stream stays
+                bad[conn.topic] = bad.get(conn.topic, 0) + 1
+                continue
             if role == "meta":
                 rows[role].append(msg.data)
             elif role == "truth":
@@ -163,6 +184,8 @@ class RosBagSource(FrameSource):
                 rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, q.x, q.y, q.z, q.w, w.x, w.y, w.z))
             else:
                 rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, list(msg.name), np.asarray(msg.position, float)))
+        self._stream_notes = [f"{self.path.name}: {topic}: {n} message(s) could not be decoded and were skipped"
+                              for topic, n in bad.items()]
         out: dict = {}
         for topic, role in wanted.items():
             if rows[role]:
@@ -174,7 +197,7 @@ class RosBagSource(FrameSource):
             meta = json.loads(rows[0])
         except json.JSONDecodeError as exc:
             raise RecordingError(f"{self.path}: {topic}: not the JSON of a boomtip meta: {exc}") from None
-        if not isinstance(meta, dict) or "installation" not in meta:
+        if not isinstance(meta, dict) or not isinstance(meta.get("installation"), dict):
             raise RecordingError(f"{self.path}: {topic}: expected a JSON object with an 'installation'")
         return meta
 
@@ -182,10 +205,12 @@ class RosBagSource(FrameSource):
         a = np.array(rows, dtype=float)
         a = a[np.argsort(a[:, 0], kind="stable")]
         norm = np.linalg.norm(a[:, 1:5], axis=1)
-        ok = np.isfinite(a).all(axis=1) & (np.abs(norm - 1.0) < 1e-3)
+        ok = np.isfinite(a).all(axis=1) & (np.abs(norm - 1.0) < 1e-2)  # drivers round; renormalised below
         if not ok.any():
-            raise RecordingError(f"{self.path}: {topic}: no Imu message with a finite unit orientation quaternion")
+            raise RecordingError(f"{self.path}: {topic}: no Imu message with a finite orientation quaternion of norm 1 "
+                                 "and finite angular velocities")
         a = a[ok]
+        a[:, 1:5] /= np.linalg.norm(a[:, 1:5], axis=1)[:, None]
         rpy, rates = mru_from_imu(a[:, 1:5], a[:, 5:8])
         bounds = np.array([MRU_BOUNDS[k] for k in ("roll", "pitch", "yaw")])
         bad = np.flatnonzero(np.any(np.abs(rpy) > bounds, axis=1) | ~np.isfinite(rates).all(axis=1))
@@ -196,27 +221,45 @@ class RosBagSource(FrameSource):
                                     **{k: rates[:, i] for i, k in enumerate(("roll_rate", "pitch_rate", "yaw_rate"))}})
 
     def _encoders(self, rows: list[tuple], topic: str) -> dict[str, np.ndarray]:
-        names = rows[0][1]
-        missing = [j for j in JOINTS if j not in names]
-        if missing:
-            raise RecordingError(f"{self.path}: {topic}: joints {names}; the crane's encoders are named "
-                                 f"{', '.join(JOINTS)} (missing {', '.join(missing)})")
-        idx = [names.index(j) for j in JOINTS]
-        t = np.array([r[0] for r in rows])
-        pos = np.array([r[2][idx] if len(r[2]) > max(idx) else np.full(3, np.nan) for r in rows])
-        keep = np.isfinite(pos).all(axis=1)
-        order = np.argsort(t[keep], kind="stable")
-        return {"t": t[keep][order], **{j: pos[keep][order, i] for i, j in enumerate(JOINTS)}}
+        """Joint positions by name in every message (several publishers may share the topic,
+        each with its own joints); messages without the three joints are skipped."""
+        t, pos = [], []
+        for stamp, names, position in rows:
+            if all(j in names for j in JOINTS):
+                idx = [names.index(j) for j in JOINTS]
+                if len(position) > max(idx):
+                    t.append(stamp)
+                    pos.append(position[idx])
+        if not t:
+            seen = sorted({n for r in rows for n in r[1]})
+            raise RecordingError(f"{self.path}: {topic}: no message gives positions for the joints "
+                                 f"{', '.join(JOINTS)} (joints seen: {', '.join(seen) or 'none'})")
+        t_a, pos_a = np.array(t, float), np.array(pos, float)
+        keep = np.isfinite(pos_a).all(axis=1) & np.isfinite(t_a)
+        limits = np.array([ENCODER_BOUNDS[j] for j in JOINTS])
+        beyond = keep & np.any(np.abs(pos_a) > limits, axis=1)
+        if beyond.any():
+            k = int(np.flatnonzero(beyond)[0])
+            raise RecordingError(f"{self.path}: {topic}: message at t = {t_a[k]:.3f} s: slew, luff, hoist {pos_a[k].round(3).tolist()} "
+                                 f"beyond the encoders' range (|slew|, |luff|, |hoist| <= {limits.tolist()})")
+        if np.count_nonzero(keep) < 2:
+            raise RecordingError(f"{self.path}: {topic}: {np.count_nonzero(keep)} usable encoder messages; at least 2 needed")
+        order = np.argsort(t_a[keep], kind="stable")
+        return {"t": t_a[keep][order], **{j: pos_a[keep][order, i] for i, j in enumerate(JOINTS)}}
 
     def _truth(self, rows: list[tuple], topic: str) -> Truth:
         names = tuple(rows[0][0].split(","))
         if names not in (TRUTH_COLUMNS, HOOK_TRUTH_COLUMNS):
             raise RecordingError(f"{self.path}: {topic}: truth columns {names[:4]}...: not boomtip's truth table")
         table = np.array([r[1] for r in rows if len(r[1]) == len(names)])
+        if len(table) < 2:
+            raise RecordingError(f"{self.path}: {topic}: fewer than 2 rows of {len(names)} truth columns")
         return Truth({k: table[:, i] for i, k in enumerate(names)})
 
     # -- frames ------------------------------------------------------------------------------
     def _cloud_messages(self, limit: int | None = None) -> Iterator[tuple[str, int, object]]:
+        """(sensor, receive time ns, message); the message is the exception when it could not
+        be decoded, so one corrupt message is one missing frame."""
         from rosbags.highlevel import AnyReader
 
         topic_role = {self.role_topic[r]: r for r in ("lidar", "radar") if r in self.role_topic}
@@ -225,15 +268,27 @@ class RosBagSource(FrameSource):
             for k, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
                 if limit is not None and k >= limit:
                     return
-                yield topic_role[conn.topic], t_ns, reader.deserialize(raw, conn.msgtype)
+                try:
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    _stamp_s(msg.header), msg.data, msg.fields  # a schema of that name but other fields
+                except Exception as exc:
+                    msg = exc
+                yield topic_role[conn.topic], t_ns, msg
 
     def _first_stamps(self) -> bool:
         """Whether the clouds carry header stamps: frames are then timed by them, else by the
-        bag's receive time; the span follows the same clock."""
-        first = [(t_ns, _stamp_s(msg.header)) for _, t_ns, msg in self._cloud_messages(limit=8)]
+        bag's receive time. The span starts at the first cloud (streams recorded before it
+        do not count) and ends at the bag's end, on the clouds' clock."""
+        try:
+            first = [(t_ns, _stamp_s(msg.header)) for _, t_ns, msg in self._cloud_messages(limit=8)
+                     if not isinstance(msg, Exception)]
+        except Exception as exc:
+            raise RecordingError(f"{self.path}: the cloud topics cannot be read: {type(exc).__name__}: {exc}") from None
         stamped = bool(first) and all(s > 0 for _, s in first)
         shift = (first[0][1] - first[0][0] * 1e-9) if stamped else 0.0
-        self._span = (self._bag_span_s[0] + shift, self._bag_span_s[1] + shift)
+        start = (first[0][1] if stamped else first[0][0] * 1e-9) if first else self._bag_span_s[0]
+        self._span = (start, max(start, self._bag_span_s[1] + shift))
+        self._shift_s = shift
         return stamped
 
     def __len__(self) -> int:
@@ -244,8 +299,12 @@ class RosBagSource(FrameSource):
         for sensor, t_ns, msg in self._cloud_messages():
             i = index[sensor]
             index[sensor] += 1
-            t_s = _stamp_s(msg.header) if self._stamp_clock else t_ns * 1e-9
             where = f"{self.path}: {self.role_topic[sensor]} message {i}"
+            if isinstance(msg, Exception):
+                yield Frame(sensor, i, t_ns * 1e-9 + self._shift_s, np.zeros((0, 3)), {}, path=where,
+                            error=f"{where}: cannot be decoded as a PointCloud2: {type(msg).__name__}: {msg}")
+                continue
+            t_s = _stamp_s(msg.header) if self._stamp_clock else t_ns * 1e-9
             try:
                 cloud = decode_cloud(_cloud_fields(msg), msg.data, int(msg.height), int(msg.width), int(msg.point_step),
                                      int(msg.row_step), bool(msg.is_bigendian))
@@ -259,4 +318,3 @@ class RosBagSource(FrameSource):
                                   "radar.velocity_field in the installation")
                 continue
             yield Frame(sensor, i, t_s, points, fields, path=where)
-

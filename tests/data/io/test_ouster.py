@@ -114,3 +114,15 @@ def test_bench_io_reads_faster_than_the_sensor():
     r = bench_io(frames=6, rate_hz=20.0, mcap_s=0)
     assert r["frames"] == 6 and r["ratio"] > 1.0 and 0.5 < r["overhead_vs_ouster_sdk"] < 3.0
     assert Path(r["pcap"]).name == OS1.name
+
+
+def test_an_mru_log_on_another_clock_is_refused(tmp_path):
+    pcap = tmp_path / "scan.pcap"
+    shutil.copy(OS1, pcap)
+    shutil.copy(OS1.with_suffix(".json"), tmp_path / "scan.json")
+    # the host's UTC clock; the capture's columns count from the sensor's boot (internal oscillator)
+    (tmp_path / "mru.csv").write_text("t,roll,pitch,yaw,roll_rate,pitch_rate,yaw_rate\n"
+                                      "1650410290.0,0,0,0,0,0,0\n1650410300.0,0,0,0,0,0,0\n")
+    inst = level_installation().model_copy(update={"attitude": "mru"})
+    with pytest.raises(RecordingError, match=r"mru.csv: the attitude spans 1650410290.000 .* frames 991.587 .*different clocks"):
+        OusterPcapSource(pcap, inst)

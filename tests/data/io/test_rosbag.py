@@ -163,3 +163,103 @@ def test_an_unknown_velocity_field_makes_missing_frames_with_the_reason(tmp_path
     frames = list(open_source(tmp_path / "bag", installation=inst))
     assert len(frames) == 10 and all(f.error and "no velocity field" in f.error and "radar.velocity_field" in f.error
                                      for f in frames)
+
+
+# --- what a review fed it -----------------------------------------------------------------
+def _write(path, items):
+    """A ROS 2 bag from (topic, msgtype, t_s, message or raw bytes) items."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    with Writer(path, version=9) as w:
+        conns = {}
+        for topic, msgtype, t, msg in items:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, msgtype, typestore=store)
+            raw = msg if isinstance(msg, bytes) else store.serialize_cdr(msg, msgtype)
+            w.write(conns[topic], int(t * 1e9), raw)
+    return store.types
+
+
+def _header(T, t):
+    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=int(round((t % 1) * 1e9))),
+                                    frame_id="s")
+
+
+def _cloud(T, t, n=300):
+    pts = np.column_stack([np.linspace(-5, 5, n), np.linspace(5, -5, n), np.full(n, -12.0)])
+    spec, data, step = encode_cloud(pts, {"intensity": np.ones(n, np.float32)})
+    PF = T["sensor_msgs/msg/PointField"]
+    return T["sensor_msgs/msg/PointCloud2"](header=_header(T, t), height=1, width=n,
+                                            fields=[PF(name=a, offset=o, datatype=d, count=c) for a, o, d, c in spec],
+                                            is_bigendian=False, point_step=step, row_step=step * n,
+                                            data=np.frombuffer(data, np.uint8), is_dense=True)
+
+
+def test_a_corrupt_cloud_message_is_a_missing_frame_and_the_run_goes_on(tmp_path, inst):
+    from rosbags.typesys import Stores, get_typestore
+
+    T = get_typestore(Stores.ROS2_HUMBLE).types
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    good = [("/points", "sensor_msgs/msg/PointCloud2", 100 + 0.1 * k, _cloud(T, 100 + 0.1 * k)) for k in range(6)]
+    raw = store.serialize_cdr(good[3][3], "sensor_msgs/msg/PointCloud2")
+    good[3] = (*good[3][:3], bytes(raw[:40]))  # cut inside the field list
+    _write(tmp_path / "bag", good)
+    level = inst.model_copy(update={"attitude": "level"})
+    frames = list(open_source(tmp_path / "bag", installation=level))
+    assert len(frames) == 6 and [f.error is None for f in frames] == [True] * 3 + [False] + [True] * 2
+    assert "message 3: cannot be decoded" in frames[3].error and frames[3].t_s == pytest.approx(100.3)
+
+
+def test_joints_are_read_by_name_in_every_message_and_bounded(tmp_path, inst):
+    from rosbags.typesys import Stores, get_typestore
+
+    T = get_typestore(Stores.ROS2_HUMBLE).types
+    JS = T["sensor_msgs/msg/JointState"]
+    items = [("/points", "sensor_msgs/msg/PointCloud2", 100.0, _cloud(T, 100.0))]
+    for k in range(10):  # two publishers on one topic, each with its own joints and order
+        t = 100 + 0.05 * k
+        items.append(("/joint_states", "sensor_msgs/msg/JointState", t,
+                      JS(header=_header(T, t), name=["gripper", "hoist"], position=np.array([9.0, 30.0]),
+                         velocity=np.zeros(0), effort=np.zeros(0))))
+        items.append(("/joint_states", "sensor_msgs/msg/JointState", t + 0.01,
+                      JS(header=_header(T, t + 0.01), name=["hoist", "luff", "slew"], position=np.array([30.0, 0.7, 0.1]),
+                         velocity=np.zeros(0), effort=np.zeros(0))))
+    _write(tmp_path / "bag", items)
+    level = inst.model_copy(update={"attitude": "level"})
+    enc = open_source(tmp_path / "bag", installation=level).encoders
+    assert len(enc["t"]) == 10 and np.all(enc["hoist"] == 30.0) and np.all(enc["luff"] == 0.7) and np.all(enc["slew"] == 0.1)
+    items[2] = (*items[2][:3], JS(header=_header(T, 100.01), name=["hoist", "luff", "slew"], position=np.array([30.0, 45.0, 0.1]),
+                                  velocity=np.zeros(0), effort=np.zeros(0)))  # luff in degrees
+    _write(tmp_path / "bag2", items)
+    with pytest.raises(RecordingError, match=r"/joint_states: message at t = 100.010 s: slew, luff, hoist \[0.1, 45.0, 30.0\] beyond"):
+        open_source(tmp_path / "bag2", installation=level)
+
+
+def test_a_bad_meta_is_named_and_an_imu_on_another_clock_is_refused(tmp_path, inst):
+    from rosbags.typesys import Stores, get_typestore
+
+    T = get_typestore(Stores.ROS2_HUMBLE).types
+    meta = '{"installation": {"attitude": "sideways"}}'
+    _write(tmp_path / "bag", [("/points", "sensor_msgs/msg/PointCloud2", 100.0, _cloud(T, 100.0)),
+                              ("/boomtip/meta", "std_msgs/msg/String", 100.0, T["std_msgs/msg/String"](data=meta))])
+    with pytest.raises(RecordingError, match=r"/boomtip/meta: key 'installation.attitude'"):
+        open_source(tmp_path / "bag")
+    Q, V = T["geometry_msgs/msg/Quaternion"], T["geometry_msgs/msg/Vector3"]
+    imu = [("/imu", "sensor_msgs/msg/Imu", 1.0 + 0.1 * k, T["sensor_msgs/msg/Imu"](
+        header=_header(T, 1.0 + 0.1 * k), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+        angular_velocity=V(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=np.zeros(9),
+        linear_acceleration=V(x=0.0, y=0.0, z=0.0), linear_acceleration_covariance=np.zeros(9))) for k in range(5)]
+    _write(tmp_path / "bag3", [("/points", "sensor_msgs/msg/PointCloud2", 100.0, _cloud(T, 100.0)), *imu])
+    with pytest.raises(RecordingError, match=r"/imu: the attitude spans 1.000 to 1.400 s, the frames 100.000 .*different clocks"):
+        open_source(tmp_path / "bag3", installation=inst)
+
+
+def test_multi_valued_coordinates_are_a_missing_frame():
+    from boomtip.data.io.ros_messages import CloudError, decode_cloud
+
+    with pytest.raises(CloudError, match=r"field 'x' is float32\[2\]: expected one float"):
+        decode_cloud([("x", 0, 7, 2), ("y", 8, 7, 1), ("z", 12, 7, 1)], b"\0" * 16, 1, 1, 16, 16)
+    with pytest.raises(CloudError, match=r"field 'x' is int16: expected one float"):
+        decode_cloud([("x", 0, 3, 1), ("y", 2, 3, 1), ("z", 4, 3, 1)], b"\0" * 6, 1, 1, 6, 6)
