@@ -211,7 +211,8 @@ def deck_like_planes(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rn
         below = np.flatnonzero(pts @ current.plane[:3] + current.plane[3] < -cfg.below_margin_m)
         if len(below) < need:
             break
-        cand = ransac_plane(pts[below], mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
+        cand = ransac_plane(pts[below], mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg,
+                            min_support=need / len(below))  # smaller planes are refused below anyway
         if cand is None or cand.n_inliers < need:
             break
         mask = np.zeros(len(pts), dtype=bool)
