@@ -80,6 +80,7 @@ def test_missing_metadata_and_broken_pcaps_are_named(tmp_path):
     pcap.write_bytes(OS1.read_bytes()[: OS1.stat().st_size // 2])
     frames = list(OusterPcapSource(pcap, level_installation()))
     assert 1 <= len(frames) <= 2 and frames[0].error is None
+    assert all("incomplete" in f.error for f in frames[1:])  # the cut frame is a missing one
     with pytest.raises(RecordingError, match="no such pcap"):
         OusterPcapSource(tmp_path / "none.pcap", level_installation())
 

@@ -101,3 +101,12 @@ def test_imu_and_mru_conventions_round_trip():
     np.testing.assert_allclose(w, [[0, 0, 0.2]])
     _, w = imu_from_mru(np.array([[0.0, 0.4, 0.0]]), np.array([[0.1, 0.0, 0.0]]))
     np.testing.assert_allclose(w, [[0.1, 0, 0]])
+
+
+def test_float_nanosecond_time_fields_and_implausible_ones():
+    dt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("timestamp", "<f8")])
+    cloud = np.zeros(2, dtype=dt)
+    cloud["x"], cloud["timestamp"] = 1.0, [1.7e18 + 2.5e8, 1.7e18 + 3.0e8]  # Livox: absolute ns as doubles
+    np.testing.assert_allclose(cloud_to_frame(cloud, "lidar", stamp_s=1.7e9 + 0.25)[1]["t"], [0, 0.05], atol=1e-6)
+    cloud["timestamp"] = [5e3, 6e3]  # neither an offset in s nor a stamp: left out rather than trusted
+    assert "t" not in cloud_to_frame(cloud, "lidar")[1]
