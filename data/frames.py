@@ -67,6 +67,12 @@ class MruLog:
                    np.column_stack([cols["roll_rate"], cols["pitch_rate"], cols["yaw_rate"]]),
                    max_gap_s=max(0.1, 5.0 * period))
 
+    @classmethod
+    def level(cls, t0_s: float, t1_s: float) -> "MruLog":
+        """A level boom-tip frame over [t0, t1] (with a second's margin): the attitude of an
+        installation with `attitude: level`, which has no attitude stream."""
+        return cls(np.array([t0_s - 1.0, t1_s + 1.0]), np.zeros((2, 3)), np.zeros((2, 3)), max_gap_s=np.inf)
+
     def attitude(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Attitude and rates at time t, linearly interpolated; None when t falls outside the
         log or inside a gap longer than max_gap_s (the caller records a missing measurement)."""

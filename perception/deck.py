@@ -62,6 +62,11 @@ RADAR_DECK = DeckConfig(
 )
 
 
+def status_ok(status: str) -> bool:
+    """A measurement: "ok", or "ok (...)" with a remark (a capped RANSAC)."""
+    return status == "ok" or status.startswith("ok (")
+
+
 @dataclass
 class DeckResult:
     """Result of :func:`detect_deck` (sensor frame, metres)."""
@@ -72,6 +77,10 @@ class DeckResult:
     points_used: np.ndarray  # the points after preprocessing
     status: str  # "ok" or why there is no measurement
     sigma_m: float = float("nan")  # 1-sigma of D from the fit (plane prediction error at the wire)
+
+    @property
+    def ok(self) -> bool:
+        return status_ok(self.status)
 
 
 def detect_deck(

@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.data.frames import Frame, MruLog
 from boomtip.data.installation import Installation
-from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck
+from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck, status_ok
 from boomtip.perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
 from boomtip.perception.geometry import (
     NormalRate,
@@ -89,8 +89,7 @@ class Measurement:
 
     @property
     def ok(self) -> bool:
-        """A measurement: "ok", or "ok (...)" with a remark (a capped RANSAC)."""
-        return self.status == "ok" or self.status.startswith("ok (")
+        return status_ok(self.status)
 
 
 @dataclass
@@ -145,7 +144,7 @@ class HeavePipeline:
     def _rows(self, frame: Frame, results: dict[str, tuple[float, float, str]], times: StageTimes) -> list[Measurement]:
         rows = []
         for m, (v, s, status) in results.items():
-            if status == "ok" or status.startswith("ok ("):
+            if status_ok(status):
                 bad = self._implausible(frame.sensor, QUANTITY[m], v, s)
                 status = bad or status
                 if bad:
@@ -229,7 +228,7 @@ class HeavePipeline:
         return None, 0.0
 
     def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:
-        if not (deck.status == "ok" or deck.status.startswith("ok (")):
+        if not deck.ok:
             return (np.nan, np.nan, deck.status)
         self.normals[sensor].add(t_s, R_ls @ deck.plane_sensor[:3])
         self.last_deck[sensor] = (t_s, deck.D_m)

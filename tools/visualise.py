@@ -89,7 +89,7 @@ class RerunLogger:
                 keep = np.einsum("ij,ij->i", pts[:, :2], pts[:, :2]) < self.near_wire_m**2
             rec.log("tip/lidar", rr.Points3D(pts[keep], colors=_colormap(inten[keep], -1.5, 1.5, "viridis"), radii=0.06))
             deck = res.deck_lidar
-            if deck is not None and (deck.status == "ok" or deck.status.startswith("ok (")):
+            if deck is not None and deck.ok:
                 self._log_plane("tip/deck_plane", res, deck.plane_sensor, deck.D_m, [80, 160, 255, 90])
             ref = res.reflectors
             if ref is not None and len(ref.marker_centroids):

@@ -86,7 +86,7 @@ def attitude_stream(root: Path, installation: Installation, t0_s: float, t1_s: f
     if installation.attitude != "level":
         raise RecordingError(f"{root}: no mru.csv; give one, or set `attitude: level` in the installation "
                              "file if the boom-tip frame is level (no attitude stream)")
-    return MruLog(np.array([t0_s - 1.0, t1_s + 1.0]), np.zeros((2, 3)), np.zeros((2, 3)), max_gap_s=np.inf)
+    return MruLog.level(t0_s, t1_s)
 
 
 class FolderSource(FrameSource):

@@ -91,8 +91,13 @@ def commit_output(staging: Path, out: Path) -> None:
 
 def write_json(path: Path, obj) -> None:
     """Strict JSON: NaN and infinities are written as null (json.dumps would write NaN)."""
-    text = json.dumps(_finite_or_null(obj), indent=2, default=_json_default, allow_nan=False)
+    text = json_text(obj, indent=2)
     atomic_write_bytes(path, (text + "\n").encode())
+
+
+def json_text(obj, indent: int | None = None) -> str:
+    """Strict JSON text: NaN and infinities as null, numpy values as plain numbers."""
+    return json.dumps(_finite_or_null(obj), indent=indent, default=_json_default, allow_nan=False)
 
 
 def _finite_or_null(o):

@@ -7,7 +7,6 @@ layout's label) and /boomtip/meta (String: the meta.json a boomtip recording car
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 from typing import Callable
@@ -15,7 +14,7 @@ from typing import Callable
 import numpy as np
 
 from boomtip.data.frames import FrameSource
-from boomtip.data.io.recording import _finite_or_null, _json_default, commit_output, meta_to_json, prepare_output
+from boomtip.data.io.recording import commit_output, json_text, meta_to_json, prepare_output
 from boomtip.data.io.ros_messages import encode_cloud, imu_from_mru
 
 KINDS = ("mcap", "ros2", "ros1")
@@ -128,7 +127,7 @@ def write_bag(source: FrameSource, out: Path, kind: str = "mcap", force: bool = 
                 if progress:
                     progress(1)
             meta = meta_to_json(source.meta, counts)
-            put("meta", t0, msgs.text(json.dumps(_finite_or_null(meta), default=_json_default, allow_nan=False)))
+            put("meta", t0, msgs.text(json_text(meta)))
         if not ros1:  # the ROS 2 writer made a folder of its own: its files become OUT's
             for p in bag_path.iterdir():
                 p.rename(staging / p.name)

@@ -60,7 +60,7 @@ class RosBagSource(FrameSource):
                 self.role_topic = {r: t for r, t in self.role_topic.items()
                                    if r not in ("lidar", "radar") or counts[t] > 0 or r in (topics or {})}
                 self._bag_span_s = (reader.start_time * 1e-9, reader.end_time * 1e-9)
-                streams = self._read_streams(reader)
+                streams, skipped = self._read_streams(reader)
         except RecordingError:
             raise
         except KeyError as exc:  # a channel whose schema encoding rosbags does not know (json, protobuf)
@@ -72,7 +72,8 @@ class RosBagSource(FrameSource):
             raise RecordingError(f"{self.path}: not a readable ROS bag or MCAP file: {type(exc).__name__}: {exc}{hint}") from None
         self._len = sum(counts[self.role_topic[r]] for r in ("lidar", "radar") if r in self.role_topic)
         own = streams.get("meta")
-        notes: list[str] = list(getattr(self, "_stream_notes", []))
+        notes = [f"{self.path.name}: {topic}: {n} message(s) could not be decoded and were skipped"
+                 for topic, n in skipped.items()]
         if installation is None and own is None:
             raise RecordingError(f"{self.path}: the bag carries no installation; pass --installation FILE.yaml "
                                  "(`boomtip installation --template` prints one)")
@@ -93,7 +94,7 @@ class RosBagSource(FrameSource):
             self.mru = streams["mru"]
             check_overlap(self.mru, t0, t1, f"{self.path}: {self.role_topic['mru']}")
         elif installation.attitude == "level":
-            self.mru = MruLog(np.array([t0 - 1.0, t1 + 1.0]), np.zeros((2, 3)), np.zeros((2, 3)), max_gap_s=np.inf)
+            self.mru = MruLog.level(t0, t1)
         else:
             raise RecordingError(f"{self.path}: no sensor_msgs/Imu topic for the attitude (topics: {self._listing()}); "
                                  "pass --topic mru=NAME, or set `attitude: level` in the installation file")
@@ -161,10 +162,11 @@ class RosBagSource(FrameSource):
         return inst
 
     # -- streams -----------------------------------------------------------------------------
-    def _read_streams(self, reader) -> dict:
+    def _read_streams(self, reader) -> tuple[dict, dict[str, int]]:
+        """The small streams by role, and how many messages of each topic could not be decoded."""
         wanted = {self.role_topic[r]: r for r in ("mru", "encoders", "truth", "meta") if r in self.role_topic}
         if not wanted:
-            return {}
+            return {}, {}
         rows: dict[str, list] = {r: [] for r in wanted.values()}
         conns = [c for c in reader.connections if c.topic in wanted]
         bad: dict[str, int] = {}
@@ -184,13 +186,11 @@ class RosBagSource(FrameSource):
                 rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, q.x, q.y, q.z, q.w, w.x, w.y, w.z))
             else:
                 rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, list(msg.name), np.asarray(msg.position, float)))
-        self._stream_notes = [f"{self.path.name}: {topic}: {n} message(s) could not be decoded and were skipped"
-                              for topic, n in bad.items()]
         out: dict = {}
         for topic, role in wanted.items():
             if rows[role]:
                 out[role] = getattr(self, f"_{role}")(rows[role], topic)
-        return out
+        return out, bad
 
     def _meta(self, rows: list[str], topic: str) -> dict:
         try:
