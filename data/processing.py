@@ -11,8 +11,10 @@ from typing import Literal
 from pydantic import Field
 
 from boomtip.data.installation import _Model
+from boomtip.fusion.feeder_filter import FeederFilterConfig
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.solutions import FusionConfig
+from boomtip.perception.feeder import FeederConfig
 from boomtip.perception.hook_types import HookConfig
 from boomtip.perception.pipeline import PipelineConfig
 from boomtip.perception.rope import RopeConfig
@@ -34,6 +36,16 @@ class HookProcessing(_Model):
     estimators: tuple[Literal["ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"], ...] = HOOK_ESTIMATORS
 
 
+class FeederProcessing(_Model):
+    enabled: bool = Field(True, description="run the feeder's 6-DOF chain beside the heave chain when there is a LiDAR")
+    perception: FeederConfig = FeederConfig()
+    filter: FeederFilterConfig = FeederFilterConfig()
+    mru_tau_s: float = Field(1.0, ge=0, description="time constant of the MRU's complementary filter (0: raw angles)")
+    radar_deck_after_s: float = Field(0.5, gt=0, description="the radar's deck plane is used once the LiDAR has had none this long")
+    centre_line_every: int = Field(5, ge=1, description="the hull edge is looked for every this many LiDAR frames")
+    calibration_min_s: float = Field(30.0, gt=0, description="deck planes needed before the levelling calibration applies")
+
+
 class Processing(_Model):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the stages' random draws (RANSAC, ...)")
     chain: Literal["heave", "hook"] | None = Field(
@@ -42,4 +54,5 @@ class Processing(_Model):
     heave: PipelineConfig = PipelineConfig()
     fusion: FusionConfig = FusionConfig()
     hook: HookProcessing = HookProcessing()
+    feeder: FeederProcessing = FeederProcessing()
     sea_state: SeaStatePrior | None = None

@@ -1,0 +1,164 @@
+"""The feeder's 6-DOF motion relative to the crane vessel: an extended Kalman filter after
+document 004 (pose, velocity and acceleration of the relative motion), fed by what the
+boom-tip sensors see of the feeder instead of a laser tracker and a second MRU.
+
+Every update is chi-square gated. A kind of measurement refused `max_rejections` times in a
+row is taken the next time with its covariance as the state's (a re-acquisition: the filter,
+not the sensor, was wrong, e.g. after a long outage). An update that would leave a non-finite
+state or a covariance that is not positive is not applied. The measurement vector shrinks with
+what arrives (004's Algorithm 1): a missing sensor is simply no update.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.stats import chi2
+
+from boomtip.fusion.models.relative_motion import (ACC, N_STATE, POSE, RATE, deck_plane, numeric_jacobian, point_velocity,
+                                                   transition, well_observed)
+
+DEG = math.pi / 180.0
+
+
+class FeederFilterConfig(BaseModel):
+    """Nominal for ship-to-ship transfer in seas up to Hs 4 m; nothing here is the sea state."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    tau_s: float = Field(1.5, gt=0, description="correlation time of each DOF's acceleration (Singer)")
+    sigma_acc_mps2: tuple[float, float, float] = Field((0.3, 0.3, 1.0), description="x, y, z acceleration 1-sigma")
+    sigma_angacc_degps2: tuple[float, float, float] = Field((1.5, 1.5, 0.3), description="roll, pitch, yaw acceleration 1-sigma")
+    gate_probability: float = Field(0.9999, gt=0.5, lt=1, description="chi-square gate of every update")
+    max_rejections: int = Field(10, ge=1, description="refused this often in a row, a kind is taken as a re-acquisition")
+    max_sigma_m: float = Field(0.05, gt=0, description="registration directions known worse than this are not updated")
+    init_sigma_rate: tuple[float, float] = Field((0.5, 2.0), description="first-frame 1-sigma of the rates: m/s, deg/s")
+
+
+@dataclass
+class FeederEstimates:
+    """The filter's history: one row per update time."""
+
+    t_s: list[float] = field(default_factory=list)
+    x: list[np.ndarray] = field(default_factory=list)
+    P: list[np.ndarray] = field(default_factory=list)
+    counts: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> accepted / gated / re-acquired / bad
+
+
+class FeederFilter:
+    def __init__(self, cfg: FeederFilterConfig | None = None) -> None:
+        self.cfg = cfg or FeederFilterConfig()
+        c = self.cfg
+        self.tau = np.full(6, c.tau_s)
+        self.sigma_acc = np.array([*c.sigma_acc_mps2, *(np.array(c.sigma_angacc_degps2) * DEG)])
+        self.x: np.ndarray | None = None
+        self.P: np.ndarray | None = None
+        self.t_s = float("nan")
+        self.rejections: dict[str, int] = {}
+        self.out = FeederEstimates()
+
+    @property
+    def started(self) -> bool:
+        return self.x is not None
+
+    def start(self, t_s: float, pose: np.ndarray, pose_cov: np.ndarray, tip_velocity: np.ndarray) -> None:
+        """Begin at a pose (the map frame's definition at the first deck frame), at rest
+        within the stated rate sigmas, accelerations at their steady-state spread."""
+        self.x = np.zeros(N_STATE)
+        self.x[POSE] = pose
+        P = np.zeros((N_STATE, N_STATE))
+        P[POSE, POSE] = pose_cov
+        v, w = self.cfg.init_sigma_rate
+        P[RATE, RATE] = np.diag([v * v] * 3 + [(w * DEG) ** 2] * 3)
+        P[ACC, ACC] = np.diag(self.sigma_acc ** 2)
+        self.P, self.t_s, self.tip_velocity = P, t_s, np.asarray(tip_velocity, dtype=float)
+        self.record()
+
+    def predict(self, t_s: float, tip_velocity: np.ndarray, tip_velocity_sigma: float) -> None:
+        """To t_s, the tip having moved (relative to the vessel) at tip_velocity (m/s, the
+        MRU's; 1-sigma per axis tip_velocity_sigma) since the last time, trapezoidally."""
+        dt = t_s - self.t_s
+        if dt <= 0:  # a late measurement is applied at the current time
+            return
+        F, Q = transition(dt, self.tau, self.sigma_acc)
+        self.x = F @ self.x
+        self.x[0:3] -= 0.5 * (self.tip_velocity + tip_velocity) * dt
+        self.P = F @ self.P @ F.T + Q
+        self.P[0:3, 0:3] += np.eye(3) * 0.5 * (tip_velocity_sigma * dt) ** 2
+        self.t_s, self.tip_velocity = t_s, np.asarray(tip_velocity, dtype=float)
+
+    def pose_sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.P)[POSE])
+
+    # -- updates ---------------------------------------------------------------------------
+    def _update(self, kind: str, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray) -> bool:
+        counts = self.out.counts.setdefault(kind, {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(R))):
+            counts["bad"] += 1
+            return False
+        y = z - h
+        S = H @ self.P @ H.T + R
+        try:
+            Sinv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            counts["bad"] += 1
+            return False
+        d2 = float(y @ Sinv @ y)
+        if d2 > chi2.ppf(self.cfg.gate_probability, len(z)):
+            self.rejections[kind] = self.rejections.get(kind, 0) + 1
+            if self.rejections[kind] <= self.cfg.max_rejections:
+                counts["gated"] += 1
+                return False
+            # The filter is what is wrong: widen it along what this measures, then take it.
+            counts["reacquired"] += 1
+            self.P = self.P + H.T @ np.linalg.pinv(H @ H.T) @ (np.outer(y, y) + R) @ np.linalg.pinv(H @ H.T) @ H
+            S = H @ self.P @ H.T + R
+            Sinv = np.linalg.inv(S)
+        K = self.P @ H.T @ Sinv
+        x = self.x + K @ y
+        IKH = np.eye(N_STATE) - K @ H
+        P = IKH @ self.P @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric and positive
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P)) and np.all(np.diag(P) > 0)):
+            counts["bad"] += 1
+            return False
+        self.x, self.P = x, 0.5 * (P + P.T)
+        self.rejections[kind] = 0
+        counts["accepted"] += 1
+        return True
+
+    def update_deck(self, kind: str, plane_abc: np.ndarray, cov: np.ndarray) -> bool:
+        """The deck plane z = a x + b y + c (level frame at the tip) and its covariance."""
+        return self._update(kind, plane_abc, deck_plane(self.x), numeric_jacobian(deck_plane, self.x, np.arange(6)), cov)
+
+    def update_registration(self, x_y_yaw: np.ndarray, info_xy_yaw: np.ndarray, extra_cov: np.ndarray | None = None) -> bool:
+        """A registration's x, y, yaw; only the directions its information constrains.
+        extra_cov (3x3): errors the registration does not see (the frame's levelling noise)."""
+        A, var = well_observed(info_xy_yaw, self.cfg.max_sigma_m)
+        if len(var) == 0:
+            self.out.counts.setdefault("registration", {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
+            self.out.counts["registration"].setdefault("degenerate", 0)
+            self.out.counts["registration"]["degenerate"] += 1
+            return False
+        S = np.zeros((3, N_STATE))
+        S[0, 0], S[1, 1], S[2, 5] = 1.0, 1.0, 1.0
+        z_full = np.array(x_y_yaw, dtype=float)
+        h_full = self.x[[0, 1, 5]]
+        z_full[2] = h_full[2] + (z_full[2] - h_full[2] + math.pi) % (2 * math.pi) - math.pi
+        R = np.diag(var) if extra_cov is None else np.diag(var) + A @ extra_cov @ A.T
+        return self._update("registration", A @ z_full, A @ h_full, A @ S, R)
+
+    def update_point_velocity(self, velocity_level: np.ndarray, cov: np.ndarray, xi_level: np.ndarray) -> bool:
+        """The velocity relative to the tip of the feeder's point at xi (radar Doppler); the
+        tip's own velocity is the one given to the last predict."""
+        h = lambda x: point_velocity(x, xi_level, self.tip_velocity)  # noqa: E731
+        H = numeric_jacobian(h, self.x, np.arange(12))
+        return self._update("doppler", velocity_level, h(self.x), H, cov)
+
+    def record(self) -> None:
+        """Keep the state at the current time (once per frame, after its updates)."""
+        self.out.t_s.append(self.t_s)
+        self.out.x.append(self.x.copy())
+        self.out.P.append(self.P.copy())

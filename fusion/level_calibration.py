@@ -1,0 +1,64 @@
+"""The LiDAR's levelling error, estimated online from the deck plane and the MRU.
+
+The level frame is built from the surveyed mount and the MRU's roll and pitch; a mount
+rotation error (or an MRU bias) tilts it by a small, fixed rotation. A floating feeder's deck
+normal, in a truly levelled frame, averages to the vertical over the waves (its roll and pitch
+are zero-mean: the assumption, stated in the report); in the tilted frame it averages to the
+tilt. The average is Hann-weighted over the whole history: a plain mean of a wave of period T
+over a window W leaves an error of order T / W of its amplitude, the Hann window's of order
+(T / W)^3.
+
+Only the two tilt angles are observable this way; a rotation about the vertical is not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Tilt:
+    """Small rotation (about the level x and y axes, rad) that takes the tilted level frame
+    to the true one, and its 1-sigma."""
+
+    rx_rad: float
+    ry_rad: float
+    sigma_rad: float
+    span_s: float
+
+
+def hann_mean(t_s: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Mean of values (N, k) under a Hann window spanning the samples' times."""
+    span = t_s[-1] - t_s[0]
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * (t_s - t_s[0]) / span) if span > 0 else np.ones(len(t_s))
+    return (w[:, None] * values).sum(0) / w.sum()
+
+
+def tilt_from_normals(t_s: np.ndarray, normals_level: np.ndarray, min_span_s: float) -> Tilt | None:
+    """The tilt from deck normals (N, 3) in the (tilted) level frame, or None before min_span_s
+    of history. The correction rotates the mean normal m onto e_z: rx = m_y, ry = -m_x."""
+    if len(t_s) < 10 or t_s[-1] - t_s[0] < min_span_s:
+        return None
+    n = normals_level / np.linalg.norm(normals_level, axis=1, keepdims=True)
+    m = hann_mean(t_s, n)
+    # The mean's spread: what is left of the wave in a window of this span, from the
+    # normals' own spread (a conservative (T/W) ~ 1/span in units of the dominant period 10 s).
+    spread = float(np.std(n[:, :2], axis=0).max())
+    span = t_s[-1] - t_s[0]
+    sigma = spread * (10.0 / span) ** 3 + float(np.std(np.diff(n[:, :2], axis=0))) / np.sqrt(len(t_s))
+    return Tilt(float(m[1]), float(-m[0]), sigma, float(span))
+
+
+def correction(tilt: Tilt | None) -> np.ndarray:
+    """3x3 rotation that takes the tilted level frame to the corrected one."""
+    if tilt is None:
+        return np.eye(3)
+    rx, ry = tilt.rx_rad, tilt.ry_rad
+    K = np.array([[0.0, 0.0, ry], [0.0, 0.0, -rx], [-ry, rx, 0.0]])
+    # exact rotation from the small axis-angle (rx, ry, 0)
+    th = float(np.hypot(rx, ry))
+    if th == 0:
+        return np.eye(3)
+    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th ** 2 * (K @ K)

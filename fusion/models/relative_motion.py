@@ -1,0 +1,111 @@
+"""The feeder frame's motion relative to the crane vessel's heading frame, as the feeder
+filter models it: pure functions, no state.
+
+State (18): pose p = (x, y, z, roll, pitch, yaw) of the feeder's map frame in the level
+frame at the boom tip (the crane vessel's heading frame moved to the tip), R = Rz(yaw)
+Ry(pitch) Rx(roll); the rates of the feeder's motion relative to the crane VESSEL (6); their
+accelerations (6). The tip swings metres over the vessel's roll and pitch; the crane MRU's
+rates give that swing's velocity q_dot (the filter's input), so the position, relative to the
+tip, moves by the integral of (rate - q_dot) while the rates and accelerations model only the
+feeder's own, smoother, wave motion. The MRU's rates, not its angles, carry the input: an
+angle's noise at the tip's 50 m lever is 2 cm a sample, a rate's integrated over a frame a
+millimetre. Each
+DOF's acceleration is a Singer process (first-order Gauss-Markov with time constant tau):
+wave-driven motion is a narrow-band acceleration about zero, and a constant-acceleration
+model would let a 50 s outage grow its position error with t^3.
+
+Measurements:
+- the deck plane z = a x + b y + c in the level frame: the map frame's z is the deck normal
+  and its origin lies on the deck, so (a, b, c) depend on z, roll, pitch (and, weakly, x, y, yaw);
+- a registration's x, y, yaw, projected on the directions the geometry constrains;
+- the velocity of the feeder's point at the radar (radar Doppler, made a velocity in the
+  level frame by perception): v + w x (xi - p), w from the Euler rates.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from scipy.linalg import expm
+
+N_STATE = 18
+POSE, RATE, ACC = slice(0, 6), slice(6, 12), slice(12, 18)
+YAW_LEVER_M = 10.0  # yaw is weighed against x and y at this lever when deciding what is observed
+
+
+@lru_cache(maxsize=256)
+def _singer_block(dt_s: float, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete (F, Q per unit spectral density) of [pos, vel, acc] with da = -a/tau dt + dW,
+    by Van Loan's matrix exponential (exact for any dt; cached because frame intervals repeat)."""
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / tau_s]])
+    G = np.array([[0.0], [0.0], [1.0]])
+    M = np.zeros((6, 6))
+    M[:3, :3], M[:3, 3:], M[3:, 3:] = -A, G @ G.T, A.T
+    E = expm(M * dt_s)
+    F = E[3:, 3:].T
+    return F, F @ E[:3, 3:]
+
+
+def transition(dt_s: float, tau_s: np.ndarray, sigma_acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(F, Q), 18x18, for each DOF's Singer model; sigma_acc is the steady-state acceleration
+    1-sigma (spectral density 2 sigma^2 / tau)."""
+    F, Q = np.eye(N_STATE), np.zeros((N_STATE, N_STATE))
+    for i in range(6):
+        Fi, Qi = _singer_block(round(float(dt_s), 9), float(tau_s[i]))
+        idx = [i, 6 + i, 12 + i]
+        F[np.ix_(idx, idx)] = Fi
+        Q[np.ix_(idx, idx)] = Qi * (2.0 * sigma_acc[i] ** 2 / tau_s[i])
+    return F, Q
+
+
+def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    cr, cp, cy, sr, sp, sy = math.cos(roll), math.cos(pitch), math.cos(yaw), math.sin(roll), math.sin(pitch), math.sin(yaw)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def omega(pose: np.ndarray, rates: np.ndarray) -> np.ndarray:
+    """Angular velocity (level axes) of R = Rz(yaw) Ry(pitch) Rx(roll) from the Euler rates."""
+    _, p, y = pose[3:6]
+    rd, pd, yd = rates[3:6]
+    cy, sy, cp, sp = math.cos(y), math.sin(y), math.cos(p), math.sin(p)
+    return np.array([-sy * pd + cy * cp * rd, cy * pd + sy * cp * rd, yd - sp * rd])
+
+
+def deck_plane(x: np.ndarray) -> np.ndarray:
+    """(a, b, c) of the deck plane z = a x + b y + c in the level frame at the tip."""
+    n = rotation(*x[3:6])[:, 2]
+    d = -float(n @ x[0:3])
+    return np.array([-n[0] / n[2], -n[1] / n[2], -d / n[2]])
+
+
+def point_velocity(x: np.ndarray, xi_level: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
+    """Velocity relative to the tip (level frame at it) of the feeder's point at xi, m/s;
+    tip_velocity: the tip's velocity relative to the vessel (q_dot)."""
+    return x[6:9] - tip_velocity + np.cross(omega(x[0:6], x[6:12]), xi_level - x[0:3])
+
+
+def numeric_jacobian(h, x: np.ndarray, columns: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """dh/dx over the given state columns (central differences; the rest are zero)."""
+    y0 = h(x)
+    J = np.zeros((len(y0), len(x)))
+    for j in columns:
+        e = np.zeros_like(x)
+        e[j] = step
+        J[:, j] = (h(x + e) - h(x - e)) / (2 * step)
+    return J
+
+
+def well_observed(info_xy_yaw: np.ndarray, max_sigma_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which combinations of (x, y, yaw) a registration constrains: A (k,3) and their variances
+    (k,), from the eigen-directions of the information with yaw weighed at YAW_LEVER_M; a
+    direction known worse than max_sigma_m is dropped (document 003's bad-pose rejection,
+    done with the geometry instead of a pose-consistency test)."""
+    S = np.diag([1.0, 1.0, 1.0 / YAW_LEVER_M])  # (x, y, yaw) = S (x, y, yaw * L)
+    info_scaled = S @ info_xy_yaw @ S
+    w, U = np.linalg.eigh(0.5 * (info_scaled + info_scaled.T))
+    keep = w > 1.0 / (max_sigma_m * max_sigma_m)
+    return U[:, keep].T @ np.linalg.inv(S), 1.0 / w[keep]

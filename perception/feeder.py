@@ -1,0 +1,221 @@
+"""Cloud in, feeder measurement out: what one frame says about the feeder's pose.
+
+Frames: `sensor`; `level`, the crane vessel's heading frame at the boom tip as the
+installation knows it (origin at the boom tip, levelled with the MRU's roll and pitch, x along
+the crane's heading: rotations R_level_sensor = Ry(pitch) Rx(roll) R_crane_sensor). The origin
+is the tip, not the vessel's reference point, because that is where the sensors are: a levelling
+error (mount or MRU bias) then turns everything about a point metres from the sensors, which the
+deck-normal calibration corrects, instead of about a point 50 m below them, which it cannot.
+
+- LiDAR: the deck plane (from the heave chain's deck stage, refitted in the level frame with
+  its covariance) and the feeder's structure above and beside the deck, with the returns that
+  are static in the sensor frame removed, ready for registration.
+- Radar: the Doppler fit turned into the level-frame velocity of the feeder's point at the
+  radar (the crane's own rotation, from the MRU rates, removed), and the radar's deck plane.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from boomtip.data.installation import Installation
+from boomtip.perception.feeder_registration import RegistrationConfig
+from boomtip.perception.geometry import mount_rotation, omega_from_euler_rates, rpy_matrix
+from boomtip.perception.preprocess import voxel_downsample
+from boomtip.perception.static_returns import StaticReturnsConfig
+
+
+class FeederConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    static: StaticReturnsConfig = StaticReturnsConfig()
+    registration: RegistrationConfig = RegistrationConfig()
+    deck_band_m: float = Field(0.2, gt=0, description="returns within this of the deck plane are deck, not structure")
+    structure_below_m: float = Field(8.0, gt=0, description="structure considered down to this below the deck (hull sides)")
+    structure_above_m: float = Field(30.0, gt=0, description="and up to this above it")
+    plane_inflation: float = Field(20.0, ge=1, description="deck-plane covariance x this: one scan's residuals are correlated")
+    min_plane_points: int = Field(50, ge=3)
+
+
+@dataclass
+class PlaneLevel:
+    """A deck plane z = a x + b y + c in the level frame, with its covariance."""
+
+    abc: np.ndarray
+    cov: np.ndarray
+    normal: np.ndarray  # unit, up
+    n_points: int
+
+
+@dataclass
+class LidarObservation:
+    t_s: float
+    sample_sensor: np.ndarray  # the frame sampled (sensor frame), masked and levelled when registered
+    R_level_sensor: np.ndarray
+    t_level_sensor: np.ndarray  # the sensor's position in the level frame
+    plane: PlaneLevel | None
+    status: str
+    tip_level: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the tip's place and velocity in the vessel's heading frame (MRU)
+    tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ms: float = 0.0  # time spent on it so far (the chain adds its own)
+
+
+@dataclass
+class RadarObservation:
+    t_s: float
+    velocity_level: np.ndarray | None  # of the feeder's point at the radar, m/s
+    velocity_cov: np.ndarray | None
+    xi_level: np.ndarray  # the radar's position in the level frame
+    plane: PlaneLevel | None
+    status: str
+    tip_level: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def plane_in_level(points_level: np.ndarray, inflation: float) -> PlaneLevel:
+    """Least-squares z = a x + b y + c through deck points (level frame) and the covariance
+    of (a, b, c), s^2 (A^T A)^-1 about the centroid mapped back to the origin."""
+    c = points_level.mean(axis=0)
+    q = points_level - c
+    A = np.column_stack([q[:, 0], q[:, 1], np.ones(len(q))])
+    AtA = A.T @ A
+    coef = np.linalg.solve(AtA, A.T @ q[:, 2])
+    res = q[:, 2] - A @ coef
+    s2 = float(res @ res) / max(len(q) - 3, 1)
+    cov_c = s2 * np.linalg.inv(AtA) * inflation
+    a, b, c0 = coef
+    J = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-c[0], -c[1], 1.0]])  # (a, b, c0) -> (a, b, c)
+    abc = np.array([a, b, c[2] + c0 - a * c[0] - b * c[1]])
+    n = np.array([-a, -b, 1.0]) / math.sqrt(a * a + b * b + 1.0)
+    return PlaneLevel(abc, J @ cov_c @ J.T, n, len(q))
+
+
+class FeederPerception:
+    """Built from the installation (mounts, tip) and the settings."""
+
+    def __init__(self, installation: Installation, cfg: FeederConfig | None = None) -> None:
+        self.installation = installation
+        self.cfg = cfg or FeederConfig()
+        T_cb, T_bs = installation.T_crane_boomtip(), installation.T_boomtip_sensor()
+        self.R_crane_sensor = {s: mount_rotation(T_cb, T_bs[s]) for s in ("lidar", "radar")}
+        # the sensors' positions relative to the tip, crane-vessel axes
+        self.t_crane_sensor = {s: (T_cb @ T_bs[s])[:3, 3] - T_cb[:3, 3] for s in ("lidar", "radar")}
+        self.t_crane_tip = T_cb[:3, 3]
+        self.rate_sigma_radps = math.radians(installation.mru.rate_noise_degps)
+        self.angle_sigma_rad = math.radians(installation.mru.angle_noise_deg)
+        self.mount_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
+        self.mru_bias_sigma_rad = math.radians(installation.mru.bias_accuracy_deg)
+        # 1-sigma of the tip's velocity from the MRU's rates (its stated rate noise at the tip's lever)
+        self.tip_velocity_sigma = float(np.linalg.norm(self.t_crane_tip)) * self.rate_sigma_radps
+
+    @staticmethod
+    def R_level(rpy: np.ndarray) -> np.ndarray:
+        return rpy_matrix(np.array([rpy[0], rpy[1], 0.0]))
+
+    @staticmethod
+    def omega_level(rpy: np.ndarray, rpy_rate: np.ndarray) -> np.ndarray:
+        """The crane vessel's angular velocity in the level frame, less the yaw rate that turns
+        the frame itself."""
+        w_world = omega_from_euler_rates(rpy, rpy_rate)
+        cy, sy = math.cos(rpy[2]), math.sin(rpy[2])
+        return np.array([cy * w_world[0] + sy * w_world[1], -sy * w_world[0] + cy * w_world[1], w_world[2] - rpy_rate[2]])
+
+    def tip_motion(self, rpy: np.ndarray, rpy_rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The tip's place and velocity in the vessel's heading frame at its reference point."""
+        q = self.R_level(rpy) @ self.t_crane_tip
+        return q, np.cross(self.omega_level(rpy, rpy_rate), q)
+
+    def sensor_in_level(self, sensor: str, rpy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        R_l = self.R_level(rpy)
+        return R_l @ self.R_crane_sensor[sensor], R_l @ self.t_crane_sensor[sensor]
+
+    def deck_plane(self, sensor: str, deck, R_ls: np.ndarray, t_ls: np.ndarray, extra_tilt_sigma_rad: float = 0.0) -> PlaneLevel | None:
+        """The heave chain's deck fit (its inliers) refitted in the level frame."""
+        if deck is None or not deck.ok or deck.fit is None:
+            return None
+        pts = deck.points_used[deck.fit.inlier_mask]
+        if len(pts) < self.cfg.min_plane_points:
+            return None
+        plane = plane_in_level(pts @ R_ls.T + t_ls, self.cfg.plane_inflation)
+        if extra_tilt_sigma_rad > 0:
+            # The MRU's noise (and another sensor's mount) tilt this frame's levelling about the
+            # sensor: the slopes change, and the height at the origin by the sensor's lever.
+            J = np.array([[1.0, 0.0], [0.0, 1.0], [-t_ls[0], -t_ls[1]]])
+            plane.cov = plane.cov + extra_tilt_sigma_rad ** 2 * (J @ J.T)
+        return plane
+
+    def lidar(self, t_s: float, points_sensor: np.ndarray, rpy: np.ndarray, rpy_rate: np.ndarray, deck) -> LidarObservation:
+        R_ls, t_ls = self.sensor_in_level("lidar", rpy)
+        finite = np.all(np.isfinite(points_sensor), axis=1)
+        pts = points_sensor[finite]
+        sample = voxel_downsample(pts, self.cfg.registration.sample_m)[0] if len(pts) else pts
+        plane = self.deck_plane("lidar", deck, R_ls, t_ls, extra_tilt_sigma_rad=self.angle_sigma_rad)
+        status = "ok" if plane is not None else (f"no deck plane ({deck.status})" if deck is not None else "no deck plane")
+        return LidarObservation(t_s, sample, R_ls, t_ls, plane, status, *self.tip_motion(rpy, rpy_rate))
+
+    def structure(self, obs: LidarObservation, static_mask: np.ndarray, plane_abc: np.ndarray) -> np.ndarray:
+        """The frame's feeder returns off the deck plane, in the level frame: the static
+        returns removed, the deck's own points (which say nothing of x, y, yaw) left out."""
+        pts = obs.sample_sensor[~static_mask] @ obs.R_level_sensor.T + obs.t_level_sensor
+        a, b, c = plane_abc
+        h = (pts[:, 2] - a * pts[:, 0] - b * pts[:, 1] - c) / math.sqrt(a * a + b * b + 1.0)
+        keep = ((h > self.cfg.deck_band_m) & (h < self.cfg.structure_above_m)) | \
+               ((h < -self.cfg.deck_band_m) & (h > -self.cfg.structure_below_m))
+        return pts[keep]
+
+    def radar(self, t_s: float, rpy: np.ndarray, rpy_rate: np.ndarray, doppler, deck) -> RadarObservation:
+        R_ls, t_ls = self.sensor_in_level("radar", rpy)
+        tip = self.tip_motion(rpy, rpy_rate)
+        plane = self.deck_plane("radar", deck, R_ls, t_ls, extra_tilt_sigma_rad=math.hypot(self.mount_sigma_rad["radar"], self.angle_sigma_rad))
+        if doppler is None:
+            return RadarObservation(t_s, None, None, t_ls, plane, "no Doppler velocity", *tip)
+        u = R_ls @ doppler.velocity_sensor
+        # The crane's rotation (level frame, less its yaw rate, which turns the frame itself)
+        # carries the radar: add it back to get the feeder point's velocity in the level frame.
+        v = u + np.cross(self.omega_level(rpy, rpy_rate), t_ls)
+        lever = float(np.linalg.norm(t_ls))
+        cov = R_ls @ doppler.covariance @ R_ls.T + np.eye(3) * ((lever * self.rate_sigma_radps) ** 2
+                                                                + (float(np.linalg.norm(u)) * self.angle_sigma_rad) ** 2)
+        return RadarObservation(t_s, v, cov, t_ls, plane, "ok", *tip)
+
+
+def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tuple[float, float] = (0.2, 2.5),
+                    tol_m: float = 0.15, hypotheses: int = 300, max_angle_deg: float = 45.0) -> tuple[float, int] | None:
+    """The direction of the feeder's centre line in the map frame (z = deck normal): the
+    longest straight edge among the returns just above the deck (bulwarks, hull edges,
+    coaming sides), within max_angle_deg of the map's x (the crane's heading when the feeder
+    came alongside). Returns (yaw, inliers) or None. RANSAC in 2-D, vectorised over
+    hypotheses; the winner refitted by total least squares on its inliers."""
+    z = points_map[:, 2]
+    xy = points_map[(z > band_m[0]) & (z < band_m[1]), :2]
+    if len(xy) < 20:
+        return None
+    i, j = rng.integers(0, len(xy), (2, hypotheses))
+    d = xy[j] - xy[i]
+    length = np.linalg.norm(d, axis=1)
+    ok = length > 2.0
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    ang = (ang + np.pi / 2) % np.pi - np.pi / 2  # a line's direction, not a vector's
+    ok &= np.abs(ang) < np.radians(max_angle_deg)
+    if not ok.any():
+        return None
+    i, d, length = i[ok], d[ok], length[ok]
+    nrm = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
+    # distances of every point to every hypothesis: (H, N), in blocks to bound the memory
+    best, best_count = 0, -1
+    for s in range(0, len(i), 64):
+        dist = np.abs((xy[None, :, :] - xy[i[s:s + 64], None, :]) @ nrm[s:s + 64, :, None])[..., 0]
+        counts = (dist < tol_m).sum(axis=1)
+        k = int(np.argmax(counts))
+        if counts[k] > best_count:
+            best, best_count = s + k, int(counts[k])
+    inl = xy[np.abs((xy - xy[i[best]]) @ nrm[best]) < tol_m]
+    c = inl - inl.mean(axis=0)
+    _, _, Vt = np.linalg.svd(c, full_matrices=False)
+    ux, uy = Vt[0]
+    yaw = (math.atan2(uy, ux) + math.pi / 2) % math.pi - math.pi / 2
+    return yaw, len(inl)

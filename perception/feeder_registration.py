@@ -1,0 +1,159 @@
+"""Registration of the feeder's returns to a model of the feeder built online, seeded with
+the filter's prediction instead of kiss-icp's constant-velocity prior, which fails on wave
+motion (upstream issue 257).
+
+The model is a keyframe: the feeder's returns above its deck (bulwarks, coamings, hull
+edges, cargo) in one frame, kept in the map frame with their normals. Two registrations:
+- kiss-icp (its voxel map and point-to-point ICP, C++ through its Python API) when the
+  prior is poor (the first frames, after an outage): it pulls in from metres;
+- Open3D's point-to-plane ICP with a Tukey kernel, always, from there. On a deck seen from
+  above kiss-icp's point-to-point ICP slides along the structure: against one keyframe it
+  was 4-9 cm off in x and y on sts-loaded, point-to-plane 0.3 / 1.3 cm
+  (BENCHMARKS.md, bench feeder). A model grown frame by frame from registered poses drifts
+  (5-7 cm in 10 s, with either ICP); the keyframe does not, and a new keyframe is taken only
+  when the old one no longer overlaps.
+
+Frames: `level` is the crane vessel's heading frame as the installation sees it (levelled
+with the MRU's roll and pitch, x along the crane's heading, origin at the crane vessel's
+reference point); `map` is the feeder frame the model is kept in (fixed to the feeder).
+
+kiss-icp returns a pose and nothing about how well each direction was constrained. A deck
+seen from above is nearly a plane, which pins z, roll and pitch and leaves x, y and yaw to
+the bulwarks, coamings and cargo; when those are few a direction slides. The information
+matrix of the point-to-plane residuals about the solution (normals from the frame itself)
+says which: its eigenvectors with small eigenvalues are the directions not to update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+from kiss_icp.mapping import VoxelHashMap
+from kiss_icp.registration import Registration
+from pydantic import BaseModel, ConfigDict, Field
+
+class RegistrationConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    sample_m: float = Field(0.25, gt=0, description="frames are voxel-sampled at this size before registration")
+    kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel (re-acquisition only)")
+    kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this")
+    max_correspondence_m: float = Field(1.0, gt=0, description="point-to-plane correspondence distance")
+    tukey_m: float = Field(0.3, gt=0, description="Tukey kernel width of the point-to-plane residuals")
+    max_iterations: int = Field(30, ge=1, le=1000)
+    normal_neighbours: int = Field(10, ge=5, le=100)
+    point_sigma_m: float = Field(0.03, gt=0, description="1-sigma point-to-plane residual of a well-matched point")
+    info_inflation: float = Field(30.0, ge=1, description="residuals are correlated (one surface, one scan pattern): the "
+                                  "information of N points is that of N / this independent ones")
+    min_points: int = Field(100, ge=10)
+    min_fitness: float = Field(0.3, gt=0, le=1, description="below this overlap with the keyframe a new keyframe is taken")
+
+
+@dataclass
+class Registration6:
+    """One frame registered to the model."""
+
+    T_map_level: np.ndarray  # 4x4: level -> map
+    info_xy_yaw: np.ndarray  # 3x3 information of (x, y, yaw) of the map frame's pose in the level frame
+    n_points: int
+    fitness: float  # fraction of the frame's points matched in the keyframe
+    status: str  # "ok" or why there is no registration
+    kiss: bool = False  # kiss-icp pulled it in first
+
+
+def pose_matrix(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """4x4 from a position and R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    cr, cp, cy, sr, sp, sy = np.cos(roll), np.cos(pitch), np.cos(yaw), np.sin(roll), np.sin(pitch), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                 [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                 [-sp, cp * sr, cp * cr]]
+    T[:3, 3] = (x, y, z)
+    return T
+
+
+def pose_vector(T: np.ndarray) -> np.ndarray:
+    """(x, y, z, roll, pitch, yaw) of a 4x4 with R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    R = T[:3, :3]
+    return np.array([T[0, 3], T[1, 3], T[2, 3], np.arctan2(R[2, 1], R[2, 2]),
+                     -np.arcsin(np.clip(R[2, 0], -1.0, 1.0)), np.arctan2(R[1, 0], R[0, 0])])
+
+
+def inverse(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def xy_yaw_information(points_level: np.ndarray, normals_level: np.ndarray, origin_level: np.ndarray, sigma_m: float) -> np.ndarray:
+    """Information (3x3) of the map frame's x, y and yaw (about its origin) from point-to-plane
+    residuals n.(p - q): moving the map by (dx, dy) changes a residual by -(n_x dx + n_y dy),
+    turning it by dyaw about its origin by -n.(e_z x (p - o)) dyaw."""
+    rel = points_level - origin_level
+    J = np.column_stack([normals_level[:, 0], normals_level[:, 1],
+                         rel[:, 0] * normals_level[:, 1] - rel[:, 1] * normals_level[:, 0]])
+    return J.T @ J / (sigma_m * sigma_m)
+
+
+class FeederModel:
+    """The feeder's keyframe (map frame) and the registrations to it."""
+
+    def __init__(self, cfg: RegistrationConfig | None = None) -> None:
+        self.cfg = cfg or RegistrationConfig()
+        self.keyframe: o3d.geometry.PointCloud | None = None
+        self.kiss_map = VoxelHashMap(self.cfg.kiss_voxel_m, 1e4, 20)
+        self.kiss = Registration(max_num_iterations=100, convergence_criterion=1e-4, max_num_threads=0)
+        self.keyframes = 0
+        icp = o3d.pipelines.registration
+        self._estimation = icp.TransformationEstimationPointToPlane(icp.TukeyLoss(k=self.cfg.tukey_m))
+        self._criteria = icp.ICPConvergenceCriteria(1e-6, 1e-6, self.cfg.max_iterations)
+
+    @property
+    def empty(self) -> bool:
+        return self.keyframe is None
+
+    def sample(self, points_level: np.ndarray) -> np.ndarray:
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_level))
+        return np.asarray(pcd.voxel_down_sample(self.cfg.sample_m).points)
+
+    def set_keyframe(self, source_level: np.ndarray, T_map_level: np.ndarray) -> None:
+        """The model is this frame's returns, placed in the map frame by the filter's pose."""
+        pts_map = transform(T_map_level, source_level)
+        kf = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts_map))
+        kf.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
+        self.keyframe = kf
+        self.kiss_map.clear()
+        self.kiss_map.add_points(pts_map)
+        self.keyframes += 1
+
+    def register(self, source_level: np.ndarray, T_map_level_guess: np.ndarray, prior_sigma_m: float) -> Registration6:
+        """Align a sampled frame (level frame) to the keyframe from the guess."""
+        cfg = self.cfg
+        n = len(source_level)
+        if n < cfg.min_points:
+            return Registration6(T_map_level_guess, np.zeros((3, 3)), n, 0.0, f"too few feeder points above the deck ({n} < {cfg.min_points})")
+        if self.keyframe is None:
+            return Registration6(T_map_level_guess, np.zeros((3, 3)), n, 0.0, "no model yet")
+        guess, kiss = T_map_level_guess, False
+        if prior_sigma_m > cfg.kiss_above_sigma_m:
+            dist = float(min(3.0 * prior_sigma_m, 5.0))
+            guess = self.kiss.align_points_to_map(source_level, self.kiss_map, T_map_level_guess, dist, dist / 3.0)
+            kiss = True
+        src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_level))
+        res = o3d.pipelines.registration.registration_icp(src, self.keyframe, cfg.max_correspondence_m, guess,
+                                                           self._estimation, self._criteria)
+        T = np.asarray(res.transformation)
+        corr = np.asarray(res.correspondence_set)
+        if not np.all(np.isfinite(T)) or len(corr) < cfg.min_points:
+            return Registration6(T_map_level_guess, np.zeros((3, 3)), n, float(res.fitness), "registration found no overlap", kiss)
+        T_level_map = inverse(T)
+        normals_level = np.asarray(self.keyframe.normals)[corr[:, 1]] @ T_level_map[:3, :3].T
+        info = xy_yaw_information(source_level[corr[:, 0]], normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
+        return Registration6(T.copy(), info / cfg.info_inflation, n, float(res.fitness), "ok", kiss)

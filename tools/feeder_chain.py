@@ -1,0 +1,310 @@
+"""The feeder chain: the feeder's 6-DOF motion relative to the crane vessel, from the boom-tip
+LiDAR and radar, beside the heave chain (whose deck and Doppler stages it reuses).
+
+Per frame: LiDAR -> deck plane (z, roll, pitch) + registration of the structure to the
+feeder's keyframe (x, y, yaw, only the directions the geometry constrains), radar -> the
+feeder point's velocity and the radar's deck plane; each an update of one EKF, seeded frame
+by frame with its prediction.
+
+The first `static.warmup_s` of frames are held back: until then nothing says which returns
+are static in the sensor frame. They are then processed in order, and frames from there on
+as they come.
+
+The feeder frame (the estimate's definition): origin at the deck point straight below the
+boom tip at the first LiDAR frame, z along the deck normal, x along the feeder's centre
+line (the median over frames of its longest straight hull edge). The estimates are written in
+the heading frame at the tip levelled with the run's levelling calibration (its value at the
+end: the calibration is online, its history is reported, but a constant is best known from
+all of it), and the centre line and "below" are those the whole run found.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from boomtip.data.frames import Frame, FrameSource
+from boomtip.data.processing import Processing
+from boomtip.fusion.attitude_filter import complementary_attitude
+from boomtip.fusion.feeder_filter import FeederFilter
+from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
+from boomtip.fusion.models.relative_motion import deck_plane, rotation
+from boomtip.perception.feeder import FeederPerception, LidarObservation, RadarObservation, centre_line_yaw
+from boomtip.perception.feeder_registration import FeederModel, inverse, pose_matrix, pose_vector, transform
+from boomtip.perception.pipeline import FrameResult
+from boomtip.perception.static_returns import StaticReturns
+from boomtip.perception.timing import StageTimes
+
+DECK_STAGES = ("deck.preprocess", "deck.planes", "deck.refine", "deck.intersect")
+
+
+@dataclass
+class FeederResult:
+    t_s: np.ndarray  # (T,)
+    pose: np.ndarray  # (T, 6) x, y, z (m), roll, pitch, yaw (rad): the feeder frame in the heading frame
+    rates: np.ndarray  # (T, 6)
+    var: np.ndarray  # (T, 12) variances of pose and rates
+    t_definition_s: float  # the first LiDAR frame: where the feeder frame is defined
+    tilt: Tilt | None  # the final levelling calibration
+    centre_line: tuple[float, int] | None  # yaw of the centre line in the map frame, frames it was found in
+    counts: dict
+    frame_ms: list[float]  # whole-chain time per LiDAR frame (feeder stages, plus the deck stage it reuses)
+    notes: list[str] = field(default_factory=list)
+    missing: list[tuple[float, str, str]] = field(default_factory=list)  # (t, sensor, why)
+
+
+class FeederChain:
+    name = "feeder"
+
+    def __init__(self, source: FrameSource, processing: Processing) -> None:
+        inst = source.meta.installation
+        cfg = processing.feeder
+        self.cfg = cfg
+        # the levelling's attitude: the MRU's angles filtered with its rates (see attitude_filter)
+        self.mru = complementary_attitude(source.mru, cfg.mru_tau_s) if cfg.mru_tau_s > 0 else source.mru
+        self.perception = FeederPerception(inst, cfg.perception)
+        self.static = StaticReturns(cfg.perception.static)
+        self.model = FeederModel(cfg.perception.registration)
+        self.filter = FeederFilter(cfg.filter)
+        self.rng = np.random.default_rng([processing.seed, 13])
+        self.queue: list[LidarObservation | RadarObservation] = []
+        self.normals: list[tuple[float, np.ndarray]] = []  # LiDAR deck normals (level frame) for the calibration
+        self.tilts: list[tuple[float, Tilt | None]] = []
+        self.t_definition: float | None = None
+        self.T_level_map0: np.ndarray | None = None
+        self.tip0_level: np.ndarray | None = None
+        self.frame_ms: list[float] = []
+        self.missing: list[tuple[float, str, str]] = []
+        self.pivots: list[np.ndarray] = []  # the LiDAR's position (level, from the tip) at each recorded state
+        self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
+        self.lines: list[tuple[float, int]] = []  # the centre line's yaw in the map frame, every few frames
+        self.lidar_frames = 0
+        self.radar_offset, self.radar_offset_n = np.zeros(3), 0  # radar deck - LiDAR deck: slopes, height
+
+    # -- per frame -------------------------------------------------------------------------
+    def process(self, frame: Frame, heave: FrameResult | None) -> StageTimes:
+        times = StageTimes()
+        if frame.error is not None or len(frame) == 0:
+            self.missing.append((frame.t_s, frame.sensor, frame.error or "empty frame"))
+            return times
+        att = self.mru.attitude(frame.t_s)
+        if att is None:
+            self.missing.append((frame.t_s, frame.sensor, "no MRU attitude"))
+            return times
+        rpy, rpy_rate = att
+        t_obs = time.perf_counter()
+        with times.stage("feeder.observe"):
+            if frame.sensor == "lidar":
+                obs = self.perception.lidar(frame.t_s, frame.points_sensor, rpy, rpy_rate,
+                                            heave.deck_lidar if heave is not None else None)
+                self.static.add(frame.t_s, obs.sample_sensor)
+            else:
+                obs = self.perception.radar(frame.t_s, rpy, rpy_rate, heave.doppler if heave is not None else None,
+                                            heave.deck_radar if heave is not None else None)
+        if frame.sensor == "lidar":
+            # the chain's time per LiDAR frame: this, the steps below, and the deck stage it reuses
+            obs.ms = (time.perf_counter() - t_obs) * 1e3 + (heave.times.total(*DECK_STAGES) if heave is not None else 0.0)
+        self.queue.append(obs)
+        if self.static.ready:
+            self._drain(times)
+        return times
+
+    def _drain(self, times: StageTimes | None = None) -> None:
+        times = times or StageTimes()
+        for obs in self.queue:
+            if isinstance(obs, LidarObservation):
+                t0 = time.perf_counter()
+                self._lidar(obs, times)
+                self.frame_ms.append(obs.ms + (time.perf_counter() - t0) * 1e3)
+            else:
+                self._radar(obs, times)
+        self.queue.clear()
+
+    def _start(self, obs: LidarObservation) -> bool:
+        """The map frame at the first deck: origin straight below the tip (in the level frame
+        as the installation has it), z along the deck normal, yaw 0."""
+        a, b, c = obs.plane.abc
+        tip = np.zeros(3)  # the level frame's origin
+        origin = np.array([tip[0], tip[1], a * tip[0] + b * tip[1] + c])
+        n = obs.plane.normal
+        pose = np.array([*origin, -math.asin(n[1]), math.atan2(n[0], n[2]), 0.0])
+        cov = np.diag([1e-8, 1e-8, float(obs.plane.cov[2, 2]), float(obs.plane.cov[1, 1]), float(obs.plane.cov[0, 0]), 1e-10])
+        self.filter.start(obs.t_s, pose, cov, obs.tip_velocity)
+        self.tips.append(obs.tip_velocity)
+        self.pivots.append(obs.t_level_sensor)
+        self.t_definition, self.T_level_map0, self.tip0_level = obs.t_s, pose_matrix(*pose), tip
+        return True
+
+    def _lidar(self, obs: LidarObservation, times: StageTimes) -> None:
+        f = self.filter
+        if obs.plane is None and not f.started:
+            self.missing.append((obs.t_s, "lidar", obs.status))
+            return
+        if not f.started:
+            self._start(obs)
+        else:
+            f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma)
+        if obs.plane is not None:
+            with times.stage("feeder.deck_update"):
+                f.update_deck("deck_lidar", obs.plane.abc, obs.plane.cov)
+                self.normals.append((obs.t_s, obs.plane.normal))
+        else:
+            self.missing.append((obs.t_s, "lidar", obs.status))
+        with times.stage("feeder.static"):
+            mask = self.static.static_mask(obs.sample_sensor)
+        with times.stage("feeder.structure"):
+            structure = self.perception.structure(obs, mask, deck_plane(f.x))
+        with times.stage("feeder.register"):
+            T_guess = inverse(pose_matrix(*f.x[:6]))
+            sigma = float(np.linalg.norm(f.pose_sigma()[[0, 1]])) + 10.0 * float(f.pose_sigma()[5])
+            if self.model.empty:
+                self.model.set_keyframe(structure, T_guess)
+            else:
+                reg = self.model.register(structure, T_guess, sigma)
+                if reg.status == "ok":
+                    v = pose_vector(inverse(reg.T_map_level))
+                    # the MRU's angle noise turns this frame about the tip: the deck below moves sideways
+                    s_lvl = abs(float(f.x[2])) * self.perception.angle_sigma_rad
+                    f.update_registration(v[[0, 1, 5]], reg.info_xy_yaw, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
+                    if reg.fitness < self.model.cfg.min_fitness and f.pose_sigma()[0] < 0.05:
+                        self.model.set_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
+                else:
+                    self.missing.append((obs.t_s, "lidar", f"registration: {reg.status}"))
+        if self.lidar_frames % self.cfg.centre_line_every == 0 and len(structure):
+            with times.stage("feeder.centre_line"):  # in the map frame, at the filter's pose
+                line = centre_line_yaw(transform(inverse(pose_matrix(*f.x[:6])), structure), self.rng)
+                if line is not None:
+                    self.lines.append(line)
+        self.lidar_frames += 1
+        with times.stage("feeder.calibration"):
+            if self.normals and self.normals[-1][0] == obs.t_s:
+                t = np.array([n[0] for n in self.normals])
+                self.tilts.append((obs.t_s, tilt_from_normals(t, np.array([n[1] for n in self.normals]),
+                                                              self.cfg.calibration_min_s)))
+        self._record(obs)
+
+    def _radar(self, obs: RadarObservation, times: StageTimes) -> None:
+        f = self.filter
+        if not f.started:
+            return
+        if obs.velocity_level is None and obs.plane is None:
+            self.missing.append((obs.t_s, "radar", obs.status))
+            return
+        f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma)
+        with times.stage("feeder.radar_update"):
+            if obs.velocity_level is not None:
+                tip_var = np.eye(3) * self.perception.tip_velocity_sigma ** 2
+                f.update_point_velocity(obs.velocity_level, obs.velocity_cov + tip_var, obs.xi_level)
+            if obs.plane is not None:
+                self._radar_deck(obs)
+        self._record(obs)
+
+    def _radar_deck(self, obs: RadarObservation) -> None:
+        """The radar's deck plane is levelled through its own mount, whose error is not the
+        LiDAR's: its plane differs from the LiDAR's by a fixed tilt and height (0.08 deg is 5 cm
+        at the deck's 40 m of lever). While the LiDAR sees the deck the difference is learnt
+        (a running mean); the radar's plane, so corrected, is used only when the LiDAR has had
+        no deck for `radar_deck_after_s`."""
+        f = self.filter
+        a, b, c = deck_plane(f.x)
+        x0, y0 = f.x[0], f.x[1]
+        diff = obs.plane.abc - np.array([a, b, c])
+        d = np.array([diff[0], diff[1], diff[2] + diff[0] * x0 + diff[1] * y0])  # slope, and height at the origin
+        last_lidar = self.normals[-1][0] if self.normals else -np.inf
+        if obs.t_s - last_lidar <= self.cfg.radar_deck_after_s:
+            self.radar_offset_n += 1
+            self.radar_offset += (d - self.radar_offset) / min(self.radar_offset_n, 200)
+            return
+        off = self.radar_offset if self.radar_offset_n >= 20 else np.zeros(3)
+        abc = obs.plane.abc - np.array([off[0], off[1], off[2] - off[0] * x0 - off[1] * y0])
+        f.update_deck("deck_radar", abc, obs.plane.cov)
+
+    def _record(self, obs: LidarObservation | RadarObservation) -> None:
+        self.filter.record()
+        self.tips.append(obs.tip_velocity)
+        rpy = self.mru.attitude(obs.t_s)[0]
+        self.pivots.append(obs.t_level_sensor if isinstance(obs, LidarObservation) else self.perception.sensor_in_level("lidar", rpy)[1])
+
+    # -- at the end ------------------------------------------------------------------------
+    def finish(self) -> FeederResult:
+        if self.queue:  # a run shorter than the warm-up: use what the mask has
+            self._drain()
+        out = self.filter.out
+        notes: list[str] = []
+        tilt = next((tl for _, tl in reversed(self.tilts) if tl is not None), None)
+        if not self.filter.started:
+            return FeederResult(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12)), float("nan"), tilt, None,
+                                out.counts, self.frame_ms, ["feeder: no LiDAR deck plane in this run: no estimate"], self.missing)
+        if tilt is None:
+            notes.append(f"feeder: levelling not calibrated (under {self.cfg.calibration_min_s:g} s of deck planes): "
+                         "the surveyed mount and the MRU are taken as they are")
+        C_final = correction(tilt)
+        # The origin: straight below the tip along the calibrated vertical, on the first deck.
+        x0 = out.x[0]
+        n0 = rotation(*x0[3:6])[:, 2]
+        down = C_final.T @ np.array([0.0, 0.0, -1.0])
+        s = float(n0 @ (x0[:3] - self.tip0_level)) / float(n0 @ down)
+        origin_map = transform(inverse(self.T_level_map0), self.tip0_level + s * down)
+        line = None
+        if self.lines:  # the frames' edges: a median, so a frame that took a cargo edge does not count
+            yaws = np.array([y for y, _ in self.lines])
+            line = (float(np.median(yaws)), len(yaws))
+        if line is None:
+            notes.append("feeder: no straight hull edge in the keyframe: x is along the crane's heading")
+        psi0 = line[0] if line is not None else 0.0
+        T_map_feeder = pose_matrix(*origin_map, 0.0, 0.0, psi0)
+        sigma_level = self.perception.mount_sigma_rad["lidar"]
+        pose, rates, var = [], [], []
+        for k, (t, x, P) in enumerate(zip(out.t_s, out.x, out.P)):
+            x = relative_to_tip(x, self.tips[k])
+            tl, C = tilt, C_final
+            pivot = self.pivots[k]
+            g = lambda p: _feeder_pose(p, C, pivot, T_map_feeder)  # noqa: E731
+            y = g(x[:6])
+            J = np.zeros((6, 6))
+            for j in range(6):
+                e = np.zeros(6)
+                e[j] = 1e-6
+                d = g(x[:6] + e) - g(x[:6] - e)
+                d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi
+                J[:, j] = d / 2e-6
+            Pp = J @ P[:6, :6] @ J.T
+            Pr = J @ P[6:12, 6:12] @ J.T
+            # The levelling's own uncertainty: the calibration's sigma once it has one, else the
+            # survey's. Corrected about the LiDAR, a tilt moves the deck below it sideways by its
+            # lever; the MRU's bias share turns about the vessel's origin instead, which no deck
+            # normal tells apart: it stays, at the MRU's stated accuracy, in z (and x, y).
+            s_lvl = tl.sigma_rad if tl is not None else sigma_level
+            lever = float(np.linalg.norm(y[:3] - pivot))
+            s_mru = self.perception.mru_bias_sigma_rad
+            extra = np.array([(lever * s_lvl) ** 2 + (y[2] * s_mru) ** 2] * 2
+                             + [(float(np.hypot(y[0], y[1])) * s_mru) ** 2, s_lvl ** 2, s_lvl ** 2, 0.0])
+            pose.append(y)
+            rates.append(J @ x[6:12])
+            var.append(np.concatenate([np.diag(Pp) + extra, np.diag(Pr)]))
+        t = np.asarray(out.t_s)
+        pose, rates, var = np.array(pose), np.array(rates), np.array(var)
+        keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
+        return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
+                            self.frame_ms, notes, self.missing)
+
+
+def relative_to_tip(x: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
+    """Pose and rates relative to the tip: the state's rates are relative to the vessel."""
+    out = np.array(x[:12], dtype=float)
+    out[6:9] -= tip_velocity
+    return out
+
+
+def _feeder_pose(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray, T_map_feeder: np.ndarray) -> np.ndarray:
+    """The feeder frame's pose in the corrected heading frame: the map's pose in the level
+    frame, turned by the levelling correction about the LiDAR, composed with the feeder
+    frame's place in the map."""
+    T = pose_matrix(*pose_map_level) @ T_map_feeder
+    Tc = np.eye(4)
+    Tc[:3, :3] = C
+    Tc[:3, 3] = pivot - C @ pivot
+    return pose_vector(Tc @ T)
