@@ -48,6 +48,7 @@ class RegistrationConfig(BaseModel):
     info_inflation: float = Field(30.0, ge=1, description="residuals are correlated (one surface, one scan pattern): the "
                                   "information of N points is that of N / this independent ones")
     min_points: int = Field(100, ge=10)
+    keyframe_frames: int = Field(1, ge=1, description="frames merged into a keyframe (the first, then each registered one)")
     min_fitness: float = Field(0.3, gt=0, le=1, description="below this overlap with the keyframe a new keyframe is taken")
 
 
@@ -132,6 +133,16 @@ class FeederModel:
         self.kiss_map.clear()
         self.kiss_map.add_points(pts_map)
         self.keyframes += 1
+        self.keyframe_size = 1
+
+    def extend_keyframe(self, source_level: np.ndarray, T_map_level: np.ndarray) -> None:
+        """Add a registered frame to the keyframe: the scan pattern falls elsewhere on the
+        structure each frame, so a few frames fill the edges one frame leaves ragged."""
+        pts = np.vstack([np.asarray(self.keyframe.points), transform(T_map_level, source_level)])
+        kf = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(self.cfg.sample_m * 0.5)
+        kf.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
+        self.keyframe = kf
+        self.kiss_map.add_points(transform(T_map_level, source_level))
 
     def register(self, source_level: np.ndarray, T_map_level_guess: np.ndarray, prior_sigma_m: float) -> Registration6:
         """Align a sampled frame (level frame) to the keyframe from the guess."""

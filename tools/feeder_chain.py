@@ -54,6 +54,8 @@ class FeederResult:
     frame_ms: list[float]  # whole-chain time per LiDAR frame (feeder stages, plus the deck stage it reuses)
     notes: list[str] = field(default_factory=list)
     missing: list[tuple[float, str, str]] = field(default_factory=list)  # (t, sensor, why)
+    T_map_feeder: np.ndarray | None = None  # the feeder frame in the model's (map) frame
+    model_points_map: np.ndarray | None = None  # the keyframe, for the display
 
 
 class FeederChain:
@@ -169,7 +171,10 @@ class FeederChain:
                     # the MRU's angle noise turns this frame about the tip: the deck below moves sideways
                     s_lvl = abs(float(f.x[2])) * self.perception.angle_sigma_rad
                     f.update_registration(v[[0, 1, 5]], reg.info_xy_yaw, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
-                    if reg.fitness < self.model.cfg.min_fitness and f.pose_sigma()[0] < 0.05:
+                    if self.model.keyframe_size < self.model.cfg.keyframe_frames:
+                        self.model.extend_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
+                        self.model.keyframe_size += 1
+                    elif reg.fitness < self.model.cfg.min_fitness and f.pose_sigma()[0] < 0.05:
                         self.model.set_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
                 else:
                     self.missing.append((obs.t_s, "lidar", f"registration: {reg.status}"))
@@ -289,7 +294,8 @@ class FeederChain:
         pose, rates, var = np.array(pose), np.array(rates), np.array(var)
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
         return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
-                            self.frame_ms, notes, self.missing)
+                            self.frame_ms, notes, self.missing, T_map_feeder,
+                            np.asarray(self.model.keyframe.points) if not self.model.empty else None)
 
 
 def relative_to_tip(x: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:

@@ -19,10 +19,15 @@ POSE = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
 def body_pose_world(truth: Truth, body: str, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(T,3,3) rotations and (T,3) positions of a body (crane, feeder) in the world at t."""
+    """(T,3,3) rotations and (T,3) positions of a body (crane, feeder) in the world at t; NaN
+    outside the truth's span."""
     rpy = np.column_stack([truth.at(f"{body}_{a}", t_s) for a in ("roll", "pitch", "yaw")])
     p = np.column_stack([truth.at(f"{body}_{a}", t_s) for a in ("x", "y", "z")])
-    return Rotation.from_euler("ZYX", rpy[:, ::-1]).as_matrix(), p
+    R = np.full((len(t_s), 3, 3), np.nan)
+    ok = np.all(np.isfinite(rpy), axis=1)
+    if ok.any():
+        R[ok] = Rotation.from_euler("ZYX", rpy[ok, ::-1]).as_matrix()
+    return R, p
 
 
 def feeder_origin_body(truth: Truth, t0_s: float, p_tip_crane_m: np.ndarray) -> np.ndarray:
@@ -42,10 +47,15 @@ def feeder_pose_truth(truth: Truth, t_s: np.ndarray, origin_body_m: np.ndarray, 
     p_tip = np.einsum("tij,j->ti", R_c, p_tip_crane_m) + p_c
     R_f, p_f = body_pose_world(truth, "feeder", t_s)
     yaw_c = truth.at("crane_yaw", t_s)
-    Rz_T = Rotation.from_euler("z", -yaw_c[:, None]).as_matrix()
+    c, s_ = np.cos(yaw_c), np.sin(yaw_c)
+    Rz_T = np.zeros((len(t_s), 3, 3))
+    Rz_T[:, 0, 0], Rz_T[:, 0, 1], Rz_T[:, 1, 0], Rz_T[:, 1, 1], Rz_T[:, 2, 2] = c, s_, -s_, c, 1.0
     R_hf = Rz_T @ R_f
     p_hf = np.einsum("tij,tj->ti", Rz_T, p_f + np.einsum("tij,j->ti", R_f, origin_body_m) - p_tip)
-    rpy = Rotation.from_matrix(R_hf).as_euler("ZYX")[:, ::-1]
+    rpy = np.full((len(t_s), 3), np.nan)
+    ok = np.all(np.isfinite(R_hf), axis=(1, 2))
+    if ok.any():
+        rpy[ok] = Rotation.from_matrix(R_hf[ok]).as_euler("ZYX")[:, ::-1]
     return np.column_stack([p_hf, rpy])
 
 

@@ -53,12 +53,18 @@ def processing_for(source: FrameSource, processing: Processing | None = None) ->
 
 def build_chain(source: FrameSource, processing: Processing):
     """The chain for this source: `processing.chain`, else the hook chain when the source has
-    an encoder stream and the heave chain otherwise."""
+    an encoder stream and the heave chain otherwise; with a LiDAR (and `feeder.enabled`), the
+    feeder's 6-DOF chain runs beside the heave chain."""
     kind = processing.chain or ("hook" if source.encoders is not None else "heave")
     if kind == "hook":
         from boomtip.tools.hook_chain import HookChain
 
         return HookChain(source, processing)
+    inst = source.meta.installation
+    if processing.feeder.enabled and inst.lidar.enabled:
+        from boomtip.tools.ship_chain import ShipChain
+
+        return ShipChain(source, processing)
     from boomtip.tools.heave_chain import HeaveChain
 
     return HeaveChain(source, processing)

@@ -1,0 +1,222 @@
+"""The feeder chain's outputs: feeder_estimates.csv, kpis.json's `feeder` block, the report's
+section beside document 004's Tables 1-3, its plot, and the rerun entities.
+
+OUT/feeder_estimates.csv   t, x, y, z, roll, pitch, yaw, their rates, the 12 variances
+                            (m, rad; the feeder frame in the heading frame at the boom tip)
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from boomtip.data.frames import Truth
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.tools.feeder_chain import FeederResult
+from boomtip.tools.feeder_truth import POSE, feeder_origin_body, feeder_pose_truth, feeder_twist_truth
+from boomtip.tools.kpis import WARMUP_S
+
+RATES = tuple(f"{a}_rate" for a in POSE)
+COLUMNS = ("t",) + POSE + RATES + tuple(f"var_{a}" for a in POSE + RATES)
+# Document 004, Tables 1-3 (lab rig at about 1:10): position RMS / max in mm, angles in deg.
+DOC004 = {
+    "T1 tracker + 2 MRUs": {"rms_mm": (1.22, 2.05, 2.26), "max_mm": (2.84, 3.38, 4.82), "rms_deg": (0.03, 0.11, 0.04), "max_deg": (0.07, 0.18, 0.11)},
+    "T2 tracker off (MRUs only)": {"rms_mm": (9.17, 7.59, 18.63), "max_mm": (22.96, 13.69, 46.54), "rms_deg": (0.04, 0.10, 0.11), "max_deg": (0.09, 0.17, 0.24)},
+    "T3 tracker back": {"rms_mm": (1.51, 1.32, 1.98), "max_mm": (9.96, 9.89, 7.40), "rms_deg": (0.06, 0.07, 0.05), "max_deg": (0.13, 0.14, 0.15)},
+}
+
+
+def write_feeder_estimates(path: Path, res: FeederResult) -> None:
+    buf = io.StringIO()
+    buf.write(",".join(COLUMNS) + "\n")
+    for t, p, r, v in zip(res.t_s, res.pose, res.rates, res.var):
+        buf.write(f"{t:.4f}," + ",".join(f"{x:.7g}" for x in (*p, *r)) + "," + ",".join(f"{x:.4g}" for x in v) + "\n")
+    atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def truth_of(res: FeederResult, truth: Truth, p_tip_crane_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The truth's pose and twist at the estimates' times, with the estimator's definition."""
+    origin = feeder_origin_body(truth, res.t_definition_s, p_tip_crane_m)
+    return feeder_pose_truth(truth, res.t_s, origin, p_tip_crane_m), feeder_twist_truth(truth, res.t_s, origin, p_tip_crane_m)
+
+
+def _figures(err_pose: np.ndarray, err_rate: np.ndarray, var: np.ndarray) -> dict:
+    if len(err_pose) == 0:
+        return {"samples": 0}
+    rms = lambda e: np.sqrt(np.mean(e ** 2, axis=0))  # noqa: E731
+    nees = np.einsum("ij,ij->i", err_pose ** 2, 1.0 / var[:, :6])
+    return {
+        "samples": int(len(err_pose)),
+        "rmse_pos_m": rms(err_pose[:, :3]).round(5).tolist(),
+        "max_pos_m": np.abs(err_pose[:, :3]).max(axis=0).round(5).tolist(),
+        "rmse_rpy_deg": np.degrees(rms(err_pose[:, 3:])).round(5).tolist(),
+        "max_rpy_deg": np.degrees(np.abs(err_pose[:, 3:]).max(axis=0)).round(5).tolist(),
+        "rmse_vel_mps": rms(err_rate[:, :3]).round(5).tolist(),
+        "rmse_rpy_rate_degps": np.degrees(rms(err_rate[:, 3:])).round(5).tolist(),
+        "nees_mean": round(float(nees.mean()), 3),  # 6 for an honest 6-DOF covariance
+        "within_3sigma_pct": (100.0 * np.mean(np.abs(err_pose) <= 3.0 * np.sqrt(var[:, :6]), axis=0)).round(2).tolist(),
+    }
+
+
+def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray, windows=(), heave_D: tuple | None = None) -> dict:
+    apt = float(np.mean(res.frame_ms)) if res.frame_ms else float("nan")
+    out: dict = {"apt_ms": round(apt, 3), "frames_ms_p95": round(float(np.percentile(res.frame_ms, 95)), 3) if res.frame_ms else None,
+                 "updates": res.counts, "missing": len(res.missing)}
+    if res.tilt is not None:
+        out["levelling_tilt_deg"] = {"about_x": round(math.degrees(res.tilt.rx_rad), 5), "about_y": round(math.degrees(res.tilt.ry_rad), 5),
+                                     "sigma": round(math.degrees(res.tilt.sigma_rad), 5), "span_s": round(res.tilt.span_s, 2)}
+    if res.centre_line is not None:
+        out["centre_line"] = {"yaw_in_map_deg": round(math.degrees(res.centre_line[0]), 5), "frames": res.centre_line[1]}
+    if res.notes:
+        out["notes"] = res.notes
+    if truth is None or len(res.t_s) == 0 or not {"feeder_x", "crane_x"} <= set(truth.columns):
+        return out
+    pose_t, rate_t = truth_of(res, truth, p_tip_crane_m)
+    e_pose = res.pose - pose_t
+    e_pose[:, 3:] = (e_pose[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    e_rate = res.rates - rate_t
+    scored = (res.t_s >= res.t_s[0] + WARMUP_S) & np.all(np.isfinite(pose_t), axis=1)
+    inside = np.zeros(len(res.t_s), dtype=bool)
+    for a, b in windows:
+        inside |= (res.t_s >= a) & (res.t_s < b)
+    out.update(_figures(e_pose[scored], e_rate[scored], res.var[scored]))
+    out["note"] = f"errors exclude the first {WARMUP_S:g} s after the first deck frame (filter convergence)"
+    if windows:
+        out["outage"] = _figures(e_pose[scored & inside], e_rate[scored & inside], res.var[scored & inside])
+        out["outside_outage"] = _figures(e_pose[scored & ~inside], e_rate[scored & ~inside], res.var[scored & ~inside])
+    if heave_D is not None:  # the feeder's D (the deck below the tip) beside the heave chain's fused D
+        t_h, D_h = heave_D
+        D_f = feeder_D(res)
+        D_true = truth.at("D", res.t_s)
+        D_fused = np.interp(res.t_s, t_h, D_h, left=np.nan, right=np.nan)
+        ok = scored & np.isfinite(D_true) & np.isfinite(D_fused)
+        if ok.any():
+            out["D_side_by_side"] = {"feeder_rmse_m": round(float(np.sqrt(np.mean((D_f[ok] - D_true[ok]) ** 2))), 5),
+                                     "heave_fused_rmse_m": round(float(np.sqrt(np.mean((D_fused[ok] - D_true[ok]) ** 2))), 5),
+                                     "feeder_minus_fused_rms_m": round(float(np.sqrt(np.mean((D_f[ok] - D_fused[ok]) ** 2))), 5)}
+    return out
+
+
+def feeder_D(res: FeederResult) -> np.ndarray:
+    """The vertical distance from the tip (the frame's origin) down to the deck, from the
+    estimated pose: the deck is the feeder frame's z = 0 plane, n.(X - p) = 0, met by the
+    vertical X = (0, 0, -D) at D = -(n.p) / n_z."""
+    r, pt, y = res.pose[:, 3], res.pose[:, 4], res.pose[:, 5]
+    n = np.column_stack([np.cos(y) * np.sin(pt) * np.cos(r) + np.sin(y) * np.sin(r),
+                         np.sin(y) * np.sin(pt) * np.cos(r) - np.cos(y) * np.sin(r), np.cos(pt) * np.cos(r)])
+    return -np.einsum("ij,ij->i", n, res.pose[:, :3]) / n[:, 2]
+
+
+def report_section(kpis: dict, windows=()) -> str:
+    f = kpis.get("feeder") or {}
+    lines = ["", "## Feeder 6-DOF relative to the crane vessel (documents 003, 004)", ""]
+    lines.append("The feeder frame (origin at the deck point below the boom tip at the first LiDAR frame, z the deck "
+                 "normal, x the centre line) in the heading frame at the boom tip. boomtip is full scale; document 004's "
+                 "lab figures are multiplied by 10 for positions (its own rule), angles unchanged.")
+    lines.append("")
+    if "rmse_pos_m" not in f:
+        lines.append(f"No truth to score against. APT {f.get('apt_ms', float('nan')):.2f} ms per LiDAR frame.")
+        return "\n".join(lines) + "\n"
+    lines.append("| period | position RMS x/y/z [mm] | position max [mm] | angle RMS r/p/y [deg] | angle max [deg] | NEES (6) |")
+    lines.append("|---|---|---|---|---|---|")
+
+    def row(name, b):
+        if not b or not b.get("samples"):
+            return
+        mm = lambda v: " / ".join(f"{1000 * x:.1f}" for x in v)  # noqa: E731
+        dg = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+        lines.append(f"| {name} | {mm(b['rmse_pos_m'])} | {mm(b['max_pos_m'])} | {dg(b['rmse_rpy_deg'])} | {dg(b['max_rpy_deg'])} | {b['nees_mean']:.2f} |")
+
+    row("boomtip, whole run", f)
+    if windows:
+        row("boomtip, inside the outage windows", f.get("outage"))
+        row("boomtip, outside them", f.get("outside_outage"))
+    for name, d in DOC004.items():
+        lines.append(f"| 004 {name} (x10) | {' / '.join(f'{10 * x:.1f}' for x in d['rms_mm'])} | "
+                     f"{' / '.join(f'{10 * x:.1f}' for x in d['max_mm'])} | {' / '.join(f'{x:.2f}' for x in d['rms_deg'])} | "
+                     f"{' / '.join(f'{x:.2f}' for x in d['max_deg'])} | |")
+    lines.append("")
+    lines.append(f"APT {f['apt_ms']:.2f} ms per LiDAR frame (the whole chain: its deck stage, static-return mask, "
+                 f"registration, filter). Velocity RMSE x/y/z {' / '.join(f'{1000 * v:.1f}' for v in f['rmse_vel_mps'])} mm/s.")
+    if "levelling_tilt_deg" in f:
+        t = f["levelling_tilt_deg"]
+        lines.append(f"Levelling calibration (LiDAR mount and MRU bias together, from the deck normal over {t['span_s']:.0f} s; "
+                     f"the feeder's mean roll and pitch taken as zero): {t['about_x']:.4f} deg about x, {t['about_y']:.4f} deg "
+                     f"about y (1-sigma {t['sigma']:.4f}). A rotation about the vertical is not observable this way.")
+    if "D_side_by_side" in f:
+        d = f["D_side_by_side"]
+        lines.append(f"D from this estimate: RMSE {1000 * d['feeder_rmse_m']:.2f} mm; the heave chain's fused D: "
+                     f"{1000 * d['heave_fused_rmse_m']:.2f} mm; their difference {1000 * d['feeder_minus_fused_rms_m']:.2f} mm RMS.")
+    return "\n".join(lines) + "\n"
+
+
+def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray) -> Path | None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if len(res.t_s) == 0:
+        return None
+    pose_t = truth_of(res, truth, p_tip_crane_m)[0] if truth is not None and "feeder_x" in truth.columns else None
+    fig, axes = plt.subplots(6, 1, figsize=(10, 12), sharex=True)
+    scale = [1000.0] * 3 + [180 / math.pi] * 3
+    units = ["mm"] * 3 + ["deg"] * 3
+    for i, ax in enumerate(axes):
+        sig = 3 * np.sqrt(res.var[:, i]) * scale[i]
+        if pose_t is not None:
+            e = (res.pose[:, i] - pose_t[:, i]) * scale[i]
+            ax.plot(res.t_s, e, lw=0.8, label="error")
+            ax.fill_between(res.t_s, -sig, sig, alpha=0.2, label="3 sigma")
+            ax.set_ylabel(f"{POSE[i]} err [{units[i]}]")
+        else:
+            ax.plot(res.t_s, res.pose[:, i] * scale[i], lw=0.8)
+            ax.set_ylabel(f"{POSE[i]} [{units[i]}]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    path = out / "plots" / "feeder_pose.png"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_map_feeder: np.ndarray | None,
+               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 2.0) -> None:
+    """The feeder's model at the estimated pose (and a ghost at the true one) in the tip view,
+    `rate_hz` times a second, and the pose series as columns."""
+    rr, rec = getattr(viz, "rr", None), getattr(viz, "rec", None)
+    if rr is None or len(res.t_s) == 0:
+        return
+    from boomtip.perception.feeder_registration import inverse, pose_matrix, transform
+    from boomtip.tools.visualise import TIMELINE
+
+    for i, name in enumerate(POSE):
+        scale = 1.0 if i < 3 else 180 / math.pi
+        rec.send_columns(f"feeder/{name}/estimate", indexes=[rr.TimeColumn(TIMELINE, duration=res.t_s)],
+                         columns=rr.Scalars.columns(scalars=res.pose[:, i] * scale))
+        if truth_pose is not None:
+            rec.send_columns(f"feeder/{name}/truth", indexes=[rr.TimeColumn(TIMELINE, duration=res.t_s)],
+                             columns=rr.Scalars.columns(scalars=truth_pose[:, i] * scale))
+    if model_points_map is None or T_map_feeder is None or len(model_points_map) == 0:
+        return
+    pts_feeder = transform(inverse(T_map_feeder), model_points_map)
+    pts_feeder = pts_feeder[:: max(1, len(pts_feeder) // max_points)]
+    last = -np.inf
+    for k, t in enumerate(res.t_s):
+        if t - last < 1.0 / rate_hz:
+            continue
+        last = t
+        rec.set_time(TIMELINE, duration=float(t))
+        c, s = math.cos(rpy_yaw(t)), math.sin(rpy_yaw(t))
+        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # heading frame -> the tip view's world axes
+        rec.log("tip/feeder/estimate", rr.Points3D(transform(pose_matrix(*res.pose[k]), pts_feeder) @ Rz.T, radii=0.08,
+                                                   colors=[[80, 200, 255]]))
+        if truth_pose is not None and np.all(np.isfinite(truth_pose[k])):
+            rec.log("tip/feeder/truth", rr.Points3D(transform(pose_matrix(*truth_pose[k]), pts_feeder) @ Rz.T, radii=0.05,
+                                                    colors=[[255, 255, 255, 80]]))
