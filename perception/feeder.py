@@ -39,6 +39,7 @@ class FeederConfig(BaseModel):
     structure_above_m: float = Field(30.0, gt=0, description="and up to this above it")
     plane_inflation: float = Field(20.0, ge=1, description="deck-plane covariance x this: one scan's residuals are correlated")
     min_plane_points: int = Field(50, ge=3)
+    footprint_margin_m: float = Field(2.0, ge=0, description="structure is taken this far beyond the deck's outline")
 
 
 @dataclass
@@ -49,6 +50,7 @@ class PlaneLevel:
     cov: np.ndarray
     normal: np.ndarray  # unit, up
     n_points: int
+    points_level: np.ndarray | None = None  # its inliers (at most 2000): the feeder's footprint
 
 
 @dataclass
@@ -140,7 +142,9 @@ class FeederPerception:
         pts = deck.points_used[deck.fit.inlier_mask]
         if len(pts) < self.cfg.min_plane_points:
             return None
-        plane = plane_in_level(pts @ R_ls.T + t_ls, self.cfg.plane_inflation)
+        pts_level = pts @ R_ls.T + t_ls
+        plane = plane_in_level(pts_level, self.cfg.plane_inflation)
+        plane.points_level = pts_level[:: max(1, len(pts_level) // 2000)]
         if extra_tilt_sigma_rad > 0:
             # The MRU's noise (and another sensor's mount) tilt this frame's levelling about the
             # sensor: the slopes change, and the height at the origin by the sensor's lever.
@@ -157,10 +161,17 @@ class FeederPerception:
         status = "ok" if plane is not None else (f"no deck plane ({deck.status})" if deck is not None else "no deck plane")
         return LidarObservation(t_s, sample, R_ls, t_ls, plane, status, *self.tip_motion(rpy, rpy_rate))
 
-    def structure(self, obs: LidarObservation, static_mask: np.ndarray, plane_abc: np.ndarray) -> np.ndarray:
+    def structure(self, obs: LidarObservation, static_mask: np.ndarray, plane_abc: np.ndarray,
+                  footprint: Footprint | None = None, T_map_level: np.ndarray | None = None) -> np.ndarray:
         """The frame's feeder returns off the deck plane, in the level frame: the static
-        returns removed, the deck's own points (which say nothing of x, y, yaw) left out."""
+        returns removed, the deck's own points (which say nothing of x, y, yaw) left out, and
+        with a footprint only those over the feeder's deck (its vertical walls heaving along
+        themselves look static in the sensor frame, and the own vessel's hull side, beyond the
+        gap between the ships, does not)."""
         pts = obs.sample_sensor[~static_mask] @ obs.R_level_sensor.T + obs.t_level_sensor
+        if footprint is not None and T_map_level is not None:
+            xy = pts[:, :2] @ T_map_level[:2, :2].T + pts[:, 2:3] * T_map_level[:2, 2] + T_map_level[:2, 3]
+            pts = pts[footprint.contains(xy)]
         a, b, c = plane_abc
         h = (pts[:, 2] - a * pts[:, 0] - b * pts[:, 1] - c) / math.sqrt(a * a + b * b + 1.0)
         keep = ((h > self.cfg.deck_band_m) & (h < self.cfg.structure_above_m)) | \
@@ -181,6 +192,21 @@ class FeederPerception:
         cov = R_ls @ doppler.covariance @ R_ls.T + np.eye(3) * ((lever * self.rate_sigma_radps) ** 2
                                                                 + (float(np.linalg.norm(u)) * self.angle_sigma_rad) ** 2)
         return RadarObservation(t_s, v, cov, t_ls, plane, "ok", *tip)
+
+
+class Footprint:
+    """The feeder deck's outline in the map frame (the convex hull of its deck points), grown
+    by a margin for the bulwarks and hull sides: a convex polygon as half-planes."""
+
+    def __init__(self, deck_xy_map: np.ndarray, margin_m: float) -> None:
+        from scipy.spatial import ConvexHull
+
+        hull = ConvexHull(deck_xy_map)
+        self.equations = hull.equations  # (F, 3): n . p + c <= 0 inside, n unit
+        self.margin_m = margin_m
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        return np.all(xy @ self.equations[:, :2].T + self.equations[:, 2] <= self.margin_m, axis=1)
 
 
 def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tuple[float, float] = (0.2, 2.5),

@@ -57,7 +57,7 @@ class Registration6:
     """One frame registered to the model."""
 
     T_map_level: np.ndarray  # 4x4: level -> map
-    info_xy_yaw: np.ndarray  # 3x3 information of (x, y, yaw) of the map frame's pose in the level frame
+    info6: np.ndarray  # 6x6 information of the map frame's pose in the level frame (x, y, z, rotations)
     n_points: int
     fitness: float  # fraction of the frame's points matched in the keyframe
     status: str  # "ok" or why there is no registration
@@ -93,14 +93,24 @@ def transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
-def xy_yaw_information(points_level: np.ndarray, normals_level: np.ndarray, origin_level: np.ndarray, sigma_m: float) -> np.ndarray:
-    """Information (3x3) of the map frame's x, y and yaw (about its origin) from point-to-plane
-    residuals n.(p - q): moving the map by (dx, dy) changes a residual by -(n_x dx + n_y dy),
-    turning it by dyaw about its origin by -n.(e_z x (p - o)) dyaw."""
+def pose_information(points_level: np.ndarray, normals_level: np.ndarray, origin_level: np.ndarray, sigma_m: float) -> np.ndarray:
+    """Information (6x6) of the map frame's pose (x, y, z, and small rotations about the level
+    axes through its origin) from point-to-plane residuals n.(p - q): a translation dt changes a
+    residual by -n.dt, a rotation dw about the origin by -((p - o) x n).dw."""
     rel = points_level - origin_level
-    J = np.column_stack([normals_level[:, 0], normals_level[:, 1],
-                         rel[:, 0] * normals_level[:, 1] - rel[:, 1] * normals_level[:, 0]])
+    J = np.column_stack([normals_level, np.cross(rel, normals_level)])
     return J.T @ J / (sigma_m * sigma_m)
+
+
+def condition_on(pose_reg: np.ndarray, info6: np.ndarray, z_roll_pitch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The registration's (x, y, yaw) given z, roll and pitch known from elsewhere (the deck):
+    an ICP that tilts a little wrong shifts sideways to make up for it (by the tilt times the
+    structure's height); the Gaussian conditional undoes that: mean - L11^-1 L12 (known - its
+    own). Returns (x, y, yaw) and their information L11."""
+    a, b = [0, 1, 5], [2, 3, 4]
+    L11, L12 = info6[np.ix_(a, a)], info6[np.ix_(a, b)]
+    d = np.asarray(z_roll_pitch, dtype=float) - pose_reg[b]
+    return pose_reg[a] - np.linalg.pinv(L11) @ (L12 @ d), L11
 
 
 class FeederModel:
@@ -149,9 +159,9 @@ class FeederModel:
         cfg = self.cfg
         n = len(source_level)
         if n < cfg.min_points:
-            return Registration6(T_map_level_guess, np.zeros((3, 3)), n, 0.0, f"too few feeder points above the deck ({n} < {cfg.min_points})")
+            return Registration6(T_map_level_guess, np.zeros((6, 6)), n, 0.0, f"too few feeder points above the deck ({n} < {cfg.min_points})")
         if self.keyframe is None:
-            return Registration6(T_map_level_guess, np.zeros((3, 3)), n, 0.0, "no model yet")
+            return Registration6(T_map_level_guess, np.zeros((6, 6)), n, 0.0, "no model yet")
         guess, kiss = T_map_level_guess, False
         if prior_sigma_m > cfg.kiss_above_sigma_m:
             dist = float(min(3.0 * prior_sigma_m, 5.0))
@@ -163,8 +173,8 @@ class FeederModel:
         T = np.asarray(res.transformation)
         corr = np.asarray(res.correspondence_set)
         if not np.all(np.isfinite(T)) or len(corr) < cfg.min_points:
-            return Registration6(T_map_level_guess, np.zeros((3, 3)), n, float(res.fitness), "registration found no overlap", kiss)
+            return Registration6(T_map_level_guess, np.zeros((6, 6)), n, float(res.fitness), "registration found no overlap", kiss)
         T_level_map = inverse(T)
         normals_level = np.asarray(self.keyframe.normals)[corr[:, 1]] @ T_level_map[:3, :3].T
-        info = xy_yaw_information(source_level[corr[:, 0]], normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
+        info = pose_information(source_level[corr[:, 0]], normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
         return Registration6(T.copy(), info / cfg.info_inflation, n, float(res.fitness), "ok", kiss)

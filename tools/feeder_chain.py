@@ -32,8 +32,8 @@ from boomtip.fusion.attitude_filter import complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
 from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
 from boomtip.fusion.models.relative_motion import deck_plane, rotation
-from boomtip.perception.feeder import FeederPerception, LidarObservation, RadarObservation, centre_line_yaw
-from boomtip.perception.feeder_registration import FeederModel, inverse, pose_matrix, pose_vector, transform
+from boomtip.perception.feeder import FeederPerception, Footprint, LidarObservation, RadarObservation, centre_line_yaw
+from boomtip.perception.feeder_registration import FeederModel, condition_on, inverse, pose_matrix, pose_vector, transform
 from boomtip.perception.pipeline import FrameResult
 from boomtip.perception.static_returns import StaticReturns
 from boomtip.perception.timing import StageTimes
@@ -84,6 +84,7 @@ class FeederChain:
         self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
         self.lines: list[tuple[float, int]] = []  # the centre line's yaw in the map frame, every few frames
         self.lidar_frames = 0
+        self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck
         self.radar_offset, self.radar_offset_n = np.zeros(3), 0  # radar deck - LiDAR deck: slopes, height
 
     # -- per frame -------------------------------------------------------------------------
@@ -158,7 +159,11 @@ class FeederChain:
         with times.stage("feeder.static"):
             mask = self.static.static_mask(obs.sample_sensor)
         with times.stage("feeder.structure"):
-            structure = self.perception.structure(obs, mask, deck_plane(f.x))
+            T_map_level = inverse(pose_matrix(*f.x[:6]))
+            if self.footprint is None and obs.plane is not None and obs.plane.points_level is not None:
+                deck_map = transform(T_map_level, obs.plane.points_level)
+                self.footprint = Footprint(deck_map[:, :2], self.cfg.perception.footprint_margin_m)
+            structure = self.perception.structure(obs, mask, deck_plane(f.x), self.footprint, T_map_level)
         with times.stage("feeder.register"):
             T_guess = inverse(pose_matrix(*f.x[:6]))
             sigma = float(np.linalg.norm(f.pose_sigma()[[0, 1]])) + 10.0 * float(f.pose_sigma()[5])
@@ -168,9 +173,10 @@ class FeederChain:
                 reg = self.model.register(structure, T_guess, sigma)
                 if reg.status == "ok":
                     v = pose_vector(inverse(reg.T_map_level))
+                    xy_yaw, info = condition_on(v, reg.info6, f.x[2:5])
                     # the MRU's angle noise turns this frame about the tip: the deck below moves sideways
                     s_lvl = abs(float(f.x[2])) * self.perception.angle_sigma_rad
-                    f.update_registration(v[[0, 1, 5]], reg.info_xy_yaw, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
+                    f.update_registration(xy_yaw, info, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
                     if self.model.keyframe_size < self.model.cfg.keyframe_frames:
                         self.model.extend_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
                         self.model.keyframe_size += 1
