@@ -207,3 +207,28 @@ def bench_hook_cmd(
     print(f"  block segmentation + fit: {r['block_ms_per_frame']['mean']:.1f} ms/frame (p95 {r['block_ms_per_frame']['p95']:.1f}); "
           f"rope fit {r['rope_ms_per_frame']['mean']:.1f} ms/frame; peak RSS {r['peak_rss_mb']:.0f} MB")
     print(f"  ratio {r['ratio']:.2f}x real time end to end")
+
+
+@bench_app.command("feeder")
+def bench_feeder_cmd(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    duration: float = typer.Option(60.0, "--duration", help="Seconds of the scenario to run."),
+    set_: Optional[list[str]] = SetOpt,
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """The feeder's 6-DOF chain against plain kiss-icp odometry on the same frames."""
+    from boomtip.tools.bench_feeder import bench_feeder
+
+    with user_errors():
+        r = bench_feeder(scenario, duration, set_)
+        write_bench_json(json_path, r, force)
+    c, k = r["chain"], r["kiss_icp"]
+    print(f"feeder  {r['scenario']}, {r['duration_s']:g} s, {r['lidar_frames']} LiDAR frames")
+    print(f"  {'':10s} {'pos RMSE x/y/z [mm]':>24s} {'angle RMSE r/p/y [deg]':>26s} {'ms/frame':>9s}")
+    for name, b in (("chain", c), ("kiss-icp", k)):
+        print(f"  {name:10s} {' / '.join(f'{1000 * v:6.1f}' for v in b['rmse_pos_m']):>24s} "
+              f"{' / '.join(f'{v:.4f}' for v in b['rmse_rpy_deg']):>26s} {b['ms_per_lidar_frame']:9.2f}")
+    print(f"  kiss-icp / chain: position {' / '.join(f'{v:.1f}' for v in r['ratio_pos'])}, "
+          f"angles {' / '.join(f'{v:.1f}' for v in r['ratio_rpy'])}")
+    print(f"  ratio {r['ratio']:.2f} (smallest over the six axes; above 1 the chain is better on every one)")
