@@ -35,6 +35,8 @@ class FeederFilterConfig(BaseModel):
     gate_probability: float = Field(0.9999, gt=0.5, lt=1, description="chi-square gate of every update")
     max_rejections: int = Field(10, ge=1, description="refused this often in a row, a kind is taken as a re-acquisition")
     max_sigma_m: float = Field(0.05, gt=0, description="registration directions known worse than this are not updated")
+    registration_floor: tuple[float, float] = Field((0.025, 0.08), description="1-sigma a registration is never better than: m (x, y), "
+                                                    "deg (yaw); measured against the truth, ICP on a deck's structure is off by this")
     init_sigma_rate: tuple[float, float] = Field((0.5, 2.0), description="first-frame 1-sigma of the rates: m/s, deg/s")
 
 
@@ -147,7 +149,9 @@ class FeederFilter:
         z_full = np.array(x_y_yaw, dtype=float)
         h_full = self.x[[0, 1, 5]]
         z_full[2] = h_full[2] + (z_full[2] - h_full[2] + math.pi) % (2 * math.pi) - math.pi
-        R = np.diag(var) if extra_cov is None else np.diag(var) + A @ extra_cov @ A.T
+        fx, fyaw = self.cfg.registration_floor
+        floor = np.diag([fx * fx, fx * fx, (fyaw * DEG) ** 2]) + (extra_cov if extra_cov is not None else 0.0)
+        R = np.diag(var) + A @ floor @ A.T
         return self._update("registration", A @ z_full, A @ h_full, A @ S, R)
 
     def update_point_velocity(self, velocity_level: np.ndarray, cov: np.ndarray, xi_level: np.ndarray) -> bool:
