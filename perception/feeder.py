@@ -239,9 +239,12 @@ def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tu
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best, best_count = s + k, int(counts[k])
-    inl = xy[np.abs((xy - xy[i[best]]) @ nrm[best]) < tol_m]
-    c = inl - inl.mean(axis=0)
-    _, _, Vt = np.linalg.svd(c, full_matrices=False)
+    point, normal = xy[i[best]], nrm[best]
+    for _ in range(4):  # refit on the band about the last fit: RANSAC's line clips a thick edge unevenly
+        inl = xy[np.abs((xy - point) @ normal) < tol_m]
+        point = inl.mean(axis=0)
+        _, _, Vt = np.linalg.svd(inl - point, full_matrices=False)
+        normal = Vt[1]
     ux, uy = Vt[0]
     yaw = (math.atan2(uy, ux) + math.pi / 2) % math.pi - math.pi / 2
     return yaw, len(inl)

@@ -190,8 +190,8 @@ def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_ma
                truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 2.0) -> None:
     """The feeder's model at the estimated pose (and a ghost at the true one) in the tip view,
     `rate_hz` times a second, and the pose series as columns."""
-    rr, rec = getattr(viz, "rr", None), getattr(viz, "rec", None)
-    if rr is None or len(res.t_s) == 0:
+    rr, rec = vars(viz).get("rr"), vars(viz).get("rec")  # the null visualiser has neither
+    if rr is None or rec is None or len(res.t_s) == 0:
         return
     from boomtip.perception.feeder_registration import inverse, pose_matrix, transform
     from boomtip.tools.visualise import TIMELINE

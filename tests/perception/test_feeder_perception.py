@@ -1,0 +1,110 @@
+"""Feeder perception: sensor-static returns, the deck plane in the level frame, the centre
+line, the footprint, and the registration with its degeneracy."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from boomtip.perception.feeder import Footprint, centre_line_yaw, plane_in_level
+from boomtip.perception.feeder_registration import (FeederModel, condition_on, inverse, pose_information, pose_matrix,
+                                                    pose_vector, transform)
+from boomtip.perception.static_returns import StaticReturns, StaticReturnsConfig
+
+
+def _deck_scene(rng, n=6000):
+    """A feeder deck 80 x 20 m at z = 0 with bulwarks, two containers and a hatch coaming."""
+    deck = np.column_stack([rng.uniform(-40, 40, n), rng.uniform(-10, 10, n), np.zeros(n)])
+    parts = [deck]
+    for sy in (-1, 1):  # bulwark inner faces and tops
+        m = 800
+        parts.append(np.column_stack([rng.uniform(-40, 40, m), np.full(m, sy * 9.85), rng.uniform(0, 1.2, m)]))
+        parts.append(np.column_stack([rng.uniform(-40, 40, m), sy * rng.uniform(9.85, 10.15, m), np.full(m, 1.2)]))
+    for cx in (-15.0, 12.0):  # containers: four walls and a roof
+        m = 400
+        parts.append(np.column_stack([np.full(m, cx - 6), rng.uniform(-1.2, 1.2, m), rng.uniform(0, 2.6, m)]))
+        parts.append(np.column_stack([np.full(m, cx + 6), rng.uniform(-1.2, 1.2, m), rng.uniform(0, 2.6, m)]))
+        parts.append(np.column_stack([rng.uniform(cx - 6, cx + 6, m), np.full(m, -1.2), rng.uniform(0, 2.6, m)]))
+        parts.append(np.column_stack([rng.uniform(cx - 6, cx + 6, m), np.full(m, 1.2), rng.uniform(0, 2.6, m)]))
+        parts.append(np.column_stack([rng.uniform(cx - 6, cx + 6, m), rng.uniform(-1.2, 1.2, m), np.full(m, 2.6)]))
+    return np.vstack(parts)
+
+
+def test_static_returns_flag_the_own_vessel_not_the_heaving_deck():
+    rng = np.random.default_rng(0)
+    st = StaticReturns(StaticReturnsConfig(warmup_s=4.0))
+    own = np.column_stack([rng.uniform(-20, 20, 500), rng.uniform(15, 20, 500), rng.uniform(-5, 0, 500)])
+    deck0 = np.column_stack([rng.uniform(-30, 30, 3000), rng.uniform(-10, 10, 3000), np.full(3000, -45.0)])
+    for k in range(120):
+        t = 0.1 * k
+        deck = deck0 + [0.0, 0.0, 1.5 * math.sin(2 * math.pi * t / 10.0)]
+        st.add(t, np.vstack([own + rng.normal(0, 0.02, own.shape), deck + rng.normal(0, 0.02, deck.shape)]))
+    assert st.ready
+    deck_now = deck0 + [0.0, 0.0, 1.5 * math.sin(2 * math.pi * 11.9 / 10.0)]
+    assert st.static_mask(own).mean() > 0.95  # a point whose noise crosses a voxel edge diagonally is missed
+    assert st.static_mask(deck_now).mean() < 0.02
+
+
+def test_plane_in_level_covariance_is_honest():
+    """Monte Carlo over 300 fits: the (a, b, c) errors' chi-square mean is 3 with no inflation."""
+    rng = np.random.default_rng(1)
+    abc_true = np.array([0.01, -0.02, -45.0])
+    d2 = []
+    for _ in range(300):
+        xy = rng.uniform([-30, 20], [30, 40], (400, 2))  # the deck off to one side of the origin
+        z = abc_true[0] * xy[:, 0] + abc_true[1] * xy[:, 1] + abc_true[2] + rng.normal(0, 0.02, 400)
+        pl = plane_in_level(np.column_stack([xy, z]), inflation=1.0)
+        e = pl.abc - abc_true
+        d2.append(e @ np.linalg.solve(pl.cov, e))
+    assert np.mean(d2) == pytest.approx(3.0, rel=0.15)
+
+
+def test_centre_line_yaw_from_the_bulwarks():
+    rng = np.random.default_rng(2)
+    pts = _deck_scene(rng)
+    yaw = math.radians(0.4)
+    T = pose_matrix(0.0, 0.0, 0.0, 0.0, 0.0, yaw)
+    found = centre_line_yaw(transform(T, pts), np.random.default_rng(0))
+    assert found is not None
+    assert math.degrees(found[0]) == pytest.approx(0.4, abs=0.01)
+
+
+def test_footprint_keeps_the_deck_and_drops_the_other_hull():
+    rng = np.random.default_rng(3)
+    deck_xy = np.column_stack([rng.uniform(-40, 40, 2000), rng.uniform(-10, 10, 2000)])
+    fp = Footprint(deck_xy, margin_m=2.0)
+    assert fp.contains(np.array([[0.0, 11.5], [30.0, -11.0]])).all()  # bulwarks, hull sides
+    assert not fp.contains(np.array([[0.0, 15.5], [-10.0, 20.0]])).any()  # the crane vessel beyond the gap
+
+
+def test_registration_recovers_a_known_motion_and_conditioning_removes_tilt_leakage():
+    rng = np.random.default_rng(4)
+    scene = _deck_scene(rng)
+    structure = scene[np.abs(scene[:, 2]) > 0.2]  # what the chain registers: off the deck plane
+    T_level_map0 = pose_matrix(0.0, 0.0, -45.0, 0.0, 0.0, 0.0)
+    model = FeederModel()
+    model.set_keyframe(transform(T_level_map0, structure), inverse(T_level_map0))
+    truth = np.array([0.21, -0.13, -44.6, 0.004, -0.006, math.radians(0.3)])
+    other = _deck_scene(np.random.default_rng(5))  # another scan of the same feeder
+    frame = transform(pose_matrix(*truth), other[np.abs(other[:, 2]) > 0.2])
+    guess = truth + [0.05, -0.04, 0.0, 0.0, 0.0, math.radians(0.05)]
+    reg = model.register(frame, inverse(pose_matrix(*guess)), prior_sigma_m=0.05)
+    assert reg.status == "ok" and reg.fitness > 0.5
+    v = pose_vector(inverse(reg.T_map_level))
+    xy_yaw, info = condition_on(v, reg.info6, truth[2:5])
+    assert abs(xy_yaw[0] - truth[0]) < 0.01 and abs(xy_yaw[1] - truth[1]) < 0.01
+    assert abs(math.degrees(xy_yaw[2] - truth[5])) < 0.01
+    assert np.all(np.linalg.eigvalsh(info) > 0)
+
+
+def test_a_flat_deck_is_degenerate_in_x_y_and_yaw():
+    rng = np.random.default_rng(6)
+    deck = np.column_stack([rng.uniform(-40, 40, 3000), rng.uniform(-10, 10, 3000), rng.normal(0, 0.01, 3000)])
+    info = pose_information(deck, np.tile([0.0, 0.0, 1.0], (3000, 1)), np.zeros(3), 0.02)
+    from boomtip.fusion.models.relative_motion import well_observed
+
+    A, _ = well_observed(info[np.ix_([0, 1, 5], [0, 1, 5])], 0.05)
+    assert A.shape[0] == 0  # nothing to update
+    assert info[2, 2] > 1e6  # but z is pinned
