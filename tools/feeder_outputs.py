@@ -63,7 +63,7 @@ def _figures(err_pose: np.ndarray, err_rate: np.ndarray, var: np.ndarray) -> dic
 
 def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray, windows=(), heave_D: tuple | None = None) -> dict:
     apt = float(np.mean(res.frame_ms)) if res.frame_ms else float("nan")
-    out: dict = {"apt_ms": round(apt, 3), "frames_ms_p95": round(float(np.percentile(res.frame_ms, 95)), 3) if res.frame_ms else None,
+    out: dict = {"apt_ms": round(apt, 3), "apt_ms_p95": round(float(np.percentile(res.frame_ms, 95)), 3) if res.frame_ms else None,
                  "updates": res.counts, "missing": len(res.missing)}
     if res.tilt is not None:
         out["levelling_tilt_deg"] = {"about_x": round(math.degrees(res.tilt.rx_rad), 5), "about_y": round(math.degrees(res.tilt.ry_rad), 5),
@@ -187,7 +187,7 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
 
 
 def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_map_feeder: np.ndarray | None,
-               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 2.0) -> None:
+               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 1.0, max_points: int = 2000) -> None:
     """The feeder's model at the estimated pose (and a ghost at the true one) in the tip view,
     `rate_hz` times a second, and the pose series as columns."""
     rr, rec = vars(viz).get("rr"), vars(viz).get("rec")  # the null visualiser has neither

@@ -54,8 +54,6 @@ class ShipChain:
         fused = result.heave.estimates.get("fused")
         heave_D = (fused.t_s, fused.x[:, 0]) if fused is not None else None
         kpis["feeder"] = feeder_kpis(result.feeder, truth, self.p_tip_crane_m, windows, heave_D)
-        if result.feeder.notes:
-            kpis.setdefault("warnings", []).extend(result.feeder.notes)
         return kpis
 
     def report(self, out: Path, kpis: dict, result: ShipResult, truth: Truth | None) -> list[str]:
