@@ -21,7 +21,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 _TABLE_BITS = 22
-_NEIGHBOURS = np.array([[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.int64)
+_OFF = 1 << 20  # voxel coordinates are packed 21 bits an axis: +-2^20 voxels of 0.3 m is 300 km
+# the packed offsets of a voxel and its six face neighbours
+_NEIGHBOURS = np.array([0, 1, -1, 1 << 21, -(1 << 21), 1 << 42, -(1 << 42)], dtype=np.int64)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 class StaticReturnsConfig(BaseModel):
@@ -33,10 +36,15 @@ class StaticReturnsConfig(BaseModel):
     warmup_s: float = Field(4.0, ge=0, description="history needed before the mask is trusted")
 
 
-def voxel_hash(keys: np.ndarray) -> np.ndarray:
-    """Integer voxel coordinates (N,3) -> table slots (N,), a multiplicative hash."""
-    h = (keys[:, 0] * 73856093) ^ (keys[:, 1] * 19349663) ^ (keys[:, 2] * 83492791)
-    return (h & ((1 << _TABLE_BITS) - 1)).astype(np.int64)
+def packed_voxels(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """Integer voxel coordinates packed into one int64 each (21 bits an axis)."""
+    k = np.floor(points / voxel_m).astype(np.int64) + _OFF
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
+
+def voxel_hash(packed: np.ndarray) -> np.ndarray:
+    """Packed voxels -> table slots: Fibonacci hashing (the top bits of a golden-ratio product)."""
+    return ((packed.astype(np.uint64) * _GOLDEN) >> np.uint64(64 - _TABLE_BITS)).astype(np.int64)
 
 
 class StaticReturns:
@@ -45,23 +53,27 @@ class StaticReturns:
     def __init__(self, cfg: StaticReturnsConfig | None = None) -> None:
         self.cfg = cfg or StaticReturnsConfig()
         self.counts = np.zeros(1 << _TABLE_BITS, dtype=np.int32)
-        self.frames: deque[tuple[float, np.ndarray]] = deque()  # (t, slots counted for that frame)
+        self.frames: deque[tuple[float, np.ndarray]] = deque()  # (t, the frame's voxels)
         self.t_first: float | None = None
 
     def _slots(self, points_sensor: np.ndarray) -> np.ndarray:
-        return voxel_hash(np.floor(points_sensor / self.cfg.voxel_m).astype(np.int64))
+        return voxel_hash(packed_voxels(points_sensor, self.cfg.voxel_m))
+
+    def _dilated_slots(self, keys: np.ndarray) -> np.ndarray:
+        return voxel_hash((keys[:, None] + _NEIGHBOURS[None]).ravel())
 
     def add(self, t_s: float, points_sensor: np.ndarray) -> None:
-        """Count one frame's returns (finite points, sensor frame)."""
-        keys = np.unique(np.floor(points_sensor / self.cfg.voxel_m).astype(np.int64), axis=0)
-        dilated = (keys[:, None, :] + _NEIGHBOURS[None]).reshape(-1, 3)
-        slots = np.unique(voxel_hash(dilated))
-        self.counts[slots] += 1
-        self.frames.append((t_s, slots))
+        """Count one frame's returns (finite points, sensor frame). `counts[slots] += 1` adds one
+        per distinct slot however often it repeats (numpy's buffered fancy add): a frame counts
+        a voxel once, with no sort of the dilated slots; the frame keeps its voxels, not its
+        slots, to take them off again when it leaves the window."""
+        keys = np.unique(packed_voxels(points_sensor, self.cfg.voxel_m))  # 1-D: a sort, not a lexsort
+        self.counts[self._dilated_slots(keys)] += 1
+        self.frames.append((t_s, keys))
         self.t_first = t_s if self.t_first is None else self.t_first
         while self.frames and self.frames[0][0] < t_s - self.cfg.window_s:
             _, old = self.frames.popleft()
-            self.counts[old] -= 1
+            self.counts[self._dilated_slots(old)] -= 1
 
     @property
     def ready(self) -> bool:
