@@ -30,6 +30,7 @@ class FeederFilterConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     tau_s: float = Field(1.5, gt=0, description="correlation time of each DOF's acceleration (Singer)")
+    rate_tau_s: float = Field(8.0, gt=0, description="the rates return to zero over this (two ships keep station: no lasting drift)")
     sigma_acc_mps2: tuple[float, float, float] = Field((0.3, 0.3, 1.0), description="x, y, z acceleration 1-sigma")
     sigma_angacc_degps2: tuple[float, float, float] = Field((1.5, 1.5, 0.3), description="roll, pitch, yaw acceleration 1-sigma")
     gate_probability: float = Field(0.9999, gt=0.5, lt=1, description="chi-square gate of every update")
@@ -55,6 +56,7 @@ class FeederFilter:
         self.cfg = cfg or FeederFilterConfig()
         c = self.cfg
         self.tau = np.full(6, c.tau_s)
+        self.rate_tau = np.full(6, c.rate_tau_s)
         self.sigma_acc = np.array([*c.sigma_acc_mps2, *(np.array(c.sigma_angacc_degps2) * DEG)])
         self.x: np.ndarray | None = None
         self.P: np.ndarray | None = None
@@ -85,7 +87,7 @@ class FeederFilter:
         dt = t_s - self.t_s
         if dt <= 0:  # a late measurement is applied at the current time
             return
-        F, Q = transition(dt, self.tau, self.sigma_acc)
+        F, Q = transition(dt, self.tau, self.sigma_acc, self.rate_tau)
         self.x = F @ self.x
         self.x[0:3] -= 0.5 * (self.tip_velocity + tip_velocity) * dt
         self.P = F @ self.P @ F.T + Q
@@ -133,7 +135,9 @@ class FeederFilter:
 
     def update_deck(self, kind: str, plane_abc: np.ndarray, cov: np.ndarray) -> bool:
         """The deck plane z = a x + b y + c (level frame at the tip) and its covariance."""
-        return self._update(kind, plane_abc, deck_plane(self.x), numeric_jacobian(deck_plane, self.x, np.arange(6)), cov)
+        # Not the yaw: a plane's normal fixes the tilt, and through the Euler angles a yaw could
+        # be traded for roll and pitch that keep the normal (38 deg of yaw in a 50 s outage).
+        return self._update(kind, plane_abc, deck_plane(self.x), numeric_jacobian(deck_plane, self.x, np.arange(5)), cov)
 
     def update_registration(self, x_y_yaw: np.ndarray, info_xy_yaw: np.ndarray, extra_cov: np.ndarray | None = None) -> bool:
         """A registration's x, y, yaw; only the directions its information constrains.

@@ -110,6 +110,18 @@ def _print_kpis(kpis: dict) -> None:
     if "solutions" in kpis:
         print("\nSolutions after the Kalman filter (" + kpis["solutions_note"] + "), document 000's Table 5.4 beside ours:")
         print(kpi_table(kpis))
+    f = kpis.get("feeder")
+    if f and "rmse_pos_m" in f:
+        mm = lambda v: " / ".join(f"{1000 * x:.1f}" for x in v)  # noqa: E731
+        print(f"\nFeeder 6-DOF relative to the crane vessel ({f['note']}): position RMSE x/y/z {mm(f['rmse_pos_m'])} mm "
+              f"(max {mm(f['max_pos_m'])}), angles r/p/y {' / '.join(f'{x:.3f}' for x in f['rmse_rpy_deg'])} deg, "
+              f"NEES {f['nees_mean']:.2f} (6), {f['apt_ms']:.1f} ms per LiDAR frame")
+        if "D_side_by_side" in f:
+            d = f["D_side_by_side"]
+            print(f"D from the feeder's pose {1000 * d['feeder_rmse_m']:.2f} mm RMSE; the heave chain's fused D "
+                  f"{1000 * d['heave_fused_rmse_m']:.2f} mm")
+    elif f:
+        print(f"\nFeeder 6-DOF: {f.get('apt_ms', float('nan')):.1f} ms per LiDAR frame (no truth to score)")
 
 
 def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> None:

@@ -36,10 +36,11 @@ YAW_LEVER_M = 10.0  # yaw is weighed against x and y at this lever when deciding
 
 
 @lru_cache(maxsize=256)
-def _singer_block(dt_s: float, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Discrete (F, Q per unit spectral density) of [pos, vel, acc] with da = -a/tau dt + dW,
-    by Van Loan's matrix exponential (exact for any dt; cached because frame intervals repeat)."""
-    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / tau_s]])
+def _singer_block(dt_s: float, tau_s: float, rate_tau_s: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete (F, Q per unit spectral density) of [pos, vel, acc] with da = -a/tau dt + dW and
+    dv = (a - v/rate_tau) dt, by Van Loan's matrix exponential (exact for any dt; cached because
+    frame intervals repeat)."""
+    A = np.array([[0.0, 1.0, 0.0], [0.0, -1.0 / rate_tau_s, 1.0], [0.0, 0.0, -1.0 / tau_s]])
     G = np.array([[0.0], [0.0], [1.0]])
     M = np.zeros((6, 6))
     M[:3, :3], M[:3, 3:], M[3:, 3:] = -A, G @ G.T, A.T
@@ -48,12 +49,13 @@ def _singer_block(dt_s: float, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
     return F, F @ E[:3, 3:]
 
 
-def transition(dt_s: float, tau_s: np.ndarray, sigma_acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(F, Q), 18x18, for each DOF's Singer model; sigma_acc is the steady-state acceleration
-    1-sigma (spectral density 2 sigma^2 / tau)."""
+def transition(dt_s: float, tau_s: np.ndarray, sigma_acc: np.ndarray, rate_tau_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(F, Q), 18x18, for each DOF's Singer model (rates damped over rate_tau_s); sigma_acc is
+    the steady-state acceleration 1-sigma (spectral density 2 sigma^2 / tau)."""
     F, Q = np.eye(N_STATE), np.zeros((N_STATE, N_STATE))
+    rt = np.full(6, math.inf) if rate_tau_s is None else rate_tau_s
     for i in range(6):
-        Fi, Qi = _singer_block(round(float(dt_s), 9), float(tau_s[i]))
+        Fi, Qi = _singer_block(round(float(dt_s), 9), float(tau_s[i]), float(rt[i]))
         idx = [i, 6 + i, 12 + i]
         F[np.ix_(idx, idx)] = Fi
         Q[np.ix_(idx, idx)] = Qi * (2.0 * sigma_acc[i] ** 2 / tau_s[i])
