@@ -37,7 +37,8 @@ from pydantic import BaseModel, ConfigDict, Field
 class RegistrationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    sample_m: float = Field(0.25, gt=0, description="frames are voxel-sampled at this size before registration")
+    sample_m: float = Field(0.25, gt=0, description="frames are voxel-sampled at this size (the keyframe keeps it)")
+    icp_sample_m: float = Field(0.5, gt=0, description="and the frame registered to it at this size: ICP's time goes with the source")
     kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel (re-acquisition only)")
     kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this")
     max_correspondence_m: float = Field(1.0, gt=0, description="point-to-plane correspondence distance")
@@ -168,6 +169,9 @@ class FeederModel:
             guess = self.kiss.align_points_to_map(source_level, self.kiss_map, T_map_level_guess, dist, dist / 3.0)
             kiss = True
         src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_level))
+        if cfg.icp_sample_m > cfg.sample_m:
+            src = src.voxel_down_sample(cfg.icp_sample_m)
+            source_level = np.asarray(src.points)
         res = o3d.pipelines.registration.registration_icp(src, self.keyframe, cfg.max_correspondence_m, guess,
                                                            self._estimation, self._criteria)
         T = np.asarray(res.transformation)

@@ -30,7 +30,7 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 class StaticReturnsConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    voxel_m: float = Field(0.3, gt=0, description="sensor-frame voxel edge")
+    voxel_m: float = Field(0.5, gt=0, description="sensor-frame voxel edge (dilated by one: a heaving deck still leaves it)")
     window_s: float = Field(12.0, gt=0, description="the occupancy window: longer than a wave period")
     min_fraction: float = Field(0.9, gt=0, le=1, description="a voxel held in this fraction of the window's frames is static")
     warmup_s: float = Field(4.0, ge=0, description="history needed before the mask is trusted")

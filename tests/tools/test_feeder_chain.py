@@ -41,7 +41,7 @@ def test_accuracy_on_a_short_run(short_run):
     k = short_run[1].kpis["feeder"]
     x, y, z = k["rmse_pos_m"]
     assert x < 0.01 and z < 0.005 and y < 0.05
-    assert max(k["rmse_rpy_deg"][:2]) < 0.05 and k["rmse_rpy_deg"][2] < 0.06
+    assert max(k["rmse_rpy_deg"][:2]) < 0.05 and k["rmse_rpy_deg"][2] < 0.09
     assert 0.5 < k["nees_mean"] < 15
     d = k["D_side_by_side"]
     assert d["feeder_rmse_m"] < 0.005 and d["feeder_minus_fused_rms_m"] < 0.005
