@@ -36,6 +36,7 @@ bench: setup
 	$(BIN)/boomtip bench io --json runs/bench/io.json --force
 	$(BIN)/boomtip bench ground --json runs/bench/ground.json --force
 	$(BIN)/boomtip bench hook --json runs/bench/hook.json --force
+	$(BIN)/boomtip bench feeder --json runs/bench/feeder.json --force
 
 clean:
 	rm -rf $(VENV) runs *.egg-info

@@ -12,9 +12,8 @@ the time constant and the rate noise integrates only over it (0.02 deg and 0.025
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
-
 from boomtip.data.frames import MruLog
+from scipy.signal import lfilter
 
 
 def complementary_attitude(log: MruLog, tau_s: float) -> MruLog:

@@ -15,11 +15,19 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from boomtip.fusion.models.relative_motion import (
+    ACC,
+    N_STATE,
+    POSE,
+    RATE,
+    deck_plane,
+    numeric_jacobian,
+    point_velocity,
+    transition,
+    well_observed,
+)
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2
-
-from boomtip.fusion.models.relative_motion import (ACC, N_STATE, POSE, RATE, deck_plane, numeric_jacobian, point_velocity,
-                                                   transition, well_observed)
 
 DEG = math.pi / 180.0
 
@@ -161,7 +169,7 @@ class FeederFilter:
     def update_point_velocity(self, velocity_level: np.ndarray, cov: np.ndarray, xi_level: np.ndarray) -> bool:
         """The velocity relative to the tip of the feeder's point at xi (radar Doppler); the
         tip's own velocity is the one given to the last predict."""
-        h = lambda x: point_velocity(x, xi_level, self.tip_velocity)  # noqa: E731
+        h = lambda x: point_velocity(x, xi_level, self.tip_velocity)
         # Not the yaw: it enters only by turning the roll and pitch rates into level axes, and a
         # filter let to use that would turn its yaw to explain a rate error (37 deg in a 50 s
         # LiDAR outage). The radar says nothing of the yaw itself.

@@ -20,13 +20,16 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
-
 from boomtip.data.installation import Installation
 from boomtip.perception.feeder_registration import RegistrationConfig
-from boomtip.perception.geometry import mount_rotation, omega_from_euler_rates, rpy_matrix
+from boomtip.perception.geometry import (
+    mount_rotation,
+    omega_from_euler_rates,
+    rpy_matrix,
+)
 from boomtip.perception.preprocess import voxel_downsample
 from boomtip.perception.static_returns import StaticReturnsConfig
+from pydantic import BaseModel, ConfigDict, Field
 
 
 class FeederConfig(BaseModel):

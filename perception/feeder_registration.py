@@ -34,6 +34,7 @@ from kiss_icp.mapping import VoxelHashMap
 from kiss_icp.registration import Registration
 from pydantic import BaseModel, ConfigDict, Field
 
+
 class RegistrationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 

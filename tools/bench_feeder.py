@@ -17,9 +17,6 @@ import numpy as np
 
 
 def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrides: list[str] | None = None) -> dict:
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
-
     from boomtip.data.scenario import load_scenario
     from boomtip.data.sources import simulation_for
     from boomtip.perception.feeder import FeederPerception
@@ -27,6 +24,8 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     from boomtip.tools.feeder_outputs import feeder_kpis, truth_of
     from boomtip.tools.runner import build_chain, processing_for
     from boomtip.tools.ship_chain import ShipChain
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
 
     s = load_scenario(scenario, [f"duration_s={duration_s}", *(overrides or [])])
     sim = simulation_for(s)
@@ -73,7 +72,7 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     e_kiss = kiss_pose - truth_k
     e_kiss[:, 3:] = (e_kiss[:, 3:] + np.pi) % (2 * np.pi) - np.pi
     scored = t_k >= fres.t_s[0] + 5.0 if len(fres.t_s) else t_k >= 5.0
-    rms = lambda e: np.sqrt(np.mean(e ** 2, axis=0))  # noqa: E731
+    rms = lambda e: np.sqrt(np.mean(e ** 2, axis=0))
     kiss_pos, kiss_rpy = rms(e_kiss[scored, :3]), np.degrees(rms(e_kiss[scored, 3:]))
     chain_pos, chain_rpy = np.array(kp["rmse_pos_m"]), np.array(kp["rmse_rpy_deg"])
     lidar_frames = len(kiss_ms)

@@ -25,15 +25,27 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.processing import Processing
 from boomtip.fusion.attitude_filter import complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
 from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
 from boomtip.fusion.models.relative_motion import deck_plane, rotation
-from boomtip.perception.feeder import FeederPerception, Footprint, LidarObservation, RadarObservation, centre_line_yaw
-from boomtip.perception.feeder_registration import FeederModel, condition_on, inverse, pose_matrix, pose_vector, transform
+from boomtip.perception.feeder import (
+    FeederPerception,
+    Footprint,
+    LidarObservation,
+    RadarObservation,
+    centre_line_yaw,
+)
+from boomtip.perception.feeder_registration import (
+    FeederModel,
+    condition_on,
+    inverse,
+    pose_matrix,
+    pose_vector,
+    transform,
+)
 from boomtip.perception.pipeline import FrameResult
 from boomtip.perception.static_returns import StaticReturns
 from boomtip.perception.timing import StageTimes
@@ -273,15 +285,7 @@ class FeederChain:
             x = relative_to_tip(x, self.tips[k])
             tl, C = tilt, C_final
             pivot = self.pivots[k]
-            g = lambda p: _feeder_pose(p, C, pivot, T_map_feeder)  # noqa: E731
-            y = g(x[:6])
-            J = np.zeros((6, 6))
-            for j in range(6):
-                e = np.zeros(6)
-                e[j] = 1e-6
-                d = g(x[:6] + e) - g(x[:6] - e)
-                d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi
-                J[:, j] = d / 2e-6
+            y, J = _feeder_pose_jacobian(x[:6], C, pivot, T_map_feeder)
             Pp = J @ P[:6, :6] @ J.T
             Pr = J @ P[6:12, 6:12] @ J.T
             # The levelling's own uncertainty: the calibration's sigma once it has one, else the
@@ -309,6 +313,20 @@ def relative_to_tip(x: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
     out = np.array(x[:12], dtype=float)
     out[6:9] -= tip_velocity
     return out
+
+
+def _feeder_pose_jacobian(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray,
+                          T_map_feeder: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The feeder frame's pose and its Jacobian (6x6, central differences) w.r.t. the map's."""
+    y = _feeder_pose(pose_map_level, C, pivot, T_map_feeder)
+    J = np.zeros((6, 6))
+    for j in range(6):
+        e = np.zeros(6)
+        e[j] = 1e-6
+        d = _feeder_pose(pose_map_level + e, C, pivot, T_map_feeder) - _feeder_pose(pose_map_level - e, C, pivot, T_map_feeder)
+        d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi
+        J[:, j] = d / 2e-6
+    return y, J
 
 
 def _feeder_pose(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray, T_map_feeder: np.ndarray) -> np.ndarray:

@@ -12,11 +12,15 @@ import math
 from pathlib import Path
 
 import numpy as np
-
 from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.tools.feeder_chain import FeederResult
-from boomtip.tools.feeder_truth import POSE, feeder_origin_body, feeder_pose_truth, feeder_twist_truth
+from boomtip.tools.feeder_truth import (
+    POSE,
+    feeder_origin_body,
+    feeder_pose_truth,
+    feeder_twist_truth,
+)
 from boomtip.tools.kpis import WARMUP_S
 
 RATES = tuple(f"{a}_rate" for a in POSE)
@@ -46,10 +50,10 @@ def truth_of(res: FeederResult, truth: Truth, p_tip_crane_m: np.ndarray) -> tupl
 def _figures(err_pose: np.ndarray, err_rate: np.ndarray, var: np.ndarray) -> dict:
     if len(err_pose) == 0:
         return {"samples": 0}
-    rms = lambda e: np.sqrt(np.mean(e ** 2, axis=0))  # noqa: E731
+    rms = lambda e: np.sqrt(np.mean(e ** 2, axis=0))
     nees = np.einsum("ij,ij->i", err_pose ** 2, 1.0 / var[:, :6])
     return {
-        "samples": int(len(err_pose)),
+        "samples": len(err_pose),
         "rmse_pos_m": rms(err_pose[:, :3]).round(5).tolist(),
         "max_pos_m": np.abs(err_pose[:, :3]).max(axis=0).round(5).tolist(),
         "rmse_rpy_deg": np.degrees(rms(err_pose[:, 3:])).round(5).tolist(),
@@ -126,8 +130,8 @@ def report_section(kpis: dict, windows=()) -> str:
     def row(name, b):
         if not b or not b.get("samples"):
             return
-        mm = lambda v: " / ".join(f"{1000 * x:.1f}" for x in v)  # noqa: E731
-        dg = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+        mm = lambda v: " / ".join(f"{1000 * x:.1f}" for x in v)
+        dg = lambda v: " / ".join(f"{x:.3f}" for x in v)
         lines.append(f"| {name} | {mm(b['rmse_pos_m'])} | {mm(b['max_pos_m'])} | {dg(b['rmse_rpy_deg'])} | {dg(b['max_rpy_deg'])} | {b['nees_mean']:.2f} |")
 
     row("boomtip, whole run", f)

@@ -11,9 +11,8 @@ with the tip and turns with the crane's yaw, not with its roll and pitch.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from boomtip.data.frames import Truth
+from scipy.spatial.transform import Rotation
 
 POSE = ("x", "y", "z", "roll", "pitch", "yaw")
 

@@ -8,8 +8,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.data.processing import Processing
 from boomtip.perception.pipeline import FrameResult

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-
 from boomtip.data.frames import MruLog
 from boomtip.fusion.attitude_filter import complementary_attitude
 from boomtip.fusion.level_calibration import correction, tilt_from_normals

@@ -7,10 +7,17 @@ import math
 
 import numpy as np
 import pytest
-
 from boomtip.fusion.feeder_filter import FeederFilter, FeederFilterConfig
-from boomtip.fusion.models.relative_motion import (_singer_block, deck_plane, numeric_jacobian, omega, point_velocity,
-                                                   rotation, transition, well_observed)
+from boomtip.fusion.models.relative_motion import (
+    _singer_block,
+    deck_plane,
+    numeric_jacobian,
+    omega,
+    point_velocity,
+    rotation,
+    transition,
+    well_observed,
+)
 
 
 def test_singer_transition_matches_closed_form():
@@ -67,7 +74,7 @@ def test_numeric_jacobian_matches_analytic_on_a_linear_map():
 def test_degenerate_registration_updates_only_the_observed_direction():
     # a deck with one long edge along x: y and yaw known, x not
     info = np.diag([1e-2, 1e6, 1e8])
-    A, var = well_observed(info, max_sigma_m=0.05)
+    A, _ = well_observed(info, max_sigma_m=0.05)
     assert A.shape == (2, 3)
     assert np.allclose(A[:, 0], 0.0, atol=1e-9)  # nothing of x
     f = FeederFilter()

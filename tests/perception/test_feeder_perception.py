@@ -7,10 +7,16 @@ import math
 
 import numpy as np
 import pytest
-
 from boomtip.perception.feeder import Footprint, centre_line_yaw, plane_in_level
-from boomtip.perception.feeder_registration import (FeederModel, condition_on, inverse, pose_information, pose_matrix,
-                                                    pose_vector, transform)
+from boomtip.perception.feeder_registration import (
+    FeederModel,
+    condition_on,
+    inverse,
+    pose_information,
+    pose_matrix,
+    pose_vector,
+    transform,
+)
 from boomtip.perception.static_returns import StaticReturns, StaticReturnsConfig
 
 

@@ -9,7 +9,6 @@ import json
 
 import numpy as np
 import pytest
-
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.feeder_outputs import COLUMNS
@@ -24,7 +23,7 @@ def short_run(tmp_path_factory):
 
 
 def test_outputs_and_kpis(short_run):
-    out, res = short_run
+    out, _ = short_run
     with open(out / "feeder_estimates.csv") as fh:
         rows = list(csv.reader(fh))
     assert tuple(rows[0]) == COLUMNS and len(rows) > 200
