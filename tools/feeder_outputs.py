@@ -191,7 +191,7 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
 
 
 def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_map_feeder: np.ndarray | None,
-               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 1.0, max_points: int = 2000) -> None:
+               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 0.5, max_points: int = 1000) -> None:
     """The feeder's model at the estimated pose (and a ghost at the true one) in the tip view,
     `rate_hz` times a second, and the pose series as columns."""
     rr, rec = vars(viz).get("rr"), vars(viz).get("rec")  # the null visualiser has neither
