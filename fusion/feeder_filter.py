@@ -27,9 +27,15 @@ from boomtip.fusion.models.relative_motion import (
     well_observed,
 )
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 DEG = math.pi / 180.0
+
+
+def chi2_ppf(p: float, dof: int) -> float:
+    """The chi-square quantile, 2 P^-1(dof/2, p): scipy.special's, not scipy.stats' (whose import
+    costs half a second for every user of the processing settings)."""
+    return float(2.0 * gammaincinv(0.5 * dof, p))
 
 
 class FeederFilterConfig(BaseModel):
@@ -67,6 +73,7 @@ class FeederFilter:
         self.rate_tau = np.full(6, c.rate_tau_s)
         self.sigma_acc = np.array([*c.sigma_acc_mps2, *(np.array(c.sigma_angacc_degps2) * DEG)])
         self.x: np.ndarray | None = None
+        self.tip_position: np.ndarray | None = None
         self.P: np.ndarray | None = None
         self.t_s = float("nan")
         self.rejections: dict[str, int] = {}
@@ -76,7 +83,8 @@ class FeederFilter:
     def started(self) -> bool:
         return self.x is not None
 
-    def start(self, t_s: float, pose: np.ndarray, pose_cov: np.ndarray, tip_velocity: np.ndarray) -> None:
+    def start(self, t_s: float, pose: np.ndarray, pose_cov: np.ndarray, tip_velocity: np.ndarray,
+              tip_position: np.ndarray | None = None) -> None:
         """Begin at a pose (the map frame's definition at the first deck frame), at rest
         within the stated rate sigmas, accelerations at their steady-state spread."""
         self.x = np.zeros(N_STATE)
@@ -87,20 +95,27 @@ class FeederFilter:
         P[RATE, RATE] = np.diag([v * v] * 3 + [(w * DEG) ** 2] * 3)
         P[ACC, ACC] = np.diag(self.sigma_acc ** 2)
         self.P, self.t_s, self.tip_velocity = P, t_s, np.asarray(tip_velocity, dtype=float)
+        self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
         self.record()
 
-    def predict(self, t_s: float, tip_velocity: np.ndarray, tip_velocity_sigma: float) -> None:
-        """To t_s, the tip having moved (relative to the vessel) at tip_velocity (m/s, the
-        MRU's; 1-sigma per axis tip_velocity_sigma) since the last time, trapezoidally."""
+    def predict(self, t_s: float, tip_velocity: np.ndarray, tip_velocity_sigma: float, tip_position: np.ndarray | None = None) -> None:
+        """To t_s, the tip having moved relative to the vessel: by the change of its place
+        (tip_position, from the MRU's filtered angles: exact across an MRU gap, and a constant
+        bias cancels) when given, else at tip_velocity (trapezoidally; 1-sigma per axis
+        tip_velocity_sigma)."""
         dt = t_s - self.t_s
         if dt <= 0:  # a late measurement is applied at the current time
             return
         F, Q = transition(dt, self.tau, self.sigma_acc, self.rate_tau)
         self.x = F @ self.x
-        self.x[0:3] -= 0.5 * (self.tip_velocity + tip_velocity) * dt
+        if tip_position is not None and self.tip_position is not None:
+            self.x[0:3] -= np.asarray(tip_position, dtype=float) - self.tip_position
+        else:
+            self.x[0:3] -= 0.5 * (self.tip_velocity + tip_velocity) * dt
         self.P = F @ self.P @ F.T + Q
         self.P[0:3, 0:3] += np.eye(3) * 0.5 * (tip_velocity_sigma * dt) ** 2
         self.t_s, self.tip_velocity = t_s, np.asarray(tip_velocity, dtype=float)
+        self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
 
     def pose_sigma(self) -> np.ndarray:
         return np.sqrt(np.diag(self.P)[POSE])
@@ -119,7 +134,7 @@ class FeederFilter:
             counts["bad"] += 1
             return False
         d2 = float(y @ Sinv @ y)
-        if d2 > chi2.ppf(self.cfg.gate_probability, len(z)):
+        if d2 > chi2_ppf(self.cfg.gate_probability, len(z)):
             self.rejections[kind] = self.rejections.get(kind, 0) + 1
             if self.rejections[kind] <= self.cfg.max_rejections:
                 counts["gated"] += 1
@@ -180,4 +195,4 @@ class FeederFilter:
         """Keep the state at the current time (once per frame, after its updates)."""
         self.out.t_s.append(self.t_s)
         self.out.x.append(self.x.copy())
-        self.out.P.append(self.P.copy())
+        self.out.P.append(self.P[:12, :12].copy())  # pose and rates: what the outputs use

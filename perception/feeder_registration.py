@@ -29,16 +29,23 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
-from kiss_icp.mapping import VoxelHashMap
-from kiss_icp.registration import Registration
 from pydantic import BaseModel, ConfigDict, Field
+
+
+
+def _o3d():
+    """open3d, imported when a model is built: the settings (RegistrationConfig) are read by
+    every user of the processing settings, and open3d and kiss-icp cost 0.8 s to import."""
+    import open3d
+
+    return open3d
 
 
 class RegistrationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     sample_m: float = Field(0.25, gt=0, description="frames are voxel-sampled at this size (the keyframe keeps it)")
+    keyframe_m: float = Field(0.25, gt=0, description="the keyframe's voxel (Open3D rebuilds its k-d tree on every registration)")
     icp_sample_m: float = Field(0.5, gt=0, description="and the frame registered to it at this size: ICP's time goes with the source")
     kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel (re-acquisition only)")
     kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this")
@@ -119,12 +126,15 @@ class FeederModel:
     """The feeder's keyframe (map frame) and the registrations to it."""
 
     def __init__(self, cfg: RegistrationConfig | None = None) -> None:
+        from kiss_icp.mapping import VoxelHashMap
+        from kiss_icp.registration import Registration
+
         self.cfg = cfg or RegistrationConfig()
-        self.keyframe: o3d.geometry.PointCloud | None = None
+        self.keyframe = None  # an Open3D cloud with normals, in the map frame
         self.kiss_map = VoxelHashMap(self.cfg.kiss_voxel_m, 1e4, 20)
         self.kiss = Registration(max_num_iterations=100, convergence_criterion=1e-4, max_num_threads=0)
         self.keyframes = 0
-        icp = o3d.pipelines.registration
+        icp = _o3d().pipelines.registration
         self._estimation = icp.TransformationEstimationPointToPlane(icp.TukeyLoss(k=self.cfg.tukey_m))
         self._criteria = icp.ICPConvergenceCriteria(1e-6, 1e-6, self.cfg.max_iterations)
 
@@ -133,14 +143,17 @@ class FeederModel:
         return self.keyframe is None
 
     def sample(self, points_level: np.ndarray) -> np.ndarray:
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_level))
+        pcd = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(points_level))
         return np.asarray(pcd.voxel_down_sample(self.cfg.sample_m).points)
 
     def set_keyframe(self, source_level: np.ndarray, T_map_level: np.ndarray) -> None:
         """The model is this frame's returns, placed in the map frame by the filter's pose."""
         pts_map = transform(T_map_level, source_level)
-        kf = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts_map))
-        kf.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
+        kf = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(pts_map))
+        if self.cfg.keyframe_m > self.cfg.sample_m:
+            kf = kf.voxel_down_sample(self.cfg.keyframe_m)
+            pts_map = np.asarray(kf.points)
+        kf.estimate_normals(_o3d().geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
         self.keyframe = kf
         self.kiss_map.clear()
         self.kiss_map.add_points(pts_map)
@@ -151,8 +164,8 @@ class FeederModel:
         """Add a registered frame to the keyframe: the scan pattern falls elsewhere on the
         structure each frame, so a few frames fill the edges one frame leaves ragged."""
         pts = np.vstack([np.asarray(self.keyframe.points), transform(T_map_level, source_level)])
-        kf = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(self.cfg.sample_m * 0.5)
-        kf.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
+        kf = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(pts)).voxel_down_sample(self.cfg.sample_m * 0.5)
+        kf.estimate_normals(_o3d().geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
         self.keyframe = kf
         self.kiss_map.add_points(transform(T_map_level, source_level))
 
@@ -169,11 +182,11 @@ class FeederModel:
             dist = float(min(3.0 * prior_sigma_m, 5.0))
             guess = self.kiss.align_points_to_map(source_level, self.kiss_map, T_map_level_guess, dist, dist / 3.0)
             kiss = True
-        src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_level))
+        src = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(source_level))
         if cfg.icp_sample_m > cfg.sample_m:
             src = src.voxel_down_sample(cfg.icp_sample_m)
             source_level = np.asarray(src.points)
-        res = o3d.pipelines.registration.registration_icp(src, self.keyframe, cfg.max_correspondence_m, guess,
+        res = _o3d().pipelines.registration.registration_icp(src, self.keyframe, cfg.max_correspondence_m, guess,
                                                            self._estimation, self._criteria)
         T = np.asarray(res.transformation)
         corr = np.asarray(res.correspondence_set)

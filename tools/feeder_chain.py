@@ -86,7 +86,6 @@ class FeederChain:
         self.rng = np.random.default_rng([processing.seed, 13])
         self.queue: list[LidarObservation | RadarObservation] = []
         self.normals: list[tuple[float, np.ndarray]] = []  # LiDAR deck normals (level frame) for the calibration
-        self.tilts: list[tuple[float, Tilt | None]] = []
         self.t_definition: float | None = None
         self.T_level_map0: np.ndarray | None = None
         self.tip0_level: np.ndarray | None = None
@@ -96,6 +95,7 @@ class FeederChain:
         self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
         self.lines: list[tuple[float, int]] = []  # the centre line's yaw in the map frame, every few frames
         self.lidar_frames = 0
+        self.failed_registrations = 0  # in a row: after rekey_after_failures a new keyframe is taken
         self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck
         self.radar_offset, self.radar_offset_n = np.zeros(3), 0  # radar deck - LiDAR deck: slopes, height
 
@@ -147,7 +147,7 @@ class FeederChain:
         n = obs.plane.normal
         pose = np.array([*origin, -math.asin(n[1]), math.atan2(n[0], n[2]), 0.0])
         cov = np.diag([1e-8, 1e-8, float(obs.plane.cov[2, 2]), float(obs.plane.cov[1, 1]), float(obs.plane.cov[0, 0]), 1e-10])
-        self.filter.start(obs.t_s, pose, cov, obs.tip_velocity)
+        self.filter.start(obs.t_s, pose, cov, obs.tip_velocity, obs.tip_level)
         self.tips.append(obs.tip_velocity)
         self.pivots.append(obs.t_level_sensor)
         self.t_definition, self.T_level_map0, self.tip0_level = obs.t_s, pose_matrix(*pose), tip
@@ -161,13 +161,15 @@ class FeederChain:
         if not f.started:
             self._start(obs)
         else:
-            f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma)
+            f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma, obs.tip_level)
         if obs.plane is not None:
             with times.stage("feeder.deck_update"):
                 f.update_deck("deck_lidar", obs.plane.abc, obs.plane.cov)
                 self.normals.append((obs.t_s, obs.plane.normal))
         else:
             self.missing.append((obs.t_s, "lidar", obs.status))
+            self._record(obs)  # a frame without a deck: its structure has nothing to stand on
+            return
         with times.stage("feeder.static"):
             mask = self.static.static_mask(obs.sample_sensor)
         with times.stage("feeder.structure"):
@@ -179,8 +181,11 @@ class FeederChain:
         with times.stage("feeder.register"):
             T_guess = inverse(pose_matrix(*f.x[:6]))
             sigma = float(np.linalg.norm(f.pose_sigma()[[0, 1]])) + 10.0 * float(f.pose_sigma()[5])
-            if self.model.empty:
-                self.model.set_keyframe(structure, T_guess)
+            min_points = self.model.cfg.min_points
+            if self.model.empty or self.failed_registrations >= self.cfg.rekey_after_failures:
+                if len(structure) >= min_points:  # a keyframe with too little to register to is no model
+                    self.model.set_keyframe(structure, T_guess)
+                    self.failed_registrations = 0
             else:
                 reg = self.model.register(structure, T_guess, sigma)
                 if reg.status == "ok":
@@ -194,7 +199,9 @@ class FeederChain:
                         self.model.keyframe_size += 1
                     elif reg.fitness < self.model.cfg.min_fitness and f.pose_sigma()[0] < 0.05:
                         self.model.set_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
+                    self.failed_registrations = 0
                 else:
+                    self.failed_registrations += 1
                     self.missing.append((obs.t_s, "lidar", f"registration: {reg.status}"))
         if self.lidar_frames % self.cfg.centre_line_every == 0 and len(structure):
             with times.stage("feeder.centre_line"):  # in the map frame, at the filter's pose
@@ -202,11 +209,6 @@ class FeederChain:
                 if line is not None:
                     self.lines.append(line)
         self.lidar_frames += 1
-        with times.stage("feeder.calibration"):
-            if self.normals and self.normals[-1][0] == obs.t_s:
-                t = np.array([n[0] for n in self.normals])
-                self.tilts.append((obs.t_s, tilt_from_normals(t, np.array([n[1] for n in self.normals]),
-                                                              self.cfg.calibration_min_s)))
         self._record(obs)
 
     def _radar(self, obs: RadarObservation, times: StageTimes) -> None:
@@ -216,7 +218,7 @@ class FeederChain:
         if obs.velocity_level is None and obs.plane is None:
             self.missing.append((obs.t_s, "radar", obs.status))
             return
-        f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma)
+        f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma, obs.tip_level)
         with times.stage("feeder.radar_update"):
             if obs.velocity_level is not None:
                 tip_var = np.eye(3) * self.perception.tip_velocity_sigma ** 2
@@ -257,7 +259,12 @@ class FeederChain:
             self._drain()
         out = self.filter.out
         notes: list[str] = []
-        tilt = next((tl for _, tl in reversed(self.tilts) if tl is not None), None)
+        # The calibration from every deck normal of the run (online it would be updated as they
+        # come; only its last value is used, so it is computed once).
+        tilt = None
+        if self.normals:
+            tilt = tilt_from_normals(np.array([n[0] for n in self.normals]), np.array([n[1] for n in self.normals]),
+                                     self.cfg.calibration_min_s)
         if not self.filter.started:
             return FeederResult(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12)), float("nan"), tilt, None,
                                 out.counts, self.frame_ms, ["feeder: no LiDAR deck plane in this run: no estimate"], self.missing)

@@ -122,7 +122,9 @@ def report_section(kpis: dict, windows=()) -> str:
                  "lab figures are multiplied by 10 for positions (its own rule), angles unchanged.")
     lines.append("")
     if "rmse_pos_m" not in f:
-        lines.append(f"No truth to score against. APT {f.get('apt_ms', float('nan')):.2f} ms per LiDAR frame.")
+        why = "No scored sample (the run is shorter than the warm-up, or the estimate never started)" \
+            if f.get("samples") == 0 else "No feeder truth to score against"
+        lines.append(f"{why}. APT {f.get('apt_ms', float('nan')):.2f} ms per LiDAR frame.")
         return "\n".join(lines) + "\n"
     lines.append("| period | position RMS x/y/z [mm] | position max [mm] | angle RMS r/p/y [deg] | angle max [deg] | NEES (6) |")
     lines.append("|---|---|---|---|---|---|")

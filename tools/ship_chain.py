@@ -63,8 +63,8 @@ class ShipChain:
         if report.exists():
             with open(report, "a", encoding="utf-8") as fh:
                 fh.write(report_section(kpis, outage_windows(self.source)))
-        write_feeder_plot(out, result.feeder, truth, self.p_tip_crane_m)
-        return written
+        plot = write_feeder_plot(out, result.feeder, truth, self.p_tip_crane_m)
+        return written + ([] if plot is None or "plots" in written else ["plots"])
 
     def visualiser(self, path: Path, source: FrameSource):
         return self.heave.visualiser(path, source)

@@ -105,6 +105,28 @@ def test_registration_recovers_a_known_motion_and_conditioning_removes_tilt_leak
     assert np.all(np.linalg.eigvalsh(info) > 0)
 
 
+def test_conditioning_is_the_gaussian_conditional():
+    """condition_on (information form) against the covariance form mu1 + S12 S22^-1 (known - mu2)
+    on a structure whose walls are tall enough for a tilt to leak into y."""
+    rng = np.random.default_rng(7)
+    pts = _deck_scene(rng)
+    pts = pts[np.abs(pts[:, 2]) > 0.2]
+    normals = np.zeros_like(pts)
+    normals[np.abs(np.abs(pts[:, 1]) - 9.85) < 1e-6, 1] = 1.0  # bulwark faces
+    normals[np.isclose(pts[:, 2], 1.2) | np.isclose(pts[:, 2], 2.6), 2] = 1.0  # tops
+    rest = ~normals.any(axis=1)
+    normals[rest, 0] = 1.0  # container end walls (and their sides, close enough)
+    info = pose_information(pts, normals, np.zeros(3), 0.03)
+    pose_reg = np.array([0.1, -0.2, -45.0, math.radians(0.2), math.radians(-0.1), 0.001])
+    known = np.array([-45.01, 0.0, 0.0])
+    got, L11 = condition_on(pose_reg, info, known)
+    S = np.linalg.inv(info)
+    a, b = [0, 1, 5], [2, 3, 4]
+    ref = pose_reg[a] + S[np.ix_(a, b)] @ np.linalg.solve(S[np.ix_(b, b)], known - pose_reg[b])
+    assert np.allclose(got, ref, atol=1e-9)
+    assert abs(got[1] - pose_reg[1]) > 1e-3  # the 0.2 deg tilt did leak into y, and was taken out
+
+
 def test_a_flat_deck_is_degenerate_in_x_y_and_yaw():
     rng = np.random.default_rng(6)
     deck = np.column_stack([rng.uniform(-40, 40, 3000), rng.uniform(-10, 10, 3000), rng.normal(0, 0.01, 3000)])
