@@ -32,7 +32,6 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 
-
 def _o3d():
     """open3d, imported when a model is built: the settings (RegistrationConfig) are read by
     every user of the processing settings, and open3d and kiss-icp cost 0.8 s to import."""

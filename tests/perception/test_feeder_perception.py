@@ -119,7 +119,7 @@ def test_conditioning_is_the_gaussian_conditional():
     info = pose_information(pts, normals, np.zeros(3), 0.03)
     pose_reg = np.array([0.1, -0.2, -45.0, math.radians(0.2), math.radians(-0.1), 0.001])
     known = np.array([-45.01, 0.0, 0.0])
-    got, L11 = condition_on(pose_reg, info, known)
+    got, _ = condition_on(pose_reg, info, known)
     S = np.linalg.inv(info)
     a, b = [0, 1, 5], [2, 3, 4]
     ref = pose_reg[a] + S[np.ix_(a, b)] @ np.linalg.solve(S[np.ix_(b, b)], known - pose_reg[b])
