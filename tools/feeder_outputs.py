@@ -193,22 +193,24 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
 
 
 def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_map_feeder: np.ndarray | None,
-               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 0.5, max_points: int = 1000) -> None:
+               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 0.2, max_points: int = 800) -> None:
     """The feeder's model at the estimated pose (and a ghost at the true one) in the tip view,
-    `rate_hz` times a second, and the pose series as columns."""
+    `rate_hz` times a second, and the pose series as columns at 10 Hz."""
     rr, rec = vars(viz).get("rr"), vars(viz).get("rec")  # the null visualiser has neither
     if rr is None or rec is None or len(res.t_s) == 0:
         return
     from boomtip.perception.feeder_registration import inverse, pose_matrix, transform
     from boomtip.tools.visualise import TIMELINE
 
+    keep = np.r_[True, np.diff(np.floor(res.t_s * 10.0)) > 0]  # the pose series at 10 Hz: the file stays small
+    t_keep = res.t_s[keep]
     for i, name in enumerate(POSE):
         scale = 1.0 if i < 3 else 180 / math.pi
-        rec.send_columns(f"feeder/{name}/estimate", indexes=[rr.TimeColumn(TIMELINE, duration=res.t_s)],
-                         columns=rr.Scalars.columns(scalars=res.pose[:, i] * scale))
+        rec.send_columns(f"feeder/{name}/estimate", indexes=[rr.TimeColumn(TIMELINE, duration=t_keep)],
+                         columns=rr.Scalars.columns(scalars=res.pose[keep, i] * scale))
         if truth_pose is not None:
-            rec.send_columns(f"feeder/{name}/truth", indexes=[rr.TimeColumn(TIMELINE, duration=res.t_s)],
-                             columns=rr.Scalars.columns(scalars=truth_pose[:, i] * scale))
+            rec.send_columns(f"feeder/{name}/truth", indexes=[rr.TimeColumn(TIMELINE, duration=t_keep)],
+                             columns=rr.Scalars.columns(scalars=truth_pose[keep, i] * scale))
     if model_points_map is None or T_map_feeder is None or len(model_points_map) == 0:
         return
     pts_feeder = transform(inverse(T_map_feeder), model_points_map)
