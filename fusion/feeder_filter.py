@@ -121,8 +121,11 @@ class FeederFilter:
         return np.sqrt(np.diag(self.P)[POSE])
 
     # -- updates ---------------------------------------------------------------------------
+    def _counts(self, kind: str) -> dict[str, int]:
+        return self.out.counts.setdefault(kind, {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
+
     def _update(self, kind: str, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray) -> bool:
-        counts = self.out.counts.setdefault(kind, {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
+        counts = self._counts(kind)
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(R))):
             counts["bad"] += 1
             return False
@@ -167,9 +170,8 @@ class FeederFilter:
         extra_cov (3x3): errors the registration does not see (the frame's levelling noise)."""
         A, var = well_observed(info_xy_yaw, self.cfg.max_sigma_m)
         if len(var) == 0:
-            self.out.counts.setdefault("registration", {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
-            self.out.counts["registration"].setdefault("degenerate", 0)
-            self.out.counts["registration"]["degenerate"] += 1
+            counts = self._counts("registration")
+            counts["degenerate"] = counts.get("degenerate", 0) + 1
             return False
         S = np.zeros((3, N_STATE))
         S[0, 0], S[1, 1], S[2, 5] = 1.0, 1.0, 1.0

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from boomtip.perception.geometry import rpy_matrix
+
 
 def _o3d():
     """open3d, imported when a model is built: the settings (RegistrationConfig) are read by
@@ -74,11 +76,8 @@ class Registration6:
 
 def pose_matrix(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> np.ndarray:
     """4x4 from a position and R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, cp, cy, sr, sp, sy = np.cos(roll), np.cos(pitch), np.cos(yaw), np.sin(roll), np.sin(pitch), np.sin(yaw)
     T = np.eye(4)
-    T[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                 [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                 [-sp, cp * sr, cp * cr]]
+    T[:3, :3] = rpy_matrix((roll, pitch, yaw))
     T[:3, 3] = (x, y, z)
     return T
 
@@ -140,10 +139,6 @@ class FeederModel:
     @property
     def empty(self) -> bool:
         return self.keyframe is None
-
-    def sample(self, points_level: np.ndarray) -> np.ndarray:
-        pcd = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(points_level))
-        return np.asarray(pcd.voxel_down_sample(self.cfg.sample_m).points)
 
     def set_keyframe(self, source_level: np.ndarray, T_map_level: np.ndarray) -> None:
         """The model is this frame's returns, placed in the map frame by the filter's pose."""

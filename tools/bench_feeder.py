@@ -21,7 +21,8 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     from boomtip.data.sources import simulation_for
     from boomtip.perception.feeder import FeederPerception
     from boomtip.perception.feeder_registration import inverse, pose_matrix, pose_vector
-    from boomtip.tools.feeder_outputs import feeder_kpis, truth_of
+    from boomtip.tools.feeder_outputs import feeder_kpis
+    from boomtip.tools.feeder_truth import feeder_origin_body, feeder_pose_truth
     from boomtip.tools.runner import build_chain, processing_for
     from boomtip.tools.ship_chain import ShipChain
     from kiss_icp.config import KISSConfig
@@ -62,9 +63,7 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     kp = feeder_kpis(fres, sim.truth, p_tip)
     # kiss-icp's feeder pose: level <- sensor(t) <- sensor(0) <- feeder, anchored on the truth at its first frame
     t_k = np.array(kiss_t)
-    sub = type(fres)(t_k, np.zeros((len(t_k), 6)), np.zeros((len(t_k), 6)), np.ones((len(t_k), 12)), fres.t_definition_s,
-                     None, None, {}, [])
-    truth_k = truth_of(sub, sim.truth, p_tip)[0]
+    truth_k = feeder_pose_truth(sim.truth, t_k, feeder_origin_body(sim.truth, fres.t_definition_s, p_tip), p_tip)
     T_ls0, P0 = kiss_T[0]
     T_sensor0_feeder = inverse(T_ls0) @ pose_matrix(*truth_k[0])
     kiss_pose = np.array([pose_vector(T_ls @ inverse(P) @ P0 @ T_sensor0_feeder) for T_ls, P in kiss_T])

@@ -88,7 +88,6 @@ class FeederChain:
         self.normals: list[tuple[float, np.ndarray]] = []  # LiDAR deck normals (level frame) for the calibration
         self.t_definition: float | None = None
         self.T_level_map0: np.ndarray | None = None
-        self.tip0_level: np.ndarray | None = None
         self.frame_ms: list[float] = []
         self.missing: list[tuple[float, str, str]] = []
         self.pivots: list[np.ndarray] = []  # the LiDAR's position (level, from the tip) at each recorded state
@@ -138,20 +137,17 @@ class FeederChain:
                 self._radar(obs, times)
         self.queue.clear()
 
-    def _start(self, obs: LidarObservation) -> bool:
+    def _start(self, obs: LidarObservation) -> None:
         """The map frame at the first deck: origin straight below the tip (in the level frame
         as the installation has it), z along the deck normal, yaw 0."""
-        a, b, c = obs.plane.abc
-        tip = np.zeros(3)  # the level frame's origin
-        origin = np.array([tip[0], tip[1], a * tip[0] + b * tip[1] + c])
+        origin = np.array([0.0, 0.0, obs.plane.abc[2]])  # the level frame's origin is the tip
         n = obs.plane.normal
         pose = np.array([*origin, -math.asin(n[1]), math.atan2(n[0], n[2]), 0.0])
         cov = np.diag([1e-8, 1e-8, float(obs.plane.cov[2, 2]), float(obs.plane.cov[1, 1]), float(obs.plane.cov[0, 0]), 1e-10])
         self.filter.start(obs.t_s, pose, cov, obs.tip_velocity, obs.tip_level)
         self.tips.append(obs.tip_velocity)
         self.pivots.append(obs.t_level_sensor)
-        self.t_definition, self.T_level_map0, self.tip0_level = obs.t_s, pose_matrix(*pose), tip
-        return True
+        self.t_definition, self.T_level_map0 = obs.t_s, pose_matrix(*pose)
 
     def _lidar(self, obs: LidarObservation, times: StageTimes) -> None:
         f = self.filter
@@ -179,7 +175,7 @@ class FeederChain:
                 self.footprint = Footprint(deck_map[:, :2], self.cfg.perception.footprint_margin_m)
             structure = self.perception.structure(obs, mask, deck_plane(f.x), self.footprint, T_map_level)
         with times.stage("feeder.register"):
-            T_guess = inverse(pose_matrix(*f.x[:6]))
+            T_guess = T_map_level  # the prediction, after the deck's update
             sigma = float(np.linalg.norm(f.pose_sigma()[[0, 1]])) + 10.0 * float(f.pose_sigma()[5])
             min_points = self.model.cfg.min_points
             if self.model.empty or self.failed_registrations >= self.cfg.rekey_after_failures:
@@ -276,8 +272,8 @@ class FeederChain:
         x0 = out.x[0]
         n0 = rotation(*x0[3:6])[:, 2]
         down = C_final.T @ np.array([0.0, 0.0, -1.0])
-        s = float(n0 @ (x0[:3] - self.tip0_level)) / float(n0 @ down)
-        origin_map = transform(inverse(self.T_level_map0), self.tip0_level + s * down)
+        s = float(n0 @ x0[:3]) / float(n0 @ down)  # from the tip, the level frame's origin
+        origin_map = transform(inverse(self.T_level_map0), s * down)
         line = None
         if self.lines:  # the frames' edges: a median, so a frame that took a cargo edge does not count
             yaws = np.array([y for y, _ in self.lines])

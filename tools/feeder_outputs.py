@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.fusion.models.relative_motion import deck_plane
 from boomtip.tools.feeder_chain import FeederResult
 from boomtip.tools.feeder_truth import (
     POSE,
@@ -108,10 +109,7 @@ def feeder_D(res: FeederResult) -> np.ndarray:
     """The vertical distance from the tip (the frame's origin) down to the deck, from the
     estimated pose: the deck is the feeder frame's z = 0 plane, n.(X - p) = 0, met by the
     vertical X = (0, 0, -D) at D = -(n.p) / n_z."""
-    r, pt, y = res.pose[:, 3], res.pose[:, 4], res.pose[:, 5]
-    n = np.column_stack([np.cos(y) * np.sin(pt) * np.cos(r) + np.sin(y) * np.sin(r),
-                         np.sin(y) * np.sin(pt) * np.cos(r) - np.cos(y) * np.sin(r), np.cos(pt) * np.cos(r)])
-    return -np.einsum("ij,ij->i", n, res.pose[:, :3]) / n[:, 2]
+    return np.array([-deck_plane(p)[2] for p in res.pose])  # the plane's height at the origin is -D
 
 
 def report_section(kpis: dict, windows=()) -> str:
