@@ -50,7 +50,8 @@ class Frame:
 
 @dataclass
 class MruLog:
-    """Crane-vessel attitude samples: Euler angles (rad) and their time derivatives (rad/s)."""
+    """Attitude samples (the crane vessel's, or the feeder's): Euler angles (rad) and their
+    time derivatives (rad/s)."""
 
     t_s: np.ndarray
     rpy_rad: np.ndarray  # (N,3) roll, pitch, yaw; R = Rz(yaw) Ry(pitch) Rx(roll)
@@ -151,6 +152,9 @@ class FrameSource(ABC):
     # Crane joint encoders, a stream like the MRU log: t, slew, luff (rad), hoist (m); None
     # when the source has none (ship-to-ship runs).
     encoders: dict[str, np.ndarray] | None = None
+    # An MRU on the feeder (document 004's second MRU): its body's attitude in its own heading
+    # frame and the rates, the crane MRU's columns; None when the feeder has none.
+    feeder_mru: MruLog | None = None
 
     @abstractmethod
     def __iter__(self) -> Iterator[Frame]: ...

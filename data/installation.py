@@ -124,7 +124,8 @@ class RadarSpec(_Model):
 
 
 class MruSpec(_Model):
-    """The crane vessel's motion reference unit, as its data sheet states it."""
+    """A motion reference unit (the crane vessel's; `feeder_mru`: one on the feeder), as its
+    data sheet states it."""
 
     rate_hz: float = Field(200.0, gt=0, le=10000)
     latency_s: float = Field(0.0, ge=0, le=10)
@@ -190,6 +191,8 @@ class Installation(_Model):
     lidar: LidarSpec = LidarSpec()
     radar: RadarSpec = RadarSpec()
     mru: MruSpec = MruSpec()
+    feeder_mru: MruSpec = Field(MruSpec(), description="the feeder's MRU, used when a source has its stream "
+                                "(`feeder_mru`): its data sheet")
     encoders: EncoderSpec = EncoderSpec()
     crane: CraneSpec = CraneSpec()
     markers: MarkerSpec = MarkerSpec()

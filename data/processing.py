@@ -41,6 +41,7 @@ class FeederProcessing(_Model):
     perception: FeederConfig = FeederConfig()
     filter: FeederFilterConfig = FeederFilterConfig()
     mru_tau_s: float = Field(1.0, ge=0, description="time constant of the MRU's complementary filter (0: raw angles)")
+    use_feeder_mru: bool = Field(True, description="use an MRU on the feeder when the source has its stream")
     radar_deck_after_s: float = Field(0.5, gt=0, description="the radar's deck plane is used once the LiDAR has had none this long")
     rekey_after_failures: int = Field(20, ge=1, description="registrations failed in a row before a new keyframe is taken")
     centre_line_every: int = Field(5, ge=1, description="the hull edge is looked for every this many LiDAR frames")

@@ -17,11 +17,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from boomtip.fusion.models.relative_motion import (
     ACC,
+    BODY_TILT,
+    BODY_YAW,
+    HEADING_OFFSET,
+    N_MOTION,
     N_STATE,
     POSE,
     RATE,
     deck_plane,
+    feeder_mru_measurement,
     numeric_jacobian,
+    omega,
     point_velocity,
     transition,
     well_observed,
@@ -53,6 +59,15 @@ class FeederFilterConfig(BaseModel):
     registration_floor: tuple[float, float] = Field((0.025, 0.08), description="1-sigma a registration is never better than: m (x, y), "
                                                     "deg (yaw); measured against the truth, ICP on a deck's structure is off by this")
     init_sigma_rate: tuple[float, float] = Field((0.5, 2.0), description="first-frame 1-sigma of the rates: m/s, deg/s")
+    # A feeder MRU (when the source has one): its offsets from the map frame.
+    heading_offset_walk_degps: float = Field(0.005, ge=0, description="random walk of the heading offset between the ships' "
+                                             "heading frames (004: moored or on DP, slowly varying), deg per sqrt(s)")
+    body_yaw_prior_deg: float = Field(10.0, gt=0, description="1-sigma of the feeder MRU's yaw from the map's x (the crane's "
+                                      "heading at the first frame) before any measurement: ships alongside")
+    body_tilt_prior_deg: float = Field(0.5, gt=0, description="1-sigma of the feeder MRU's tilt from the deck normal "
+                                       "(mounting, bias, camber, the crane side's levelling)")
+    feeder_mru_floor: tuple[float, float] = Field((0.005, 0.01), description="1-sigma a feeder MRU sample is never better "
+                                                  "than: deg (angles), deg/s (rates)")
 
 
 @dataclass
@@ -73,6 +88,7 @@ class FeederFilter:
         self.rate_tau = np.full(6, c.rate_tau_s)
         self.sigma_acc = np.array([*c.sigma_acc_mps2, *(np.array(c.sigma_angacc_degps2) * DEG)])
         self.x: np.ndarray | None = None
+        self.feeder_mru_started = False
         self.tip_position: np.ndarray | None = None
         self.P: np.ndarray | None = None
         self.t_s = float("nan")
@@ -94,6 +110,8 @@ class FeederFilter:
         v, w = self.cfg.init_sigma_rate
         P[RATE, RATE] = np.diag([v * v] * 3 + [(w * DEG) ** 2] * 3)
         P[ACC, ACC] = np.diag(self.sigma_acc ** 2)
+        # The feeder MRU's offsets: unknown until its first sample (start_feeder_mru).
+        P[N_MOTION:, N_MOTION:] = np.eye(N_STATE - N_MOTION) * math.pi ** 2
         self.P, self.t_s, self.tip_velocity = P, t_s, np.asarray(tip_velocity, dtype=float)
         self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
         self.record()
@@ -106,7 +124,10 @@ class FeederFilter:
         dt = t_s - self.t_s
         if dt <= 0:  # a late measurement is applied at the current time
             return
-        F, Q = transition(dt, self.tau, self.sigma_acc, self.rate_tau)
+        F_motion, Q_motion = transition(dt, self.tau, self.sigma_acc, self.rate_tau)
+        F, Q = np.eye(N_STATE), np.zeros((N_STATE, N_STATE))
+        F[:N_MOTION, :N_MOTION], Q[:N_MOTION, :N_MOTION] = F_motion, Q_motion
+        Q[HEADING_OFFSET, HEADING_OFFSET] = (self.cfg.heading_offset_walk_degps * DEG) ** 2 * dt
         self.x = F @ self.x
         if tip_position is not None and self.tip_position is not None:
             self.x[0:3] -= np.asarray(tip_position, dtype=float) - self.tip_position
@@ -149,7 +170,7 @@ class FeederFilter:
             Sinv = np.linalg.inv(S)
         K = self.P @ H.T @ Sinv
         x = self.x + K @ y
-        IKH = np.eye(N_STATE) - K @ H
+        IKH = np.eye(len(self.x)) - K @ H
         P = IKH @ self.P @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric and positive
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P)) and np.all(np.diag(P) > 0)):
             counts["bad"] += 1
@@ -173,7 +194,7 @@ class FeederFilter:
             counts = self._counts("registration")
             counts["degenerate"] = counts.get("degenerate", 0) + 1
             return False
-        S = np.zeros((3, N_STATE))
+        S = np.zeros((3, len(self.x)))
         S[0, 0], S[1, 1], S[2, 5] = 1.0, 1.0, 1.0
         z_full = np.array(x_y_yaw, dtype=float)
         h_full = self.x[[0, 1, 5]]
@@ -192,6 +213,47 @@ class FeederFilter:
         # LiDAR outage). The radar says nothing of the yaw itself.
         H = numeric_jacobian(h, self.x, np.r_[0:5, 6:12])
         return self._update("doppler", velocity_level, h(self.x), H, cov)
+
+    def start_feeder_mru(self, rpy_rad: np.ndarray, angle_sigma_rad: float) -> None:
+        """The offsets at the feeder MRU's first sample: body yaw and tilt at their priors,
+        the heading offset what makes the MRU's yaw agree with the state's (with their
+        correlation, so a later tilt comparison that moves the body yaw moves it too)."""
+        c = self.cfg
+        sm, st = c.body_yaw_prior_deg * DEG, c.body_tilt_prior_deg * DEG
+        self.x[BODY_YAW], self.x[BODY_TILT] = 0.0, 0.0
+        self.x[HEADING_OFFSET] = (self.x[5] - rpy_rad[2] + math.pi) % (2 * math.pi) - math.pi
+        # heading offset = yaw - body yaw - MRU yaw: its row is the yaw's, minus the body yaw's
+        P = self.P
+        P[N_MOTION:, :], P[:, N_MOTION:] = 0.0, 0.0
+        P[BODY_YAW, BODY_YAW] = sm * sm
+        P[BODY_TILT, BODY_TILT] = np.eye(2) * st * st
+        P[HEADING_OFFSET, :N_MOTION] = P[5, :N_MOTION]
+        P[:N_MOTION, HEADING_OFFSET] = P[:N_MOTION, 5]
+        P[HEADING_OFFSET, BODY_YAW] = P[BODY_YAW, HEADING_OFFSET] = -sm * sm
+        P[HEADING_OFFSET, HEADING_OFFSET] = P[5, 5] + sm * sm + angle_sigma_rad ** 2
+        self.feeder_mru_started = True
+
+    def update_feeder_mru(self, rpy_rad: np.ndarray, rpy_rate_radps: np.ndarray, angle_sigma_rad: float,
+                          rate_sigma_radps: float) -> bool:
+        """A feeder MRU sample: its body's roll, pitch, yaw in its heading frame and their
+        time derivatives (as the crane MRU's log has them), with their data-sheet 1-sigmas."""
+        if not (np.all(np.isfinite(rpy_rad)) and np.all(np.isfinite(rpy_rate_radps))):
+            self._counts("feeder_mru")["bad"] += 1
+            return False
+        fa, fr = self.cfg.feeder_mru_floor
+        sa, sr = max(angle_sigma_rad, fa * DEG), max(rate_sigma_radps, fr * DEG)
+        if not self.feeder_mru_started:
+            self.start_feeder_mru(rpy_rad, sa)
+        z = np.concatenate([rpy_rad, omega(np.r_[0.0, 0.0, 0.0, rpy_rad], np.r_[0.0, 0.0, 0.0, rpy_rate_radps])])
+        h = feeder_mru_measurement(self.x)
+        z[:3] = h[:3] + (z[:3] - h[:3] + math.pi) % (2 * math.pi) - math.pi
+        H = numeric_jacobian(feeder_mru_measurement, self.x, np.r_[3:12, N_MOTION:N_STATE])
+        R = np.diag([sa * sa] * 3 + [sr * sr] * 3)
+        return self._update("feeder_mru", z, h, H, R)
+
+    def offsets(self) -> tuple[np.ndarray, np.ndarray]:
+        """The feeder MRU's offsets (heading offset, body yaw, body tilt about x, y; rad) and their 1-sigmas."""
+        return self.x[N_MOTION:].copy(), np.sqrt(np.diag(self.P)[N_MOTION:])
 
     def record(self) -> None:
         """Keep the state at the current time (once per frame, after its updates)."""

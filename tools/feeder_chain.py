@@ -68,6 +68,7 @@ class FeederResult:
     missing: list[tuple[float, str, str]] = field(default_factory=list)  # (t, sensor, why)
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the model's (map) frame
     model_points_map: np.ndarray | None = None  # the keyframe, for the display
+    feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
 
 
 class FeederChain:
@@ -83,6 +84,11 @@ class FeederChain:
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
         self.filter = FeederFilter(cfg.filter)
+        # An MRU on the feeder, when the source has its stream (document 004's second MRU)
+        fm = getattr(source, "feeder_mru", None)
+        self.feeder_mru = fm if (fm is not None and cfg.use_feeder_mru) else None
+        self.feeder_mru_sigma = (math.radians(inst.feeder_mru.angle_noise_deg), math.radians(inst.feeder_mru.rate_noise_degps))
+        self.feeder_mru_gaps = 0
         self.rng = np.random.default_rng([processing.seed, 13])
         self.queue: list[LidarObservation | RadarObservation] = []
         self.normals: list[tuple[float, np.ndarray]] = []  # LiDAR deck normals (level frame) for the calibration
@@ -145,6 +151,7 @@ class FeederChain:
         pose = np.array([*origin, -math.asin(n[1]), math.atan2(n[0], n[2]), 0.0])
         cov = np.diag([1e-8, 1e-8, float(obs.plane.cov[2, 2]), float(obs.plane.cov[1, 1]), float(obs.plane.cov[0, 0]), 1e-10])
         self.filter.start(obs.t_s, pose, cov, obs.tip_velocity, obs.tip_level)
+        self._feeder_mru(obs.t_s)
         self.tips.append(obs.tip_velocity)
         self.pivots.append(obs.t_level_sensor)
         self.t_definition, self.T_level_map0 = obs.t_s, pose_matrix(*pose)
@@ -158,6 +165,7 @@ class FeederChain:
             self._start(obs)
         else:
             f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma, obs.tip_level)
+            self._feeder_mru(obs.t_s)
         if obs.plane is not None:
             with times.stage("feeder.deck_update"):
                 f.update_deck("deck_lidar", obs.plane.abc, obs.plane.cov)
@@ -215,6 +223,7 @@ class FeederChain:
             self.missing.append((obs.t_s, "radar", obs.status))
             return
         f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma, obs.tip_level)
+        self._feeder_mru(obs.t_s)
         with times.stage("feeder.radar_update"):
             if obs.velocity_level is not None:
                 tip_var = np.eye(3) * self.perception.tip_velocity_sigma ** 2
@@ -222,6 +231,17 @@ class FeederChain:
             if obs.plane is not None:
                 self._radar_deck(obs)
         self._record(obs)
+
+    def _feeder_mru(self, t_s: float) -> None:
+        """The feeder MRU's sample at a frame's time (the filter steps with the frames; the
+        MRU's 200 Hz between them would add updates, not information the frames lack)."""
+        if self.feeder_mru is None:
+            return
+        att = self.feeder_mru.attitude(t_s)
+        if att is None:
+            self.feeder_mru_gaps += 1
+            return
+        self.filter.update_feeder_mru(att[0], att[1], *self.feeder_mru_sigma)
 
     def _radar_deck(self, obs: RadarObservation) -> None:
         """The radar's deck plane is levelled through its own mount, whose error is not the
@@ -275,9 +295,15 @@ class FeederChain:
         s = float(n0 @ x0[:3]) / float(n0 @ down)  # from the tip, the level frame's origin
         origin_map = transform(inverse(self.T_level_map0), s * down)
         line = None
+        # The centre line's own error is a constant error of every yaw: its 1-sigma, from the
+        # frames' spread (a median's, 1.25 sigma / sqrt(n)), or the prior of the feeder lying
+        # along the crane's heading when no edge was found.
+        line_sigma = math.radians(self.cfg.filter.body_yaw_prior_deg)
         if self.lines:  # the frames' edges: a median, so a frame that took a cargo edge does not count
             yaws = np.array([y for y, _ in self.lines])
             line = (float(np.median(yaws)), len(yaws))
+            if len(yaws) >= 3:
+                line_sigma = 1.2533 * 1.4826 * float(np.median(np.abs(yaws - line[0]))) / math.sqrt(len(yaws))
         if line is None:
             notes.append("feeder: no straight hull edge in the keyframe: x is along the crane's heading")
         psi0 = line[0] if line is not None else 0.0
@@ -299,7 +325,7 @@ class FeederChain:
             lever = float(np.linalg.norm(y[:3] - pivot))
             s_mru = self.perception.mru_bias_sigma_rad
             extra = np.array([(lever * s_lvl) ** 2 + (y[2] * s_mru) ** 2] * 2
-                             + [(float(np.hypot(y[0], y[1])) * s_mru) ** 2, s_lvl ** 2, s_lvl ** 2, 0.0])
+                             + [(float(np.hypot(y[0], y[1])) * s_mru) ** 2, s_lvl ** 2, s_lvl ** 2, line_sigma ** 2])
             pose.append(y)
             rates.append(J @ x[6:12])
             var.append(np.concatenate([np.diag(Pp) + extra, np.diag(Pr)]))
@@ -308,7 +334,17 @@ class FeederChain:
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
         return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
                             self.frame_ms, notes, self.missing, T_map_feeder,
-                            np.asarray(self.model.keyframe.points) if not self.model.empty else None)
+                            np.asarray(self.model.keyframe.points) if not self.model.empty else None,
+                            self._feeder_mru_summary())
+
+    def _feeder_mru_summary(self) -> dict | None:
+        if self.feeder_mru is None or not self.filter.feeder_mru_started:
+            return None
+        x, s = (np.degrees(v) for v in self.filter.offsets())
+        return {"heading_offset_deg": round(float(x[0]), 4), "heading_offset_sigma_deg": round(float(s[0]), 4),
+                "body_yaw_in_map_deg": round(float(x[1]), 4), "body_yaw_sigma_deg": round(float(s[1]), 4),
+                "body_tilt_deg": np.round(x[2:], 4).tolist(), "body_tilt_sigma_deg": np.round(s[2:], 4).tolist(),
+                "gaps": self.feeder_mru_gaps}
 
 
 def relative_to_tip(x: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@
     lidar/<t_ns>.pcd     x y z intensity t label          (sensor frame)
     radar/<t_ns>.pcd     x y z range azimuth elevation range_rate label (sensor frame)
     mru.csv              t, roll, pitch, yaw, roll_rate, pitch_rate, yaw_rate
+    feeder_mru.csv       the same columns, from an MRU on the feeder (when it has one)
     encoders.csv         t, slew, luff, hoist (hook scenarios)
     truth.csv            t, D, D_dot, <body>_{x,y,z,roll,pitch,yaw,vx,vy,vz,wx,wy,wz};
                          hook scenarios: t, hook_*, hook_rel_*, tip_*, joints, boom_deflection
@@ -206,13 +207,9 @@ def write_recording(
             counts[frame.sensor] += 1
             if progress:
                 progress(1)
-        m = source.mru
-        mru_cols = {"t": m.t_s}
-        for i, a in enumerate(("roll", "pitch", "yaw")):
-            mru_cols[a] = m.rpy_rad[:, i]
-        for i, a in enumerate(("roll_rate", "pitch_rate", "yaw_rate")):
-            mru_cols[a] = m.rpy_rate_radps[:, i]
-        write_csv(staging / "mru.csv", mru_cols)
+        write_csv(staging / "mru.csv", mru_columns(source.mru))
+        if getattr(source, "feeder_mru", None) is not None:
+            write_csv(staging / "feeder_mru.csv", mru_columns(source.feeder_mru))
         encoders = getattr(source, "encoders", None)
         if encoders is not None:
             write_csv(staging / "encoders.csv", encoders)
@@ -225,6 +222,15 @@ def write_recording(
         raise
     commit_output(staging, out)
     return meta
+
+
+def mru_columns(m: MruLog) -> dict[str, np.ndarray]:
+    cols = {"t": m.t_s}
+    for i, a in enumerate(("roll", "pitch", "yaw")):
+        cols[a] = m.rpy_rad[:, i]
+    for i, a in enumerate(("roll_rate", "pitch_rate", "yaw_rate")):
+        cols[a] = m.rpy_rate_radps[:, i]
+    return cols
 
 
 def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict:
@@ -285,6 +291,12 @@ class Recording(FrameSource):
         if len(mru["t"]) < 2:
             raise RecordingError(f"{self.root / 'mru.csv'}: {len(mru['t'])} samples; the attitude needs at least 2")
         self.mru = MruLog.from_columns(mru)
+        feeder_mru_path = self.root / "feeder_mru.csv"
+        if feeder_mru_path.exists():
+            feeder_mru = read_csv(feeder_mru_path, MRU_COLUMNS, bounds=MRU_BOUNDS)
+            if len(feeder_mru["t"]) < 2:
+                raise RecordingError(f"{feeder_mru_path}: {len(feeder_mru['t'])} samples; an attitude log needs at least 2")
+            self.feeder_mru = MruLog.from_columns(feeder_mru)
         hook = (self.root / "encoders.csv").exists()
         if hook:
             self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS, bounds=ENCODER_BOUNDS)

@@ -20,7 +20,7 @@ from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
 from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, radar_measure, radar_pattern
 from boomtip.data.sim.truth import relative_heave, tip_states
 
-SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3}
+SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3, "feeder_mru": 4}
 
 
 def frame_times(rate_hz: float, duration_s: float) -> np.ndarray:
@@ -104,6 +104,7 @@ class Simulation(FrameSource):
         self.clock_offset_s = {"lidar": mm.lidar_clock_offset_s, "radar": mm.radar_clock_offset_s}
         self._schedule = self._frame_schedule()
         self.mru = self._mru_log()
+        self.feeder_mru = self._feeder_mru_log() if scenario.world.feeder.mru.enabled else None
         self.truth = self._truth()
 
     # -- schedule ------------------------------------------------------------------------
@@ -225,6 +226,19 @@ class Simulation(FrameSource):
         rpy = st.rpy_rad + np.deg2rad(mm.mru_bias_deg) + np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(st.rpy_rad.shape)
         rate = st.rpy_rate_radps + np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(st.rpy_rad.shape)
         keep = ~in_windows(t, self.scenario.world.mru.outages_s)
+        return MruLog(t[keep], rpy[keep], rate[keep], max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
+
+    def _feeder_mru_log(self) -> MruLog:
+        """The feeder's MRU: its body's attitude in its own heading frame (the world's, the
+        feeder lying at heading 0), with the installation's stated noise and the world's
+        unstated bias (the yaw's: the two heading references' offset) and lag."""
+        cfg, real = self.scenario.installation.feeder_mru, self.scenario.world.feeder.mru
+        t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
+        st = self.world.feeder_motion.states(t - real.lag_s)
+        rng = self._rng("feeder_mru", 0)
+        rpy = st.rpy_rad + np.deg2rad(real.bias_deg) + np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(st.rpy_rad.shape)
+        rate = st.rpy_rate_radps + np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(st.rpy_rad.shape)
+        keep = ~in_windows(t, real.outages_s)
         return MruLog(t[keep], rpy[keep], rate[keep], max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
 
     def _truth(self) -> Truth:

@@ -90,10 +90,45 @@ class CraneVessel(Vessel):
     geometry: CraneHull = CraneHull()
 
 
+Windows = list[tuple[float, float]]
+
+
+class _Outages(_Model):
+    """A sensor that can go silent: [start, end] windows (seconds) in which it gives nothing."""
+
+    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the sensor gives nothing")
+
+    @field_validator("outages_s")
+    @classmethod
+    def _windows(cls, v: Windows) -> Windows:
+        for a, b in v:
+            if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
+                raise ValueError(f"each window is [start, end] seconds with 0 <= start < end, got {[a, b]}")
+        return v
+
+
+class FeederMru(_Outages):
+    """An MRU on the feeder (document 004's second MRU; off by default: boomtip's aim is
+    nothing on the feeder). Its noise is the installation's `feeder_mru` data sheet; how it
+    really deviates is here."""
+
+    enabled: bool = False
+    bias_deg: tuple[float, float, float] = Field(
+        (0.01, -0.01, 0.5), description="roll, pitch, yaw; the yaw's is the offset between the two ships' heading references"
+    )
+    lag_s: float = Field(0.002, ge=0, le=1, description="it reports the attitude this much late, unstated")
+
+    @model_validator(mode="after")
+    def _check(self) -> "FeederMru":
+        _finite(self.bias_deg, "feeder.mru.bias_deg")
+        return self
+
+
 class FeederVessel(Vessel):
     geometry: FeederGeometry = FeederGeometry()
     cargo: bool = False
     reflectors: Reflectors = Reflectors()
+    mru: FeederMru = FeederMru()
 
 
 class Spray(_Model):
@@ -117,23 +152,6 @@ class Sea(_Model):
     clutter_probability: float = Field(0.02, ge=0, le=1)
     reflectivity: float = Field(0.05, ge=0, le=1)
     spray: Spray = Spray()
-
-
-Windows = list[tuple[float, float]]
-
-
-class _Outages(_Model):
-    """A sensor that can go silent: [start, end] windows (seconds) in which it gives nothing."""
-
-    outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the sensor gives nothing")
-
-    @field_validator("outages_s")
-    @classmethod
-    def _windows(cls, v: Windows) -> Windows:
-        for a, b in v:
-            if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
-                raise ValueError(f"each window is [start, end] seconds with 0 <= start < end, got {[a, b]}")
-        return v
 
 
 class RadarBehaviour(_Outages):

@@ -19,7 +19,14 @@ Measurements:
   and its origin lies on the deck, so (a, b, c) depend on z, roll, pitch (and, weakly, x, y, yaw);
 - a registration's x, y, yaw, projected on the directions the geometry constrains;
 - the velocity of the feeder's point at the radar (radar Doppler, made a velocity in the
-  level frame by perception): v + w x (xi - p), w from the Euler rates.
+  level frame by perception): v + w x (xi - p), w from the Euler rates;
+- optionally an MRU on the feeder (document 004's second MRU): the feeder body's attitude in
+  its own heading frame and its angular rates. Four constant-ish offsets relate it to the
+  map frame (state 18-21): the heading offset between the feeder MRU's heading frame and the
+  crane's level frame (004's slowly varying offset, a random walk), and the rotation from the
+  feeder body (the MRU's axes) to the map frame: a yaw (the map's x is the crane's heading at
+  the first frame, not the feeder's centre line) and a small tilt (the MRU's mounting and bias,
+  the deck's camber, the crane side's levelling error).
 """
 
 from __future__ import annotations
@@ -30,8 +37,10 @@ from functools import lru_cache
 import numpy as np
 from scipy.linalg import expm
 
-N_STATE = 18
-POSE, RATE, ACC = slice(0, 6), slice(6, 12), slice(12, 18)
+N_MOTION = 18  # pose, rates, accelerations
+N_STATE = 22  # and the feeder MRU's offsets
+POSE, RATE, ACC, OFFSETS = slice(0, 6), slice(6, 12), slice(12, 18), slice(18, 22)
+HEADING_OFFSET, BODY_YAW, BODY_TILT = 18, 19, slice(20, 22)
 YAW_LEVER_M = 10.0  # yaw is weighed against x and y at this lever when deciding what is observed
 
 
@@ -50,9 +59,10 @@ def _singer_block(dt_s: float, tau_s: float, rate_tau_s: float = math.inf) -> tu
 
 
 def transition(dt_s: float, tau_s: np.ndarray, sigma_acc: np.ndarray, rate_tau_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(F, Q), 18x18, for each DOF's Singer model (rates damped over rate_tau_s); sigma_acc is
-    the steady-state acceleration 1-sigma (spectral density 2 sigma^2 / tau)."""
-    F, Q = np.eye(N_STATE), np.zeros((N_STATE, N_STATE))
+    """(F, Q), 18x18 (the motion states), for each DOF's Singer model (rates damped over
+    rate_tau_s); sigma_acc is the steady-state acceleration 1-sigma (spectral density
+    2 sigma^2 / tau)."""
+    F, Q = np.eye(N_MOTION), np.zeros((N_MOTION, N_MOTION))
     rt = np.full(6, math.inf) if rate_tau_s is None else rate_tau_s
     for i in range(6):
         Fi, Qi = _singer_block(round(float(dt_s), 9), float(tau_s[i]), float(rt[i]))
@@ -111,3 +121,32 @@ def well_observed(info_xy_yaw: np.ndarray, max_sigma_m: float) -> tuple[np.ndarr
     w, U = np.linalg.eigh(0.5 * (info_scaled + info_scaled.T))
     keep = w > 1.0 / (max_sigma_m * max_sigma_m)
     return U[:, keep].T @ np.linalg.inv(S), 1.0 / w[keep]
+
+
+def body_to_map(x: np.ndarray) -> np.ndarray:
+    """R_body_map: the feeder MRU's axes to the map frame, from the offsets (yaw, then tilt)."""
+    a, b = x[BODY_TILT]
+    return rotation(float(a), float(b), float(x[BODY_YAW]))
+
+
+def feeder_mru_rotation(x: np.ndarray) -> np.ndarray:
+    """What the feeder MRU's angles describe: its body in its own heading frame,
+    Rz(-heading offset) R_level_map R_body_map^T."""
+    psi = float(x[HEADING_OFFSET])
+    c, s = math.cos(psi), math.sin(psi)
+    Rz_T = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return Rz_T @ rotation(*x[3:6]) @ body_to_map(x).T
+
+
+def euler_rpy(R: np.ndarray) -> np.ndarray:
+    """roll, pitch, yaw of R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    return np.array([math.atan2(R[2, 1], R[2, 2]), -math.asin(max(-1.0, min(1.0, float(R[2, 0])))), math.atan2(R[1, 0], R[0, 0])])
+
+
+def feeder_mru_measurement(x: np.ndarray) -> np.ndarray:
+    """The feeder MRU's roll, pitch, yaw (rad) and angular velocity in its heading frame
+    (rad/s), from the state: the map's angular velocity (level axes) turned by the offset."""
+    psi = float(x[HEADING_OFFSET])
+    c, s = math.cos(psi), math.sin(psi)
+    w = omega(x[0:6], x[6:12])
+    return np.concatenate([euler_rpy(feeder_mru_rotation(x)), [c * w[0] + s * w[1], -s * w[0] + c * w[1], w[2]]])

@@ -7,10 +7,12 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from boomtip.fusion.feeder_filter import FeederFilter, FeederFilterConfig
 from boomtip.fusion.models.relative_motion import (
     _singer_block,
     deck_plane,
+    feeder_mru_measurement,
     numeric_jacobian,
     omega,
     point_velocity,
@@ -168,3 +170,108 @@ def test_covariance_grows_through_a_dropout_and_is_honest():
         hits += err <= 3 * math.sqrt(f.P[2, 2])
         grew += f.P[2, 2] > 10 * var_at_dropout
     assert hits >= 194 and grew == 200
+
+
+# -- a feeder MRU (document 004's second MRU) ---------------------------------------------
+def _offsets_state(pose, rates, psi_off, psi_body, tilt):
+    x = np.zeros(22)
+    x[:6], x[6:12] = pose, rates
+    x[18], x[19], x[20:22] = psi_off, psi_body, tilt
+    return x
+
+
+def test_feeder_mru_measurement_is_the_body_in_its_heading_frame():
+    pose = np.array([1.0, -2.0, -40.0, 0.02, -0.035, 0.1])
+    x = _offsets_state(pose, np.zeros(6), 0.03, 0.2, (0.004, -0.002))
+    R_level_map = Rotation.from_euler("xyz", pose[3:]).as_matrix()
+    R_body_map = Rotation.from_euler("xyz", [0.004, -0.002, 0.2]).as_matrix()
+    R_expected = Rotation.from_euler("z", -0.03).as_matrix() @ R_level_map @ R_body_map.T
+    rpy = feeder_mru_measurement(x)[:3]
+    assert np.allclose(Rotation.from_euler("xyz", rpy).as_matrix(), R_expected, atol=1e-12)
+
+
+def test_feeder_mru_rates_are_what_the_mru_would_differentiate():
+    """The angular velocity the model predicts equals the one from the Euler rates of the
+    MRU's own angles (finite differences of the modelled rotation over time)."""
+    pose = np.array([0.0, 0.0, -40.0, 0.02, -0.035, 0.1])
+    rates = np.array([0.1, 0.0, 0.3, 0.01, -0.02, 0.004])
+    x = _offsets_state(pose, rates, 0.05, 0.3, (0.003, 0.001))
+    dt = 1e-6
+    xp, xm = x.copy(), x.copy()
+    xp[:6] += rates * dt
+    xm[:6] -= rates * dt
+    a_p, a_m = feeder_mru_measurement(xp)[:3], feeder_mru_measurement(xm)[:3]
+    euler_rates = (a_p - a_m) / (2 * dt)
+    w_from_mru = omega(np.r_[0, 0, 0, feeder_mru_measurement(x)[:3]], np.r_[0, 0, 0, euler_rates])
+    assert np.allclose(feeder_mru_measurement(x)[3:], w_from_mru, atol=1e-8)
+
+
+def _wave_truth(t: float) -> np.ndarray:
+    """Pose and Euler rates of a feeder rolling 1 deg, pitching 2.5 deg and yawing 0.3 deg
+    over 10 s (document 000's evaluation sea), heaving 2 m."""
+    w = 2 * math.pi / 10.0
+    amp = np.array([0.3, 0.2, 2.0, math.radians(1.0), math.radians(2.5), math.radians(0.3)])
+    phase = np.array([0.0, 1.0, 0.5, 0.2, 1.3, 2.1])
+    x = np.zeros(18)
+    x[:6] = amp * np.sin(w * t + phase)
+    x[2] -= 45.0
+    x[6:12] = amp * w * np.cos(w * t + phase)
+    x[12:18] = -amp * w * w * np.sin(w * t + phase)
+    return x
+
+
+def _mru_run(with_mru: bool, seed: int = 3):
+    """Deck planes for 30 s, then 40 s without (no registration at all): with a feeder MRU
+    its offsets are learnt while the deck is seen, and the yaw, roll and pitch then hold."""
+    rng = np.random.default_rng(seed)
+    f = FeederFilter()
+    psi_off, psi_body, tilt = math.radians(2.0), math.radians(6.0), np.radians([0.2, -0.1])
+    truth = _wave_truth(0.0)
+    f.start(0.0, truth[:6], np.diag([1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-8]), np.zeros(3))
+    sa, sr = math.radians(0.02), math.radians(0.025)
+    errors = []
+    for k in range(1, 1401):
+        t = 0.05 * k
+        truth = _wave_truth(t)
+        f.predict(t, np.zeros(3), 0.0)
+        if with_mru:
+            xt = _offsets_state(truth[:6], truth[6:12], psi_off, psi_body, tilt)
+            z = feeder_mru_measurement(xt)
+            rpy = z[:3] + rng.normal(0, sa, 3)
+            # the MRU logs Euler-angle rates: invert omega at its angles
+            E = numeric_jacobian(lambda v: omega(np.r_[0, 0, 0, rpy], np.r_[0, 0, 0, v[:3]]), np.zeros(3), np.arange(3))
+            rpy_rate = np.linalg.solve(E, z[3:]) + rng.normal(0, sr, 3)
+            f.update_feeder_mru(rpy, rpy_rate, sa, sr)
+        if t <= 30.0 and k % 2 == 0:
+            z = deck_plane(truth) + rng.normal(0, [1e-4, 1e-4, 2e-3])
+            f.update_deck("deck_lidar", z, np.diag([1e-8, 1e-8, 4e-6]))
+        e = f.x[:6] - truth[:6]
+        errors.append((t, e, np.sqrt(np.diag(f.P)[:6])))
+    return f, (psi_off, psi_body, tilt), errors
+
+
+def test_a_feeder_mru_learns_its_offsets_and_holds_the_attitude_without_the_deck():
+    f, (psi_off, psi_body, tilt), errors = _mru_run(True)
+    x, s = f.offsets()
+    assert abs(x[0] - psi_off) < 3 * s[0] and abs(x[1] - psi_body) < 3 * s[1]
+    assert np.all(np.abs(x[2:] - tilt) < 3 * s[2:])
+    assert s[1] < math.radians(1.0)  # the body's yaw is found from the tilts, to under a degree
+    late = [e for t, e, _ in errors if t > 60.0]
+    assert max(abs(e[5]) for e in late) < math.radians(0.05)  # 30 s without the deck: the yaw holds
+    assert max(max(abs(e[3]), abs(e[4])) for e in late) < math.radians(0.03)
+    inside = np.array([np.abs(e[3:]) <= 3 * s_[3:] for t, e, s_ in errors if t > 30.0])
+    assert inside.mean() > 0.97  # and its covariance says so honestly
+    assert f.out.counts["feeder_mru"]["accepted"] == 1400
+
+
+def test_without_a_feeder_mru_the_yaw_is_not_observed():
+    f, _, errors = _mru_run(False)
+    assert errors[-1][2][5] > math.radians(1.0)  # the yaw's sigma has grown: nothing measures it
+    assert "feeder_mru" not in f.out.counts
+
+
+def test_a_non_finite_feeder_mru_sample_is_refused():
+    f = FeederFilter()
+    f.start(0.0, np.array([0, 0, -45.0, 0, 0, 0]), np.eye(6) * 1e-6, np.zeros(3))
+    assert not f.update_feeder_mru(np.array([0.0, np.nan, 0.0]), np.zeros(3), 1e-4, 1e-4)
+    assert np.all(np.isfinite(f.x)) and f.out.counts["feeder_mru"]["bad"] == 1 and not f.feeder_mru_started

@@ -403,3 +403,45 @@ def test_mru_attitude_interpolates_and_refuses_gaps_and_outside():
     assert log.attitude(-0.01) is None and log.attitude(0.6) is None
     a, _ = log.attitude(0.505)
     np.testing.assert_allclose(a, [0, 0, 0.05])
+
+
+# ---------------------------------------------------------------------------------------
+# An MRU on the feeder
+
+
+@pytest.fixture(scope="module")
+def feeder_mru_rec(tmp_path_factory):
+    s = load_scenario("sts-loaded", ["duration_s=0.5", "world.feeder.mru.enabled=true", "world.feeder.mru.outages_s=[[0.2,0.3]]"])
+    out = tmp_path_factory.mktemp("rec") / "feeder-mru"
+    sim = Simulation(s)
+    write_recording(Simulation(s), out)
+    return sim, out
+
+
+def test_feeder_mru_is_off_by_default(rec_dir, sim):
+    assert sim.feeder_mru is None and not (rec_dir / "feeder_mru.csv").exists()
+    assert Recording(rec_dir).feeder_mru is None
+
+
+def test_feeder_mru_round_trips_with_its_gap(feeder_mru_rec):
+    sim, out = feeder_mru_rec
+    rec = Recording(out)
+    np.testing.assert_allclose(rec.feeder_mru.t_s, sim.feeder_mru.t_s, atol=1e-12)
+    np.testing.assert_allclose(rec.feeder_mru.rpy_rad, sim.feeder_mru.rpy_rad, atol=1e-12)
+    np.testing.assert_allclose(rec.feeder_mru.rpy_rate_radps, sim.feeder_mru.rpy_rate_radps, atol=1e-12)
+    assert rec.feeder_mru.attitude(0.25) is None and rec.feeder_mru.attitude(0.15) is not None  # the outage is a gap
+    # the feeder's attitude, not the crane's: its yaw carries the heading references' offset
+    yaw_bias = np.degrees(np.nanmean(sim.feeder_mru.rpy_rad[:, 2] - sim.truth.at("feeder_yaw", sim.feeder_mru.t_s - 0.002)))
+    assert yaw_bias == pytest.approx(0.5, abs=0.01)
+
+
+def test_a_bad_feeder_mru_csv_names_the_file_and_line(feeder_mru_rec, tmp_path):
+    dst = tmp_path / "copy"
+    shutil.copytree(feeder_mru_rec[1], dst)
+    path = dst / "feeder_mru.csv"
+    lines = path.read_text().splitlines()
+    lines[5] = ",".join(["nan" if i == 1 else v for i, v in enumerate(lines[5].split(","))])
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError) as exc:
+        Recording(dst)
+    assert "feeder_mru.csv" in str(exc.value) and "line 6" in str(exc.value)
