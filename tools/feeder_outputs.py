@@ -152,6 +152,12 @@ def report_section(kpis: dict, windows=()) -> str:
         lines.append(f"Levelling calibration (LiDAR mount and MRU bias together, from the deck normal over {t['span_s']:.0f} s; "
                      f"the feeder's mean roll and pitch taken as zero): {t['about_x']:.4f} deg about x, {t['about_y']:.4f} deg "
                      f"about y (1-sigma {t['sigma']:.4f}). A rotation about the vertical is not observable this way.")
+    if "feeder_mru" in f:
+        m = f["feeder_mru"]
+        lines.append(f"Feeder MRU (004's second MRU) used: heading offset between its heading frame and the crane's "
+                     f"{m['heading_offset_deg']:.3f} deg (1-sigma {m['heading_offset_sigma_deg']:.3f}), its yaw in the map "
+                     f"{m['body_yaw_in_map_deg']:.3f} deg (1-sigma {m['body_yaw_sigma_deg']:.3f}), its tilt from the deck "
+                     f"normal {m['body_tilt_deg'][0]:.4f} / {m['body_tilt_deg'][1]:.4f} deg; {m['gaps']} frames fell in its gaps.")
     if "D_side_by_side" in f:
         d = f["D_side_by_side"]
         lines.append(f"D from this estimate: RMSE {1000 * d['feeder_rmse_m']:.2f} mm; the heave chain's fused D: "

@@ -18,10 +18,10 @@ from boomtip.data.io.recording import commit_output, json_text, meta_to_json, pr
 from boomtip.data.io.ros_messages import encode_cloud, imu_from_mru
 
 KINDS = ("mcap", "ros2", "ros1")
-TOPICS = {"lidar": "/boomtip/lidar", "radar": "/boomtip/radar", "mru": "/boomtip/mru", "encoders": "/boomtip/encoders",
-          "truth": "/boomtip/truth", "meta": "/boomtip/meta"}
+TOPICS = {"lidar": "/boomtip/lidar", "radar": "/boomtip/radar", "mru": "/boomtip/mru", "feeder_mru": "/boomtip/feeder_mru",
+          "encoders": "/boomtip/encoders", "truth": "/boomtip/truth", "meta": "/boomtip/meta"}
 MSGTYPES = {"lidar": "sensor_msgs/msg/PointCloud2", "radar": "sensor_msgs/msg/PointCloud2", "mru": "sensor_msgs/msg/Imu",
-            "encoders": "sensor_msgs/msg/JointState", "truth": "std_msgs/msg/Float64MultiArray", "meta": "std_msgs/msg/String"}
+            "feeder_mru": "sensor_msgs/msg/Imu", "encoders": "sensor_msgs/msg/JointState", "truth": "std_msgs/msg/Float64MultiArray", "meta": "std_msgs/msg/String"}
 
 
 class _Messages:
@@ -96,7 +96,7 @@ def write_bag(source: FrameSource, out: Path, kind: str = "mcap", force: bool = 
         with writer:
             inst = source.meta.installation
             present = {"lidar": inst.lidar.enabled, "radar": inst.radar.enabled, "encoders": source.encoders is not None,
-                       "truth": source.truth is not None}
+                       "truth": source.truth is not None, "feeder_mru": source.feeder_mru is not None}
             conn = {r: writer.add_connection(TOPICS[r], MSGTYPES[r], typestore=store) for r in TOPICS
                     if present.get(r, True)}
 
@@ -104,12 +104,14 @@ def write_bag(source: FrameSource, out: Path, kind: str = "mcap", force: bool = 
                 writer.write(conn[role], int(round(t_s * 1e9)), msgs.serialize(msg, MSGTYPES[role]))
 
             t0 = source.meta.t_start_s
-            m = source.mru
-            quat, omega = imu_from_mru(m.rpy_rad, m.rpy_rate_radps)
             # The streams go in first: a reader sorts by time anyway, and a bag's streams are
             # small beside its clouds.
-            for k in range(len(m.t_s)):
-                put("mru", float(m.t_s[k]), msgs.imu(float(m.t_s[k]), quat[k], omega[k]))
+            for role, m in (("mru", source.mru), ("feeder_mru", source.feeder_mru)):
+                if m is None:
+                    continue
+                quat, omega = imu_from_mru(m.rpy_rad, m.rpy_rate_radps)
+                for k in range(len(m.t_s)):
+                    put(role, float(m.t_s[k]), msgs.imu(float(m.t_s[k]), quat[k], omega[k]))
             if source.encoders is not None:
                 e = source.encoders
                 pos = np.column_stack([e["slew"], e["luff"], e["hoist"]])

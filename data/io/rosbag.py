@@ -2,7 +2,8 @@
 through rosbags (no ROS install).
 
 Roles and their message types: `lidar` and `radar` are sensor_msgs/PointCloud2, `mru` is
-sensor_msgs/Imu (orientation and body rates), `encoders` is sensor_msgs/JointState (joints
+sensor_msgs/Imu (orientation and body rates), `feeder_mru` too (an MRU on the feeder: guessed
+only from an Imu topic whose name says "feeder"), `encoders` is sensor_msgs/JointState (joints
 `slew`, `luff`, `hoist`), and boomtip's own bags add `truth` (std_msgs/Float64MultiArray, one
 row per message, columns in the layout's label) and `meta` (std_msgs/String, the recording's
 meta.json). Topics come from `--topic ROLE=NAME` or are guessed by message type; when two
@@ -30,7 +31,7 @@ from boomtip.data.keys import format_validation, leaf_keys
 from boomtip.data.io.ros_messages import RADAR_VELOCITY_FIELDS, CloudError, cloud_to_frame, decode_cloud, mru_from_imu
 
 ROLES = {"lidar": "sensor_msgs/msg/PointCloud2", "radar": "sensor_msgs/msg/PointCloud2", "mru": "sensor_msgs/msg/Imu",
-         "encoders": "sensor_msgs/msg/JointState", "truth": "std_msgs/msg/Float64MultiArray", "meta": "std_msgs/msg/String"}
+         "feeder_mru": "sensor_msgs/msg/Imu", "encoders": "sensor_msgs/msg/JointState", "truth": "std_msgs/msg/Float64MultiArray", "meta": "std_msgs/msg/String"}
 JOINTS = ("slew", "luff", "hoist")
 
 
@@ -98,6 +99,9 @@ class RosBagSource(FrameSource):
         else:
             raise RecordingError(f"{self.path}: no sensor_msgs/Imu topic for the attitude (topics: {self._listing()}); "
                                  "pass --topic mru=NAME, or set `attitude: level` in the installation file")
+        self.feeder_mru = streams.get("feeder_mru")
+        if self.feeder_mru is not None:
+            check_overlap(self.feeder_mru, t0, t1, f"{self.path}: {self.role_topic['feeder_mru']}")
         self.encoders = streams.get("encoders")
         self.truth = streams.get("truth")
         processing = own.get("processing") if own else None
@@ -125,6 +129,8 @@ class RosBagSource(FrameSource):
             if role in roles or role in ("lidar", "radar"):
                 continue
             cands = [t for t, m in self.topics.items() if m == msgtype and t not in roles.values()]
+            if role in ("mru", "feeder_mru"):  # the feeder's says so in its name; the crane's is the other
+                cands = [t for t in cands if ("feeder" in t.lower()) == (role == "feeder_mru")]
             if role in ("truth", "meta"):
                 cands = [t for t in cands if t.startswith("/boomtip/")]
             if len(cands) > 1:
@@ -164,7 +170,7 @@ class RosBagSource(FrameSource):
     # -- streams -----------------------------------------------------------------------------
     def _read_streams(self, reader) -> tuple[dict, dict[str, int]]:
         """The small streams by role, and how many messages of each topic could not be decoded."""
-        wanted = {self.role_topic[r]: r for r in ("mru", "encoders", "truth", "meta") if r in self.role_topic}
+        wanted = {self.role_topic[r]: r for r in ("mru", "feeder_mru", "encoders", "truth", "meta") if r in self.role_topic}
         if not wanted:
             return {}, {}
         rows: dict[str, list] = {r: [] for r in wanted.values()}
@@ -181,7 +187,7 @@ class RosBagSource(FrameSource):
                 rows[role].append(msg.data)
             elif role == "truth":
                 rows[role].append((msg.layout.dim[0].label if msg.layout.dim else "", np.asarray(msg.data, float)))
-            elif role == "mru":
+            elif role in ("mru", "feeder_mru"):
                 q, w = msg.orientation, msg.angular_velocity
                 rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, q.x, q.y, q.z, q.w, w.x, w.y, w.z))
             else:
@@ -200,6 +206,9 @@ class RosBagSource(FrameSource):
         if not isinstance(meta, dict) or not isinstance(meta.get("installation"), dict):
             raise RecordingError(f"{self.path}: {topic}: expected a JSON object with an 'installation'")
         return meta
+
+    def _feeder_mru(self, rows: list[tuple], topic: str) -> MruLog:
+        return self._mru(rows, topic)
 
     def _mru(self, rows: list[tuple], topic: str) -> MruLog:
         a = np.array(rows, dtype=float)

@@ -263,3 +263,15 @@ def test_multi_valued_coordinates_are_a_missing_frame():
         decode_cloud([("x", 0, 7, 2), ("y", 8, 7, 1), ("z", 12, 7, 1)], b"\0" * 16, 1, 1, 16, 16)
     with pytest.raises(CloudError, match=r"field 'x' is int16: expected one float"):
         decode_cloud([("x", 0, 3, 1), ("y", 2, 3, 1), ("z", 4, 3, 1)], b"\0" * 6, 1, 1, 6, 6)
+
+
+def test_a_feeder_mru_goes_into_the_bag_and_reads_back_beside_the_cranes(tmp_path):
+    """Two Imu topics: the one named for the feeder is its MRU, the other the crane's."""
+    s = ["--set", "world.feeder.mru.enabled=true"]
+    _ok(["simulate", "-s", "sts-loaded", "--duration", "1", "--out", str(tmp_path / "rec"), *s])
+    _ok(["simulate", "-s", "sts-loaded", "--duration", "1", "--out", str(tmp_path / "bag"), "--format", "mcap", *s])
+    rec, bag = open_source(tmp_path / "rec"), open_source(tmp_path / "bag")
+    assert bag.feeder_mru is not None and rec.feeder_mru is not None
+    np.testing.assert_allclose(bag.feeder_mru.rpy_rad, rec.feeder_mru.rpy_rad, atol=1e-9)
+    np.testing.assert_allclose(bag.mru.rpy_rad, rec.mru.rpy_rad, atol=1e-9)
+    assert not np.allclose(bag.mru.rpy_rad, bag.feeder_mru.rpy_rad, atol=1e-3)
