@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from boomtip.data.frames import MruLog
-from boomtip.fusion.attitude_filter import complementary_attitude
+from boomtip.fusion.attitude_filter import averaged_rates, complementary_attitude
 from boomtip.fusion.level_calibration import correction, tilt_from_normals
 
 
@@ -28,6 +28,24 @@ def test_tilt_recovered_to_a_thousandth_of_a_degree_in_60_s():
     assert math.degrees(tilt.ry_rad) == pytest.approx(-0.025, abs=1e-3)
     n_corr = _normals(tx, ty, t) @ correction(tilt).T
     assert abs(math.degrees(np.mean(n_corr[:, 0]))) < 0.01
+
+
+def test_a_gap_in_the_normals_does_not_bias_the_tilt():
+    """A 50 s outage in a 110 s run: one Hann window across the gap weighs the waves unevenly
+    (0.1 deg wrong here); the stretch before it alone gives the tilt, the 10 s after too short."""
+    t = np.r_[np.arange(0.0, 50.0, 0.1), np.arange(100.0, 110.0, 0.1)]
+    tx, ty = math.radians(0.03), math.radians(-0.025)
+    n = _normals(tx, ty, t)
+    tilt = tilt_from_normals(t, n, min_span_s=30.0)
+    assert math.degrees(tilt.rx_rad) == pytest.approx(0.03, abs=2e-3)
+    assert math.degrees(tilt.ry_rad) == pytest.approx(-0.025, abs=2e-3)
+    assert tilt.span_s == pytest.approx(49.9)
+    one_window = tilt_from_normals(t, n, min_span_s=30.0, max_gap_s=np.inf)
+    assert abs(math.degrees(one_window.ry_rad) + 0.025) > 0.02  # what the split avoids
+    # two long stretches both count
+    t2 = np.r_[np.arange(0.0, 40.0, 0.1), np.arange(90.0, 130.0, 0.1)]
+    both = tilt_from_normals(t2, _normals(tx, ty, t2), min_span_s=30.0)
+    assert both.span_s == pytest.approx(79.8) and math.degrees(both.rx_rad) == pytest.approx(0.03, abs=2e-3)
 
 
 def test_no_tilt_before_the_minimum_span():
@@ -55,3 +73,18 @@ def test_complementary_filter_restarts_at_a_gap():
     rpy[t >= 10.0, 0] = 0.05  # the vessel rolled during the gap
     out = complementary_attitude(MruLog(t, rpy, np.zeros_like(rpy)), 1.0)
     assert out.rpy_rad[t >= 10.0, 0][0] == pytest.approx(0.05, abs=1e-9)
+
+
+def test_averaged_rates_cut_the_noise_and_keep_the_wave():
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 30.0, 0.005)
+    true = np.column_stack([0.0138 * np.cos(0.63 * t), 0.022 * np.cos(0.63 * t + 0.8), np.zeros_like(t)])
+    noisy = true + rng.normal(0, math.radians(0.025), true.shape)
+    gap = (t > 10.0) & (t < 10.5)  # a gap restarts the mean: nothing averaged across it
+    log = MruLog(t[~gap], np.zeros((int((~gap).sum()), 3)), noisy[~gap], max_gap_s=0.1)
+    out, n = averaged_rates(log, 0.05)
+    assert n == 21
+    err = out.rpy_rate_radps - true[~gap]
+    assert np.std(err[:, :2]) == pytest.approx(math.radians(0.025) / math.sqrt(21), rel=0.1)
+    assert abs(np.mean(err[:, :2])) < 1e-5  # no lag: the window is centred
+    assert averaged_rates(log, 0.0)[1] == 1
