@@ -41,6 +41,8 @@ class FeederProcessing(_Model):
     perception: FeederConfig = FeederConfig()
     filter: FeederFilterConfig = FeederFilterConfig()
     mru_tau_s: float = Field(1.0, ge=0, description="time constant of the MRU's complementary filter (0: raw angles)")
+    mru_rate_half_window_s: float = Field(0.05, ge=0, le=1, description="the MRU's rates averaged over +- this (the tip's "
+                                          "velocity is a rate at the boom's lever; 0: raw rates)")
     use_feeder_mru: bool = Field(True, description="use an MRU on the feeder when the source has its stream")
     radar_deck_after_s: float = Field(0.5, gt=0, description="the radar's deck plane is used once the LiDAR has had none this long")
     rekey_after_failures: int = Field(20, ge=1, description="registrations failed in a row before a new keyframe is taken")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 from boomtip.data.frames import MruLog
+from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
 
@@ -36,3 +37,26 @@ def complementary_attitude(log: MruLog, tau_s: float) -> MruLog:
         filt, _ = lfilter([1.0], [1.0, -a], u, axis=0, zi=zi)
         out[seg] = (filt + np.pi) % (2 * np.pi) - np.pi
     return MruLog(t, out, log.rpy_rate_radps, log.max_gap_s)
+
+
+def averaged_rates(log: MruLog, half_window_s: float) -> tuple[MruLog, int]:
+    """The log with each rate the mean of the samples within +-half_window_s (angles
+    unchanged), and how many samples that mean takes. Why: the tip's velocity is the rate times
+    the boom's lever (0.025 deg/s at 66 m is 3 cm/s a sample) while the wave motion changes
+    over seconds: a centred 0.1 s mean of 200 Hz samples cuts the noise 4.5 times and moves a
+    10 s wave's rate by 7e-5 of itself. Runs per gap-free segment; offline, or live with
+    half_window_s of latency."""
+    t = log.t_s
+    if len(t) < 3 or half_window_s <= 0 or not np.isfinite(log.max_gap_s):
+        return log, 1
+    rates = log.rpy_rate_radps.copy()
+    breaks = np.flatnonzero(np.diff(t) > log.max_gap_s) + 1
+    n_used = []
+    for seg in np.split(np.arange(len(t)), breaks):  # a loop over segments, not samples
+        dt = float(np.median(np.diff(t[seg]))) if len(seg) > 1 else 0.0
+        k = int(half_window_s / dt) if dt > 0 else 0
+        if k < 1 or len(seg) < 2 * k + 1:
+            continue
+        rates[seg] = uniform_filter1d(log.rpy_rate_radps[seg], 2 * k + 1, axis=0, mode="nearest")
+        n_used.append(2 * k + 1)
+    return MruLog(t, log.rpy_rad, rates, log.max_gap_s), min(n_used) if n_used else 1

@@ -19,16 +19,24 @@ from boomtip.fusion.models.relative_motion import (
     ACC,
     BODY_TILT,
     BODY_YAW,
+    CENTRE,
     HEADING_OFFSET,
     N_MOTION,
     N_STATE,
+    OFFSETS,
     POSE,
     RATE,
     deck_plane,
     feeder_mru_measurement,
+    centre_level,
+    cross3,
     numeric_jacobian,
     omega,
+    origin_state,
+    origin_state_jacobian,
     point_velocity,
+    point_velocity_jacobian,
+    swing_jacobian,
     transition,
     well_observed,
 )
@@ -59,6 +67,10 @@ class FeederFilterConfig(BaseModel):
     registration_floor: tuple[float, float] = Field((0.025, 0.08), description="1-sigma a registration is never better than: m (x, y), "
                                                     "deg (yaw); measured against the truth, ICP on a deck's structure is off by this")
     init_sigma_rate: tuple[float, float] = Field((0.5, 2.0), description="first-frame 1-sigma of the rates: m/s, deg/s")
+    centre_prior_m: tuple[float, float, float] = Field((0.0, 0.0, -5.0), description="the feeder's centre of rotation in the "
+                                                       "map frame before any measurement: below the deck point under the tip")
+    centre_prior_sigma_m: tuple[float, float, float] = Field((30.0, 15.0, 10.0), description="its 1-sigma: along the feeder "
+                                                             "(the tip may be anywhere over its deck), across it, below the deck")
     # A feeder MRU (when the source has one): its offsets from the map frame.
     heading_offset_walk_degps: float = Field(0.005, ge=0, description="random walk of the heading offset between the ships' "
                                              "heading frames (004: moored or on DP, slowly varying), deg per sqrt(s)")
@@ -93,6 +105,7 @@ class FeederFilter:
         self.P: np.ndarray | None = None
         self.t_s = float("nan")
         self.rejections: dict[str, int] = {}
+        self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self.out = FeederEstimates()
 
     @property
@@ -111,7 +124,9 @@ class FeederFilter:
         P[RATE, RATE] = np.diag([v * v] * 3 + [(w * DEG) ** 2] * 3)
         P[ACC, ACC] = np.diag(self.sigma_acc ** 2)
         # The feeder MRU's offsets: unknown until its first sample (start_feeder_mru).
-        P[N_MOTION:, N_MOTION:] = np.eye(N_STATE - N_MOTION) * math.pi ** 2
+        P[OFFSETS, OFFSETS] = np.eye(OFFSETS.stop - OFFSETS.start) * math.pi ** 2
+        self.x[CENTRE] = self.cfg.centre_prior_m
+        P[CENTRE, CENTRE] = np.diag(np.square(self.cfg.centre_prior_sigma_m))
         self.P, self.t_s, self.tip_velocity = P, t_s, np.asarray(tip_velocity, dtype=float)
         self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
         self.record()
@@ -124,11 +139,14 @@ class FeederFilter:
         dt = t_s - self.t_s
         if dt <= 0:  # a late measurement is applied at the current time
             return
-        F_motion, Q_motion = transition(dt, self.tau, self.sigma_acc, self.rate_tau)
-        F, Q = np.eye(N_STATE), np.zeros((N_STATE, N_STATE))
-        F[:N_MOTION, :N_MOTION], Q[:N_MOTION, :N_MOTION] = F_motion, Q_motion
-        Q[HEADING_OFFSET, HEADING_OFFSET] = (self.cfg.heading_offset_walk_degps * DEG) ** 2 * dt
-        self.x = F @ self.x
+        F, Q = self._transition(dt)
+        # The origin swings about the centre of rotation: its velocity is the centre's (the
+        # Singer rates) less w x R c, taken at the interval's midpoint.
+        x_mid = 0.5 * (self.x + F @ self.x)
+        x_new = F @ self.x
+        x_new[0:3] -= dt * cross3(omega(x_mid[0:6], x_mid[6:12]), centre_level(x_mid))
+        F[0:3] -= dt * swing_jacobian(x_mid) @ (0.5 * (np.eye(N_STATE) + F))
+        self.x = x_new
         if tip_position is not None and self.tip_position is not None:
             self.x[0:3] -= np.asarray(tip_position, dtype=float) - self.tip_position
         else:
@@ -137,6 +155,21 @@ class FeederFilter:
         self.P[0:3, 0:3] += np.eye(3) * 0.5 * (tip_velocity_sigma * dt) ** 2
         self.t_s, self.tip_velocity = t_s, np.asarray(tip_velocity, dtype=float)
         self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
+
+    def _transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(F, Q) of the whole state over dt; a copy of F (the swing is added to it). Cached:
+        frame intervals repeat, and assembling the blocks cost more than the filter's algebra."""
+        key = round(float(dt), 9)
+        if key not in self._fq:
+            F_motion, Q_motion = transition(dt, self.tau, self.sigma_acc, self.rate_tau)
+            F, Q = np.eye(N_STATE), np.zeros((N_STATE, N_STATE))
+            F[:N_MOTION, :N_MOTION], Q[:N_MOTION, :N_MOTION] = F_motion, Q_motion
+            Q[HEADING_OFFSET, HEADING_OFFSET] = (self.cfg.heading_offset_walk_degps * DEG) ** 2 * dt
+            if len(self._fq) > 512:
+                self._fq.clear()
+            self._fq[key] = (F, Q)
+        F, Q = self._fq[key]
+        return F.copy(), Q
 
     def pose_sigma(self) -> np.ndarray:
         return np.sqrt(np.diag(self.P)[POSE])
@@ -211,7 +244,8 @@ class FeederFilter:
         # Not the yaw: it enters only by turning the roll and pitch rates into level axes, and a
         # filter let to use that would turn its yaw to explain a rate error (37 deg in a 50 s
         # LiDAR outage). The radar says nothing of the yaw itself.
-        H = numeric_jacobian(h, self.x, np.r_[0:5, 6:12])
+        H = point_velocity_jacobian(self.x, xi_level)
+        H[:, 5] = 0.0
         return self._update("doppler", velocity_level, h(self.x), H, cov)
 
     def start_feeder_mru(self, rpy_rad: np.ndarray, angle_sigma_rad: float) -> None:
@@ -224,11 +258,12 @@ class FeederFilter:
         self.x[HEADING_OFFSET] = (self.x[5] - rpy_rad[2] + math.pi) % (2 * math.pi) - math.pi
         # heading offset = yaw - body yaw - MRU yaw: its row is the yaw's, minus the body yaw's
         P = self.P
-        P[N_MOTION:, :], P[:, N_MOTION:] = 0.0, 0.0
+        P[OFFSETS, :], P[:, OFFSETS] = 0.0, 0.0
         P[BODY_YAW, BODY_YAW] = sm * sm
         P[BODY_TILT, BODY_TILT] = np.eye(2) * st * st
-        P[HEADING_OFFSET, :N_MOTION] = P[5, :N_MOTION]
-        P[:N_MOTION, HEADING_OFFSET] = P[:N_MOTION, 5]
+        rest = np.r_[0:N_MOTION, CENTRE]
+        P[HEADING_OFFSET, rest] = P[5, rest]
+        P[rest, HEADING_OFFSET] = P[rest, 5]
         P[HEADING_OFFSET, BODY_YAW] = P[BODY_YAW, HEADING_OFFSET] = -sm * sm
         P[HEADING_OFFSET, HEADING_OFFSET] = P[5, 5] + sm * sm + angle_sigma_rad ** 2
         self.feeder_mru_started = True
@@ -247,16 +282,22 @@ class FeederFilter:
         z = np.concatenate([rpy_rad, omega(np.r_[0.0, 0.0, 0.0, rpy_rad], np.r_[0.0, 0.0, 0.0, rpy_rate_radps])])
         h = feeder_mru_measurement(self.x)
         z[:3] = h[:3] + (z[:3] - h[:3] + math.pi) % (2 * math.pi) - math.pi
-        H = numeric_jacobian(feeder_mru_measurement, self.x, np.r_[3:12, N_MOTION:N_STATE])
+        H = numeric_jacobian(feeder_mru_measurement, self.x, np.r_[3:12, OFFSETS])
         R = np.diag([sa * sa] * 3 + [sr * sr] * 3)
         return self._update("feeder_mru", z, h, H, R)
 
     def offsets(self) -> tuple[np.ndarray, np.ndarray]:
         """The feeder MRU's offsets (heading offset, body yaw, body tilt about x, y; rad) and their 1-sigmas."""
-        return self.x[N_MOTION:].copy(), np.sqrt(np.diag(self.P)[N_MOTION:])
+        return self.x[OFFSETS].copy(), np.sqrt(np.diag(self.P)[OFFSETS])
+
+    def centre(self) -> tuple[np.ndarray, np.ndarray]:
+        """The centre of rotation in the map frame (m) and its 1-sigmas."""
+        return self.x[CENTRE].copy(), np.sqrt(np.diag(self.P)[CENTRE])
 
     def record(self) -> None:
         """Keep the state at the current time (once per frame, after its updates)."""
         self.out.t_s.append(self.t_s)
-        self.out.x.append(self.x.copy())
-        self.out.P.append(self.P[:12, :12].copy())  # pose and rates: what the outputs use
+        # pose and the ORIGIN's rates (the state has the centre's), with their covariance
+        J = origin_state_jacobian(self.x)
+        self.out.x.append(origin_state(self.x))
+        self.out.P.append(J @ self.P @ J.T)

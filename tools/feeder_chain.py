@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.processing import Processing
-from boomtip.fusion.attitude_filter import complementary_attitude
+from boomtip.fusion.attitude_filter import averaged_rates, complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
 from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
 from boomtip.fusion.models.relative_motion import deck_plane, rotation
@@ -69,6 +69,7 @@ class FeederResult:
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the model's (map) frame
     model_points_map: np.ndarray | None = None  # the keyframe, for the display
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
+    centre: dict | None = None  # the feeder's centre of rotation in the feeder frame, as estimated
 
 
 class FeederChain:
@@ -80,7 +81,11 @@ class FeederChain:
         self.cfg = cfg
         # the levelling's attitude: the MRU's angles filtered with its rates (see attitude_filter)
         self.mru = complementary_attitude(source.mru, cfg.mru_tau_s) if cfg.mru_tau_s > 0 else source.mru
+        self.mru, n_rates = averaged_rates(self.mru, cfg.mru_rate_half_window_s)
         self.perception = FeederPerception(inst, cfg.perception)
+        # the averaged rates' noise: the data sheet's over the samples averaged
+        self.perception.rate_sigma_radps /= math.sqrt(n_rates)
+        self.perception.tip_velocity_sigma /= math.sqrt(n_rates)
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
         self.filter = FeederFilter(cfg.filter)
@@ -335,7 +340,12 @@ class FeederChain:
         return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
                             self.frame_ms, notes, self.missing, T_map_feeder,
                             np.asarray(self.model.keyframe.points) if not self.model.empty else None,
-                            self._feeder_mru_summary())
+                            self._feeder_mru_summary(), self._centre_summary(T_map_feeder))
+
+    def _centre_summary(self, T_map_feeder: np.ndarray) -> dict:
+        c_map, c_sigma = self.filter.centre()
+        c_feeder = transform(inverse(T_map_feeder), c_map[None, :])[0]
+        return {"in_feeder_frame_m": np.round(c_feeder, 3).tolist(), "sigma_m": np.round(c_sigma, 3).tolist()}
 
     def _feeder_mru_summary(self) -> dict | None:
         if self.feeder_mru is None or not self.filter.feeder_mru_started:
