@@ -208,10 +208,20 @@ def plane_sigma_at(points_on_plane: np.ndarray, plane: np.ndarray, query: np.nda
 
 
 def _prediction_sigma(pts, plane, c, evals, evecs, query) -> float:
-    N = len(pts)
     resid = pts @ plane[:3] + plane[3]
-    s2 = float(resid @ resid) / (N - 3)
-    q = (query - c) @ evecs[:, 1:]  # in-plane axes: the two largest scatter directions
+    return prediction_sigma(len(pts), float(resid @ resid), c, evals, evecs, query)
+
+
+def prediction_sigma(n_points: int, sum_sq_resid: float, centroid: np.ndarray, evals: np.ndarray, evecs: np.ndarray,
+                     query: np.ndarray) -> float:
+    """:func:`plane_sigma_at` from what a fit already has: the number of points, their summed
+    squared residuals to the plane, their centroid and the eigen-decomposition (ascending) of
+    their scatter about it. NaN with fewer than 4 points."""
+    N = n_points
+    if N < 4:
+        return float("nan")
+    s2 = sum_sq_resid / (N - 3)
+    q = (query - centroid) @ evecs[:, 1:]  # in-plane axes: the two largest scatter directions
     var = s2 * (1.0 / N + q[0] ** 2 / evals[1] + q[1] ** 2 / evals[2])
     return float(math.sqrt(max(var, 0.0)))
 
