@@ -134,21 +134,24 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
     np.multiply(bT, r, out=Z[6:9])  # x r, y r, z r
     np.multiply(r, r, out=Z[9])
 
-    def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    def solve(w: np.ndarray) -> tuple[np.ndarray, tuple, float, float] | None:
         # The symmetric 3x3 solve in Python floats: numpy's per-call overhead on a 3x3 is
-        # several times the arithmetic, and this runs up to six times per radar frame.
+        # several times the arithmetic, and this runs up to six times per radar frame. The
+        # inverse stays six Python floats (its upper triangle) until the last pass needs it.
         xx, xy, xz, yy, yz, zz, yx_, yy_, yz_, rr = (Z @ w).tolist()
         c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
         det = xx * c00 + xy * c01 + xz * c02
         if abs(det) < 1e-300:
             return None
         c11, c12, c22 = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
-        inv = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
-        u = inv @ np.array([yx_, yy_, yz_])
+        i00, i01, i02, i11, i12, i22 = c00 / det, c01 / det, c02 / det, c11 / det, c12 / det, c22 / det
+        u0 = i00 * yx_ + i01 * yy_ + i02 * yz_
+        u1 = i01 * yx_ + i11 * yy_ + i12 * yz_
+        u2 = i02 * yx_ + i12 * yy_ + i22 * yz_
         # Sum of squared residuals over the subset from the same sums: r.r - u.(B^T r).
-        sse = max(rr - float(u[0] * yx_ + u[1] * yy_ + u[2] * yz_), 0.0)
+        sse = max(rr - (u0 * yx_ + u1 * yy_ + u2 * yz_), 0.0)
         frob_a2 = xx * xx + yy * yy + zz * zz + 2.0 * (xy * xy + xz * xz + yz * yz)
-        return u, inv, sse, frob_a2
+        return np.array([u0, u1, u2]), (i00, i01, i02, i11, i12, i22), sse, frob_a2
 
     if u_prior is not None:
         # Tracking: last frame's velocity is within the band of this one's (the deck's
@@ -184,13 +187,15 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
         u = sol[0]
     if sol is None or n_in < max(3, cfg.min_inliers):
         return None
-    u, inv, sse, frob_a2 = sol
+    u, (i00, i01, i02, i11, i12, i22), sse, frob_a2 = sol
     # cond(B) = sqrt(cond(B^T B)); the Frobenius-norm bound ||A|| ||A^-1|| is enough to refuse
     # degenerate beam geometry without an eigendecomposition.
-    cond = float(math.sqrt(math.sqrt(frob_a2) * np.linalg.norm(inv)))
+    frob_inv2 = i00 * i00 + i11 * i11 + i22 * i22 + 2.0 * (i01 * i01 + i02 * i02 + i12 * i12)
+    cond = math.sqrt(math.sqrt(frob_a2) * math.sqrt(frob_inv2))
     if cond > cfg.max_condition:
         return None
     sigma2 = sse / max(n_in - 3, 1)
+    inv = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
     if valid is None:
         full = mask
     else:
