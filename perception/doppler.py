@@ -162,7 +162,7 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
         if sol is None:
             return None
         u = sol[0]
-    mask, sol = None, None
+    mask, sol, n_in = None, None, 0
     for it in range(6):
         res = u @ bT
         res -= r
@@ -175,10 +175,10 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
         else:
             band = cfg.inlier_threshold_mps
         new = res < band
-        if mask is not None and np.array_equal(new, mask):
+        n_new = int(np.count_nonzero(new))
+        if mask is not None and n_new == n_in and not (new ^ mask).any():  # np.array_equal's checks cost more
             break
-        mask = new
-        n_in = int(np.count_nonzero(mask))
+        mask, n_in = new, n_new
         if n_in < max(3, cfg.trimmed_min_fraction * n):
             return None
         sol = solve(mask.astype(np.float64))
@@ -231,8 +231,11 @@ def doppler_velocity(
     n_all = len(r_all)
     # Squared norms also catch NaN/inf beams (their square is not finite) in one pass.
     n2 = np.einsum("ij,ij->i", b_all, b_all)
-    valid = np.isfinite(r_all) & np.isfinite(n2) & (n2 > 0)
-    if valid.all():
+    # Every detection valid (the usual case) iff the sums are finite and no beam is zero: three
+    # reductions instead of five full-length masks
+    all_valid = math.isfinite(float(r_all.sum()) + float(n2.sum())) and float(n2.min(initial=math.inf)) > 0
+    valid = np.ones(n_all, dtype=bool) if all_valid else np.isfinite(r_all) & np.isfinite(n2) & (n2 > 0)
+    if all_valid:
         valid_sel, b_sel, r, n2_sel = None, b_all, r_all, n2
     else:
         valid_sel, b_sel, r, n2_sel = valid, b_all[valid], r_all[valid], n2[valid]
