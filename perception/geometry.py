@@ -166,16 +166,12 @@ class NormalRate:
                        [a2 * b2 - a1 * c2, a0 * c2 - a2 * a2, a2 * a1 - a0 * b2],
                        [a1 * b2 - a2 * b1, a2 * a1 - a0 * b2, a0 * b1 - a1 * a1]]
                 det = a0 * adj[0][0] + a1 * adj[1][0] + a2 * adj[2][0]
-            else:
-                (a0, a1), (_, b1) = (row[:2] for row in G)
-                adj = [[b1, -a1], [-a1, a0]]
-                det = a0 * b1 - a1 * a1
-            if deg == 2:
                 r0, r1, r2 = (row[3:] for row in G)
                 coef = [[(a * x + b * y + c * z) / det for x, y, z in zip(r0, r1, r2)] for a, b, c in adj]
             else:
-                r0, r1 = (row[3:] for row in G)
-                coef = [[(a * x + b * y) / det for x, y in zip(r0, r1)] for a, b in adj]
+                (a0, a1, r0), (_, b1, r1) = ((row[0], row[1], row[3:]) for row in G)
+                det = a0 * b1 - a1 * a1
+                coef = [[(a * x + b * y) / det for x, y in zip(r0, r1)] for a, b in ((b1, -a1), (-a1, a0))]
             # Kept as Python floats: every radar frame evaluates the polynomial at its own time,
             # and a few float products beat numpy's per-call overhead on 3-vectors.
             self._coef = coef if deg == 2 else coef + [[0.0, 0.0, 0.0]]
