@@ -278,6 +278,7 @@ def _nearest_the_prior(pts, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng)
     def D(c):
         d = heave_distance(c.plane, wire, p_tip)
         return abs(d - prior_D_m) if np.isfinite(d) else np.inf
+
     best = min(candidates, key=D, default=None)
     if best is not None and D(best) <= tol_m:
         return best
@@ -385,6 +386,7 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
     np.multiply(bz, bz, out=Z[5])
     np.multiply(bT, r, out=Z[6:9])
     np.multiply(r, r, out=Z[9])
+
     def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float] | None:
         xx, xy, xz, yy, yz, zz, yx_, yy_, yz_, rr = (Z @ w).tolist()
         c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
@@ -397,6 +399,7 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
         sse = max(rr - float(u[0] * yx_ + u[1] * yy_ + u[2] * yz_), 0.0)
         frob_a2 = xx * xx + yy * yy + zz * zz + 2.0 * (xy * xy + xz * xz + yz * yz)
         return u, inv, sse, frob_a2
+
     if u_prior is not None:
         u = np.asarray(u_prior, dtype=float)
     else:
