@@ -141,11 +141,6 @@ def _plane_and_eig(centroid: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarra
     return plane, evals, vecs
 
 
-def _plane_from_scatter(centroid: np.ndarray, scatter: np.ndarray) -> np.ndarray:
-    """Plane through ``centroid`` whose normal is the smallest-eigenvalue eigenvector of ``scatter``."""
-    return _plane_and_eig(centroid, scatter)[0]
-
-
 def _moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centroid and scatter about it of points stored COLUMN-wise, (3, M) C-contiguous float64.
 
@@ -160,13 +155,6 @@ def _moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # dot/GEMM here waited up to 100 ms for its helper thread (measured), einsum never does
     raw = np.einsum("ij,kj->ik", cols, cols)
     return s / m, raw - np.outer(s, s) / m
-
-
-def _fit_plane_cols_eig(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_fit_plane_cols` with the moments: (plane, centroid, scatter eigenvalues, eigenvectors)."""
-    centroid, scatter = _moments_cols(cols)
-    plane, evals, evecs = _plane_and_eig(centroid, scatter)
-    return plane, centroid, evals, evecs
 
 
 def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
@@ -259,15 +247,9 @@ def _needed_iterations(inlier_ratio: float, confidence: float, sample_size: int 
     return math.log(1.0 - confidence) / math.log1p(-p_good)
 
 
-def ransac_plane(
-    points: np.ndarray,
-    cfg: RansacConfig | None = None,
-    rng: np.random.Generator | None = None,
-    *,
-    axis: np.ndarray | None = None,
-    max_axis_angle_deg: float | None = None,
-    min_support: float = 0.0,
-) -> PlaneFit | None:
+def ransac_plane(points: np.ndarray, cfg: RansacConfig | None = None, rng: np.random.Generator | None = None, *,
+                 axis: np.ndarray | None = None, max_axis_angle_deg: float | None = None,
+                 min_support: float = 0.0) -> PlaneFit | None:
     """Vectorised RANSAC plane fit (sensor frame, metres).
 
     1. Score set: a random subsample of ``cfg.subsample_size`` points (all points if fewer; drawn
@@ -289,8 +271,7 @@ def ransac_plane(
        other round scores the current plane on ALL points, takes those inliers and refits on them.
        The returned plane is the last fit and ``inlier_mask`` is exactly the set of points it was
        fitted to (the all-point inliers of the previous plane). With the default 2 rounds this costs
-       one pass over the cloud plus one gather + fit instead of three passes and two full fits
-       (measured on 100k points: 5-7 ms -> 4-5 ms).
+       one pass over the cloud plus one gather + fit instead of three passes and two full fits.
 
     ``min_support``: the smallest inlier share the caller would accept. The budget is then the
     one that finds a plane of at least that share, not the (much larger) one that makes sure
@@ -310,15 +291,9 @@ def ransac_plane(
     return ransac_plane_cols(cols, cfg, rng, axis=axis, max_axis_angle_deg=max_axis_angle_deg, min_support=min_support)
 
 
-def ransac_plane_cols(
-    cols: np.ndarray,
-    cfg: RansacConfig | None = None,
-    rng: np.random.Generator | None = None,
-    *,
-    axis: np.ndarray | None = None,
-    max_axis_angle_deg: float | None = None,
-    min_support: float = 0.0,
-) -> PlaneFit | None:
+def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np.random.Generator | None = None, *,
+                      axis: np.ndarray | None = None, max_axis_angle_deg: float | None = None,
+                      min_support: float = 0.0) -> PlaneFit | None:
     """:func:`ransac_plane` on points stored column-wise, (3, N) C-contiguous float64 (sensor
     frame, metres): a caller that runs several searches on one cloud lays it out once.
     The fit also carries its inliers' centroid and scatter eigen-decomposition."""
@@ -348,10 +323,7 @@ def ransac_plane_cols(
         ax = ax / np.linalg.norm(ax)
         cos_max = math.cos(math.radians(max_axis_angle_deg))
 
-    best_count = -1
-    best_n = None
-    best_d = 0.0
-    drawn = 0
+    best_count, best_n, best_d, drawn = -1, None, 0.0, 0
     needed = min(float(cfg.max_iterations), _needed_iterations(min_support, cfg.confidence))
     deadline = time.perf_counter() + 1e-3 * cfg.max_time_ms if cfg.max_time_ms is not None else math.inf
     timed_out = False
@@ -362,13 +334,10 @@ def ransac_plane_cols(
         b = min(cfg.batch_size, cfg.max_iterations - drawn)
         tri = rng.integers(0, s, size=(b, 3))
         drawn += b
-        # The triplets by columns, (3, B) rows per axis: the cross product and dot products
-        # written out on contiguous rows cost a fraction of np.cross / einsum on (B, 3) rows
-        # (the same products and sums, in the same order).
-        p0 = sub_c.take(tri[:, 0], axis=1)
-        e1 = sub_c.take(tri[:, 1], axis=1)
+        # The triplets by columns, (3, B) rows: the cross and dot products written out on contiguous
+        # rows cost a fraction of np.cross / einsum on (B, 3) rows (same products, same order).
+        p0, e1, e2 = (sub_c.take(tri[:, j], axis=1) for j in range(3))
         e1 -= p0
-        e2 = sub_c.take(tri[:, 2], axis=1)
         e2 -= p0
         (x1, y1, z1), (x2, y2, z2) = e1, e2
         nrm = np.empty((3, b))
@@ -431,20 +400,19 @@ def ransac_plane_cols(
         if len(idx) < 3:
             break
         x_in = cols.take(idx, axis=1)
-        plane, *moments = _fit_plane_cols_eig(x_in)
+        centroid, scatter = _moments_cols(x_in)
+        plane, evals, evecs = _plane_and_eig(centroid, scatter)
+        moments = (centroid, evals, evecs)
     n_in = len(idx)
     if n_in < max(cfg.min_inliers, 3):
         return None
     plane = orient_plane_towards(plane)
     mask = np.zeros(n_pts, dtype=bool)
     mask[idx] = True
-    if x_in is None:
+    if x_in is None or moments is None:  # no full round ran (refit_iterations <= 1)
         x_in = cols.take(idx, axis=1)
-        moments = None
-    if moments is None:
         centroid, scatter = _moments_cols(x_in)
-        evals, evecs = np.linalg.eigh(scatter)
-        moments = (centroid, evals, evecs)
+        moments = (centroid, *np.linalg.eigh(scatter))
     r_in = plane[:3] @ x_in + plane[3]
     rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
     return PlaneFit(plane=plane, inlier_mask=mask, inlier_ratio=n_in / n_pts, rms_m=rms, iterations=drawn,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from boomtip.perception.cloud import as_points
-from boomtip.perception.plane import _plane_from_scatter, orient_plane_towards
+from boomtip.perception.plane import _plane_and_eig, orient_plane_towards
 
 __all__ = ["refine_plane_biweight", "refine_plane_biweight_cols"]
 
@@ -24,7 +24,7 @@ def _biweight_step(cols: np.ndarray, plane: np.ndarray, inv_scale2: float) -> tu
     xw = cols * w
     centre = xw.sum(axis=1) / wsum
     scatter = np.einsum("ij,kj->ik", xw, cols) - wsum * np.outer(centre, centre)
-    new = _plane_from_scatter(centre, scatter)
+    new = _plane_and_eig(centre, scatter)[0]
     if new[:3] @ plane[:3] < 0:  # keep the start's orientation while iterating
         new = -new
     return new, abs(new[3] - plane[3]) + 10.0 * float(np.linalg.norm(new[:3] - plane[:3]))

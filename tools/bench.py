@@ -205,18 +205,19 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
 
 def _heave_stages_vs_reference(pipe, recorded: list, repeats: int = 5) -> dict:
     """The heave chain's stages (LiDAR deck, reflectors, the Doppler fit and the deck's spin for
-    the rotation-aware D-dot) against the same stages as they were (tools.heave_reference), on
-    the inputs the pipeline gave them. Each input is run `repeats` times by each, alternating,
-    and the least wall time of each counts (as timeit does: on a shared machine a call that was
-    preempted measures the machine, not the code). Ms per call (the mean of those least times),
-    their ratio, and the largest difference between the two results (the same algorithm: zero up
-    to rounding)."""
+    the rotation-aware D-dot) against the same stages as they were (tools.heave_reference_deck,
+    tools.heave_reference), on the inputs the pipeline gave them. Each input is run `repeats`
+    times by each, alternating, and the least wall time of each counts (as timeit does: on a
+    shared machine a call that was preempted measures the machine, not the code). Ms per call
+    (the mean of those least times), their ratio, and the largest difference between the two
+    results (the same algorithm: zero up to rounding)."""
     from boomtip.perception.deck import detect_deck
     from boomtip.perception.doppler import doppler_velocity
     from boomtip.perception.geometry import NormalRate
     from boomtip.perception.pipeline import doppler_inputs
     from boomtip.perception.reflectors import detect_reflectors
     from boomtip.tools import heave_reference as ref
+    from boomtip.tools import heave_reference_deck as ref_deck
 
     cfg = pipe.cfg
     calls: dict[str, list] = {"deck_lidar": [], "reflectors_lidar": [], "doppler_fit": [], "deck_spin": []}
@@ -231,7 +232,7 @@ def _heave_stages_vs_reference(pipe, recorded: list, repeats: int = 5) -> dict:
             kw = {"prior_D_m": deck_prior[0], "prior_tol_m": deck_prior[1]}
             calls["deck_lidar"].append((
                 lambda a=args, k=kw, s=seed: detect_deck(*a, np.random.default_rng(s), **k).D_m,
-                lambda a=args, k=kw, s=seed: ref.detect_deck(*a, np.random.default_rng(s), **k).D_m))
+                lambda a=args, k=kw, s=seed: ref_deck.detect_deck(*a, np.random.default_rng(s), **k).D_m))
             if "intensity" in fr.fields:
                 args = (fr.points_sensor, fr.fields["intensity"], wire, p_tip, cfg.reflectors)
                 calls["reflectors_lidar"].append((lambda a=args: detect_reflectors(*a).D_m,
