@@ -10,10 +10,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.perception.cloud import as_points
-from boomtip.perception.geometry import heave_distance, plane_sigma_at
+from boomtip.perception.geometry import heave_distance, prediction_sigma
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
-from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane
-from boomtip.perception.plane_refine import refine_plane_biweight
+from boomtip.perception.plane import PlaneFit, RansacConfig, _moments_cols, _select_inliers, ransac_plane_cols
+from boomtip.perception.plane_refine import refine_plane_biweight_cols
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes
 
@@ -118,6 +118,8 @@ def detect_deck(
     times = times if times is not None else StageTimes()
     with times.stage(f"{prefix}.preprocess"):
         pts, _, _ = preprocess(points_sensor, None, cfg.preprocess, rng)
+        # (3, N), one contiguous row per axis, for every pass below (no copy after a range crop)
+        cols = np.ascontiguousarray(pts.T)
     if len(pts) < cfg.min_points:
         return DeckResult(float("nan"), None, None, pts, f"too few points ({len(pts)} < {cfg.min_points})")
     with times.stage(f"{prefix}.planes"):
@@ -125,37 +127,55 @@ def detect_deck(
             result = multi_plane_deck(pts, -wire_dir_sensor, cfg.multi_plane, rng)
             deck = result.deck if result is not None else None
         else:
-            candidates = deck_like_planes(pts, -wire_dir_sensor, cfg, rng)
+            candidates = _deck_like_planes_cols(cols, -wire_dir_sensor, cfg, rng)
             deck = candidates[-1] if candidates else None  # the lowest
             if prior_D_m is not None:
-                deck = _nearest_the_prior(pts, candidates, wire_dir_sensor, p_tip_sensor, prior_D_m, prior_tol_m, cfg, rng)
+                deck = _nearest_the_prior(cols, candidates, wire_dir_sensor, p_tip_sensor, prior_D_m, prior_tol_m, cfg, rng)
                 if deck is None:
                     return DeckResult(float("nan"), None, None, pts, f"no deck plane within {prior_tol_m:.2f} m of the "
                                       f"expected D = {prior_D_m:.2f} m")
     if deck is None:
         return DeckResult(float("nan"), None, None, pts, "no deck plane")
+    x_in = None  # the deck inliers' columns, once gathered
     if cfg.biweight_iterations:
         with times.stage(f"{prefix}.refine"):
             thr = cfg.multi_plane.ransac.distance_threshold_m
-            plane = refine_plane_biweight(pts, deck.plane, cfg.biweight_scale * thr, cfg.biweight_iterations)
-            mask = np.abs(pts @ plane[:3] + plane[3]) < thr
-            if np.count_nonzero(mask) >= 3:
-                deck = replace(deck, plane=plane, inlier_mask=mask)
+            plane = refine_plane_biweight_cols(cols, deck.plane, cfg.biweight_scale * thr, cfg.biweight_iterations)
+            idx = _select_inliers(cols, plane, thr)
+            if len(idx) >= 3:
+                x_in = cols.take(idx, axis=1)
+                mask = np.zeros(cols.shape[1], dtype=bool)
+                mask[idx] = True
+                deck = replace(deck, plane=plane, inlier_mask=mask, **_inlier_moments(x_in))
     with times.stage(f"{prefix}.intersect"):
         D = heave_distance(deck.plane, wire_dir_sensor, p_tip_sensor)
         if not np.isfinite(D) or D <= 0:
             return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
-        sigma = plane_sigma_at(pts[deck.inlier_mask], deck.plane, p_tip_sensor + D * wire_dir_sensor)
+        if x_in is None:
+            x_in = cols.take(np.flatnonzero(deck.inlier_mask), axis=1)
+        if deck.centroid is None:
+            deck = replace(deck, **_inlier_moments(x_in))
+        resid = deck.plane[:3] @ x_in
+        resid += deck.plane[3]
+        sigma = prediction_sigma(x_in.shape[1], float(resid @ resid), deck.centroid, deck.scatter_evals,
+                                 deck.scatter_evecs, p_tip_sensor + D * wire_dir_sensor)
     status = "ok"
     if deck.capped:  # still a measurement, but the search did not reach its confidence
         status = f"ok (RANSAC capped at {deck.iterations} of {min(deck.needed, 1e9):.0f} hypotheses)"
     return DeckResult(D, deck.plane, deck, pts, status, sigma)
 
 
-def _nearest_the_prior(pts, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng) -> PlaneFit | None:
+def _inlier_moments(x_in: np.ndarray) -> dict:
+    """A PlaneFit's moment fields for the inliers stored column-wise, (3, M)."""
+    centroid, scatter = _moments_cols(x_in)
+    evals, evecs = np.linalg.eigh(scatter)
+    return {"centroid": centroid, "scatter_evals": evals, "scatter_evecs": evecs}
+
+
+def _nearest_the_prior(cols, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng) -> PlaneFit | None:
     """Of the candidates, the plane whose D lies nearest the prior, within tol_m. When none does
     (a larger plane below, the sea, hid the deck from the downward search), the deck is sought
-    among the points in a band about the prior along the wire."""
+    among the points (columns, (3, N)) in a band about the prior along the wire."""
     def D(c):
         d = heave_distance(c.plane, wire, p_tip)
         return abs(d - prior_D_m) if np.isfinite(d) else np.inf
@@ -163,18 +183,19 @@ def _nearest_the_prior(pts, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng)
     best = min(candidates, key=D, default=None)
     if best is not None and D(best) <= tol_m:
         return best
-    along = (pts - p_tip) @ wire
-    band = np.flatnonzero(np.abs(along - prior_D_m) <= tol_m + cfg.prior_band_m)
+    along = wire @ cols
+    along -= wire @ p_tip + prior_D_m
+    band = np.flatnonzero(np.abs(along, out=along) <= tol_m + cfg.prior_band_m)
     if len(band) < cfg.min_points:
         return None
     mp = cfg.multi_plane
-    fit = ransac_plane(pts[band], mp.ransac, rng, axis=-wire, max_axis_angle_deg=mp.max_tilt_deg)
+    fit = ransac_plane_cols(cols.take(band, axis=1), mp.ransac, rng, axis=-wire, max_axis_angle_deg=mp.max_tilt_deg)
     if fit is None:
         return None
-    mask = np.zeros(len(pts), dtype=bool)
+    mask = np.zeros(cols.shape[1], dtype=bool)
     mask[band[fit.inlier_mask]] = True
     plane = replace(fit, inlier_mask=mask)
-    return plane if D(plane) <= tol_m and deck_like(pts[mask], plane.plane, wire, cfg.min_extent_m) else None
+    return plane if D(plane) <= tol_m and deck_like_fit(plane, wire, cfg.min_extent_m) else None
 
 
 def deck_like(inliers: np.ndarray, plane: np.ndarray, wire_dir: np.ndarray, min_extent_m: float) -> bool:
@@ -184,7 +205,16 @@ def deck_like(inliers: np.ndarray, plane: np.ndarray, wire_dir: np.ndarray, min_
     c = inliers.mean(axis=0)
     X = inliers - c
     evals, evecs = np.linalg.eigh(X.T @ X / len(inliers))
-    extent = 4 * np.sqrt(np.maximum(evals[1:], 0))  # +-2 sigma along the two in-plane axes
+    return _deck_like(c, evals, evecs, plane, wire_dir, min_extent_m)
+
+
+def deck_like_fit(fit: PlaneFit, wire_dir: np.ndarray, min_extent_m: float) -> bool:
+    """:func:`deck_like` from a fit's inlier moments (no pass over the points)."""
+    return _deck_like(fit.centroid, fit.scatter_evals / fit.n_inliers, fit.scatter_evecs, fit.plane, wire_dir, min_extent_m)
+
+
+def _deck_like(c, cov_evals, evecs, plane, wire_dir, min_extent_m) -> bool:
+    extent = 4 * np.sqrt(np.maximum(cov_evals[1:], 0))  # +-2 sigma along the two in-plane axes
     if extent[0] < min_extent_m:
         return False
     denom = float(plane[:3] @ wire_dir)
@@ -206,27 +236,34 @@ def deck_like_planes(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rn
     holding at least min_area_fraction of the first (largest) plane's points, each search run
     only on the points below the plane before (Algorithm 3's metric with the improved
     selection). Without a prior the deck is the lowest of them."""
+    return _deck_like_planes_cols(np.ascontiguousarray(as_points(pts).T), up_sensor, cfg, rng)
+
+
+def _deck_like_planes_cols(cols: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> list[PlaneFit]:
+    """:func:`deck_like_planes` on points stored column-wise, (3, N) C-contiguous."""
     mp = cfg.multi_plane
     wire = -up_sensor
-    current = ransac_plane(pts, mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
+    current = ransac_plane_cols(cols, mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg)
     if current is None:
         return []
     # Planes that are not deck-like (a patch of the crane's own deck off to the side, a strip
     # of hull) still bound the search: only what lies below them can be the feeder deck.
-    found = [current] if deck_like(pts[current.inlier_mask], current.plane, wire, cfg.min_extent_m) else []
+    found = [current] if deck_like_fit(current, wire, cfg.min_extent_m) else []
     need = max(mp.min_inliers, int(mp.min_area_fraction * current.n_inliers))
     for _ in range(mp.max_planes - 1):
         # Normals point towards the sensor, so points below the plane have negative distance.
-        below = np.flatnonzero(pts @ current.plane[:3] + current.plane[3] < -cfg.below_margin_m)
+        r = current.plane[:3] @ cols
+        r += current.plane[3]
+        below = np.flatnonzero(r < -cfg.below_margin_m)
         if len(below) < need:
             break
-        cand = ransac_plane(pts[below], mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg,
-                            min_support=need / len(below))  # smaller planes are refused below anyway
+        cand = ransac_plane_cols(cols.take(below, axis=1), mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg,
+                                 min_support=need / len(below))  # smaller planes are refused below anyway
         if cand is None or cand.n_inliers < need:
             break
-        mask = np.zeros(len(pts), dtype=bool)
+        mask = np.zeros(cols.shape[1], dtype=bool)
         mask[below[cand.inlier_mask]] = True
         current = replace(cand, inlier_mask=mask)
-        if deck_like(pts[mask], current.plane, wire, cfg.min_extent_m):
+        if deck_like_fit(current, wire, cfg.min_extent_m):
             found.append(current)
     return found  # from the top down

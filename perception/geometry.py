@@ -38,7 +38,7 @@ def rotation_level_sensor(rpy_crane_rad: np.ndarray, T_crane_boomtip: np.ndarray
 
 def wire_dir_sensor(R_level_sensor: np.ndarray) -> np.ndarray:
     """Gravity's direction (the wire, straight down) in sensor axes: n_w^s."""
-    return R_level_sensor.T @ -E_Z
+    return -R_level_sensor[2]  # R^T (-e_z): the third row, negated (a new array)
 
 
 def tip_in_sensor(T_boomtip_sensor: np.ndarray) -> np.ndarray:
@@ -147,14 +147,31 @@ class NormalRate:
     def _fit(self) -> list[list[float]]:
         """Coefficients [c0, c1, c2] (each an xyz list) of n(t) = c0 + c1 dt + c2 dt^2 about t[-1]."""
         if self._coef is None:
-            tt = np.asarray(self.t) - self.t[-1]
-            deg = 2 if len(tt) >= 6 else 1
-            V = np.vander(tt, deg + 1, increasing=True)  # columns 1, t, t^2
-            VtV = V.T @ V
-            # Normal equations: the system is at most 3x3 and well conditioned (times within one
-            # window about the newest sample); lstsq's SVD costs several times more.
-            inv = inv3(VtV) if deg == 2 else np.linalg.inv(VtV)
-            coef = (inv @ (V.T @ np.asarray(self.n))).tolist()
+            k = len(self.t)
+            deg = 2 if k >= 6 else 1
+            m = deg + 1
+            # One table [1, dt, dt^2 | n] and one product give the normal equations' both sides;
+            # the system is at most 3x3 and well conditioned (times within one window about the
+            # newest sample), solved by its adjugate in Python floats: np.vander, np.linalg.inv
+            # and the separate products cost several times the arithmetic (once per LiDAR deck).
+            W = np.empty((k, 6))
+            W[:, 0] = 1.0
+            np.subtract(self.t, self.t[-1], out=W[:, 1])
+            np.multiply(W[:, 1], W[:, 1], out=W[:, 2])
+            W[:, 3:] = self.n
+            G = (W[:, :m].T @ W).tolist()  # rows i: [V^T V (m columns) ..., V^T n (3)]
+            if deg == 2:
+                (a0, a1, a2), (_, b1, b2), (_, _, c2) = (row[:3] for row in G)
+                adj = [[b1 * c2 - b2 * b2, a2 * b2 - a1 * c2, a1 * b2 - a2 * b1],
+                       [a2 * b2 - a1 * c2, a0 * c2 - a2 * a2, a2 * a1 - a0 * b2],
+                       [a1 * b2 - a2 * b1, a2 * a1 - a0 * b2, a0 * b1 - a1 * a1]]
+                det = a0 * adj[0][0] + a1 * adj[1][0] + a2 * adj[2][0]
+                r0, r1, r2 = (row[3:] for row in G)
+                coef = [[(a * x + b * y + c * z) / det for x, y, z in zip(r0, r1, r2)] for a, b, c in adj]
+            else:
+                (a0, a1, r0), (_, b1, r1) = ((row[0], row[1], row[3:]) for row in G)
+                det = a0 * b1 - a1 * a1
+                coef = [[(a * x + b * y) / det for x, y in zip(r0, r1)] for a, b in ((b1, -a1), (-a1, a0))]
             # Kept as Python floats: every radar frame evaluates the polynomial at its own time,
             # and a few float products beat numpy's per-call overhead on 3-vectors.
             self._coef = coef if deg == 2 else coef + [[0.0, 0.0, 0.0]]
@@ -208,10 +225,20 @@ def plane_sigma_at(points_on_plane: np.ndarray, plane: np.ndarray, query: np.nda
 
 
 def _prediction_sigma(pts, plane, c, evals, evecs, query) -> float:
-    N = len(pts)
     resid = pts @ plane[:3] + plane[3]
-    s2 = float(resid @ resid) / (N - 3)
-    q = (query - c) @ evecs[:, 1:]  # in-plane axes: the two largest scatter directions
+    return prediction_sigma(len(pts), float(resid @ resid), c, evals, evecs, query)
+
+
+def prediction_sigma(n_points: int, sum_sq_resid: float, centroid: np.ndarray, evals: np.ndarray, evecs: np.ndarray,
+                     query: np.ndarray) -> float:
+    """:func:`plane_sigma_at` from what a fit already has: the number of points, their summed
+    squared residuals to the plane, their centroid and the eigen-decomposition (ascending) of
+    their scatter about it. NaN with fewer than 4 points."""
+    N = n_points
+    if N < 4:
+        return float("nan")
+    s2 = sum_sq_resid / (N - 3)
+    q = (query - centroid) @ evecs[:, 1:]  # in-plane axes: the two largest scatter directions
     var = s2 * (1.0 / N + q[0] ** 2 / evals[1] + q[1] ** 2 / evals[2])
     return float(math.sqrt(max(var, 0.0)))
 

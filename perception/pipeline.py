@@ -74,6 +74,24 @@ def doppler_band_mps(radar, cfg: PipelineConfig) -> float:
     return max(cfg.doppler_band_floor_mps, cfg.doppler_band_sigmas * sigma)
 
 
+def doppler_inputs(frame: Frame, pc: PreprocessConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """A radar frame's detections for the Doppler fit: the points (sensor frame, m; the fit
+    normalises them to beam directions) and range rates (m/s) of the finite detections within
+    the range window. None without a range_rate field. The radar reports each detection's
+    range; without it, the norm of the point."""
+    rr = frame.fields.get("range_rate")
+    if rr is None:
+        return None
+    rng_m = frame.fields.get("range")
+    rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor)) if rng_m is None else rng_m.astype(np.float64)
+    keep = rng_m >= max(pc.min_range_m, 1e-6)
+    keep &= rng_m <= pc.max_range_m
+    keep &= np.isfinite(rr)  # NaN compares False
+    if keep.all():  # the usual case: no gathers
+        return frame.points_sensor, rr.astype(np.float64)
+    return frame.points_sensor[keep], rr[keep].astype(np.float64)
+
+
 @dataclass
 class Measurement:
     t_s: float
@@ -238,17 +256,10 @@ class HeavePipeline:
     def _doppler(self, frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out) -> dict:
         res: dict[str, tuple[float, float, str]] = {}
         with times.stage("doppler.preprocess"):
-            rr = frame.fields.get("range_rate")
-            if rr is None:
+            inputs = doppler_inputs(frame, self.cfg.doppler_preprocess)
+            if inputs is None:
                 return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
-            # Only finite detections within the range window: the full preprocess is not needed.
-            # The radar reports each detection's range; without it, the norm of the point.
-            rng_m = frame.fields.get("range")
-            rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor)) if rng_m is None else rng_m.astype(np.float64)
-            pc = self.cfg.doppler_preprocess
-            keep = (rng_m >= max(pc.min_range_m, 1e-6)) & (rng_m <= pc.max_range_m) & np.isfinite(rr)  # NaN compares False
-            pts = frame.points_sensor[keep]  # doppler_velocity takes them as beam directions and normalises them
-            range_rate_mps = rr[keep].astype(np.float64)
+            pts, range_rate_mps = inputs
         with times.stage("doppler.fit"):
             prior = self.last_doppler[1] if self.last_doppler and frame.t_s - self.last_doppler[0] <= 0.2 else None
             fit = doppler_velocity(pts, range_rate_mps, self.cfg.doppler, rng, prior) if len(pts) >= 3 else None

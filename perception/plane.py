@@ -48,6 +48,7 @@ __all__ = [
     "fit_plane_lsq",
     "orient_plane_towards",
     "ransac_plane",
+    "ransac_plane_cols",
     "plane_tilt_deg",
     "wire_plane_distance",
     "transform_plane",
@@ -100,6 +101,12 @@ class PlaneFit:
     iterations: int
     needed: float = 0.0
     capped: bool = False
+    # The inliers' centroid and the eigen-decomposition (eigenvalues ascending, eigenvectors as
+    # columns) of their scatter about it, from the least-squares fit: a caller judging their
+    # extent needs no second pass over the points. None when a fit did not supply them.
+    centroid: np.ndarray | None = None
+    scatter_evals: np.ndarray | None = None
+    scatter_evecs: np.ndarray | None = None
 
     @property
     def n_inliers(self) -> int:
@@ -120,23 +127,23 @@ def orient_plane_towards(plane: np.ndarray, point: np.ndarray | None = None) -> 
     return -plane if s < 0 else plane.copy()
 
 
-def _plane_from_scatter(centroid: np.ndarray, scatter: np.ndarray) -> np.ndarray:
-    """Plane through ``centroid`` whose normal is the smallest-eigenvalue eigenvector of ``scatter``."""
-    _, vecs = np.linalg.eigh(scatter)
+def _plane_and_eig(centroid: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Plane through ``centroid`` whose normal is the smallest-eigenvalue eigenvector of
+    ``scatter``, oriented towards the sensor origin (d >= 0); with the eigenvalues and vectors."""
+    evals, vecs = np.linalg.eigh(scatter)
     n = vecs[:, 0]
-    n = n / np.linalg.norm(n)
+    n = n / np.sqrt(n.dot(n))  # np.linalg.norm's own arithmetic, without its wrapper
     plane = np.empty(4)
     plane[:3] = n
     plane[3] = -float(n @ centroid)
-    return orient_plane_towards(plane)
+    if plane[3] < 0:  # orient_plane_towards the origin, inline: it runs for every fit
+        plane = -plane
+    return plane, evals, vecs
 
 
-def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
-    """Least-squares plane through points stored COLUMN-wise, (3, M) C-contiguous float64, M >= 3.
+def _moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid and scatter about it of points stored COLUMN-wise, (3, M) C-contiguous float64.
 
-    The normal is the right singular vector of the centred points with the smallest singular value,
-    computed as the smallest-eigenvalue eigenvector of the 3x3 scatter matrix of the centred points
-    (mathematically identical to the SVD, and 10-20x faster than an SVD of an (M, 3) matrix).
     The scatter is the raw second-moment matrix of the rows minus the centroid term.
     Rounding: entries carry an absolute error of about M |p|^2 eps; relative to the eigen-gap
     M * extent^2 that tilts the normal by |p|^2 eps / extent^2, i.e. 2e-11 rad for a 1 m patch at
@@ -147,8 +154,17 @@ def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
     # numpy's own sum-of-products loop, not BLAS: on a loaded 2-core machine a multithreaded BLAS
     # dot/GEMM here waited up to 100 ms for its helper thread (measured), einsum never does
     raw = np.einsum("ij,kj->ik", cols, cols)
-    scatter = raw - np.outer(s, s) / m
-    return _plane_from_scatter(s / m, scatter)
+    return s / m, raw - np.outer(s, s) / m
+
+
+def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
+    """Least-squares plane through points stored COLUMN-wise, (3, M) C-contiguous float64, M >= 3.
+
+    The normal is the right singular vector of the centred points with the smallest singular value,
+    computed as the smallest-eigenvalue eigenvector of the 3x3 scatter matrix of the centred points
+    (mathematically identical to the SVD, and 10-20x faster than an SVD of an (M, 3) matrix).
+    """
+    return _plane_and_eig(*_moments_cols(cols))[0]
 
 
 def _select_inliers(cols: np.ndarray, plane: np.ndarray, thr: float) -> np.ndarray:
@@ -231,15 +247,9 @@ def _needed_iterations(inlier_ratio: float, confidence: float, sample_size: int 
     return math.log(1.0 - confidence) / math.log1p(-p_good)
 
 
-def ransac_plane(
-    points: np.ndarray,
-    cfg: RansacConfig | None = None,
-    rng: np.random.Generator | None = None,
-    *,
-    axis: np.ndarray | None = None,
-    max_axis_angle_deg: float | None = None,
-    min_support: float = 0.0,
-) -> PlaneFit | None:
+def ransac_plane(points: np.ndarray, cfg: RansacConfig | None = None, rng: np.random.Generator | None = None, *,
+                 axis: np.ndarray | None = None, max_axis_angle_deg: float | None = None,
+                 min_support: float = 0.0) -> PlaneFit | None:
     """Vectorised RANSAC plane fit (sensor frame, metres).
 
     1. Score set: a random subsample of ``cfg.subsample_size`` points (all points if fewer; drawn
@@ -261,8 +271,7 @@ def ransac_plane(
        other round scores the current plane on ALL points, takes those inliers and refits on them.
        The returned plane is the last fit and ``inlier_mask`` is exactly the set of points it was
        fitted to (the all-point inliers of the previous plane). With the default 2 rounds this costs
-       one pass over the cloud plus one gather + fit instead of three passes and two full fits
-       (measured on 100k points: 5-7 ms -> 4-5 ms).
+       one pass over the cloud plus one gather + fit instead of three passes and two full fits.
 
     ``min_support``: the smallest inlier share the caller would accept. The budget is then the
     one that finds a plane of at least that share, not the (much larger) one that makes sure
@@ -278,23 +287,28 @@ def ransac_plane(
     :func:`~boomtip.perception.preprocess.preprocess` first). The plane is oriented with d >= 0
     (sensor on the positive side).
     """
-    pts = as_points(points)
+    cols = np.ascontiguousarray(as_points(points).T)
+    return ransac_plane_cols(cols, cfg, rng, axis=axis, max_axis_angle_deg=max_axis_angle_deg, min_support=min_support)
+
+
+def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np.random.Generator | None = None, *,
+                      axis: np.ndarray | None = None, max_axis_angle_deg: float | None = None,
+                      min_support: float = 0.0) -> PlaneFit | None:
+    """:func:`ransac_plane` on points stored column-wise, (3, N) C-contiguous float64 (sensor
+    frame, metres): a caller that runs several searches on one cloud lays it out once.
+    The fit also carries its inliers' centroid and scatter eigen-decomposition."""
     cfg = cfg or RansacConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
-    n_pts = len(pts)
+    n_pts = cols.shape[1]
     if n_pts < 3:
         return None
     thr = float(cfg.distance_threshold_m)
-    # (3, N) copy: distances become one contiguous GEMV and gathers / moments run on contiguous
-    # rows (about 3x faster than on (N, 3) rows; numpy's axis-0 reductions on (N, 3) are slow).
-    cols = np.ascontiguousarray(pts.T)
 
     # --- score set: subsample, centred, float32, homogeneous (4, S) -----------------------------
     s = min(n_pts, cfg.subsample_size)
     sub = cols.take(rng.integers(0, n_pts, size=s), axis=1) if s < n_pts else cols
     centre = sub.mean(axis=1)
     sub_c = sub - centre[:, None]  # (3, S) float64, used for hypotheses and the first refit
-    sub_rows = sub_c.T  # (S, 3) view
     sub_h = np.ones((4, s), dtype=np.float32)
     sub_h[:3] = sub_c
     thr32 = np.float32(thr)
@@ -309,10 +323,7 @@ def ransac_plane(
         ax = ax / np.linalg.norm(ax)
         cos_max = math.cos(math.radians(max_axis_angle_deg))
 
-    best_count = -1
-    best_n = None
-    best_d = 0.0
-    drawn = 0
+    best_count, best_n, best_d, drawn = -1, None, 0.0, 0
     needed = min(float(cfg.max_iterations), _needed_iterations(min_support, cfg.confidence))
     deadline = time.perf_counter() + 1e-3 * cfg.max_time_ms if cfg.max_time_ms is not None else math.inf
     timed_out = False
@@ -323,28 +334,37 @@ def ransac_plane(
         b = min(cfg.batch_size, cfg.max_iterations - drawn)
         tri = rng.integers(0, s, size=(b, 3))
         drawn += b
-        p0 = sub_rows[tri[:, 0]]
-        e1 = sub_rows[tri[:, 1]] - p0
-        e2 = sub_rows[tri[:, 2]] - p0
-        nrm = np.cross(e1, e2)
-        norms = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
+        # The triplets by columns, (3, B) rows: the cross and dot products written out on contiguous
+        # rows cost a fraction of np.cross / einsum on (B, 3) rows (same products, same order).
+        p0, e1, e2 = (sub_c.take(tri[:, j], axis=1) for j in range(3))
+        e1 -= p0
+        e2 -= p0
+        (x1, y1, z1), (x2, y2, z2) = e1, e2
+        nrm = np.empty((3, b))
+        np.subtract(y1 * z2, z1 * y2, out=nrm[0])
+        np.subtract(z1 * x2, x1 * z2, out=nrm[1])
+        np.subtract(x1 * y2, y1 * x2, out=nrm[2])
+        norms = np.sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2])
         # degenerate (repeated or collinear) triplets: normal undefined
-        scale = np.maximum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2))
+        scale = np.maximum(x1 * x1 + y1 * y1 + z1 * z1, x2 * x2 + y2 * y2 + z2 * z2)
         ok = norms > 1e-9 * np.maximum(scale, 1e-12)
-        if not np.any(ok):
+        if not ok.any():
             continue
-        nrm = nrm[ok] / norms[ok, None]
-        p0 = p0[ok]
+        keep = np.flatnonzero(ok)
+        nrm = nrm.take(keep, axis=1)
+        nrm /= norms[keep]
+        p0 = p0.take(keep, axis=1)
         if cos_max is not None:
-            keep = np.abs(nrm @ ax) >= cos_max
-            if not np.any(keep):
+            tilt_ok = np.abs(ax[0] * nrm[0] + ax[1] * nrm[1] + ax[2] * nrm[2]) >= cos_max
+            if not tilt_ok.any():
                 continue
-            nrm, p0 = nrm[keep], p0[keep]
-        d = -np.einsum("ij,ij->i", nrm, p0)
+            keep = np.flatnonzero(tilt_ok)
+            nrm, p0 = nrm.take(keep, axis=1), p0.take(keep, axis=1)
+        d = -(nrm[0] * p0[0] + nrm[1] * p0[1] + nrm[2] * p0[2])
         # (B, S) signed distances with ONE GEMM, then |.| < thr counted per hypothesis
         # (uint8 row sums are cheaper than count_nonzero(axis=...))
         hyp = np.empty((len(d), 4), dtype=np.float32)
-        hyp[:, :3] = nrm
+        hyp[:, :3] = nrm.T
         hyp[:, 3] = d
         dist = np.empty((len(d), s), dtype=np.float32)
         for c0 in range(0, len(d), chunk):  # a few GEMM calls, see `chunk` above
@@ -354,7 +374,7 @@ def ransac_plane(
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best_count = int(counts[k])
-            best_n = nrm[k]
+            best_n = nrm[:, k].copy()
             best_d = float(d[k])
             needed = _needed_iterations(max(best_count / s, min_support), cfg.confidence)
 
@@ -372,6 +392,7 @@ def ransac_plane(
     plane = np.concatenate([plane_c[:3], [plane_c[3] - plane_c[:3] @ centre]])  # sensor frame
     idx = _select_inliers(cols, plane, thr)
     x_in = None  # the columns of idx, once gathered
+    moments = None  # (centroid, evals, evecs) of x_in, once fitted
     for r in range(full_rounds):
         if r > 0:  # re-select with the previous round's fit
             idx = _select_inliers(cols, plane, thr)
@@ -379,18 +400,21 @@ def ransac_plane(
         if len(idx) < 3:
             break
         x_in = cols.take(idx, axis=1)
-        plane = _fit_plane_cols(x_in)
+        centroid, scatter = _moments_cols(x_in)
+        plane, evals, evecs = _plane_and_eig(centroid, scatter)
+        moments = (centroid, evals, evecs)
     n_in = len(idx)
     if n_in < max(cfg.min_inliers, 3):
         return None
     plane = orient_plane_towards(plane)
     mask = np.zeros(n_pts, dtype=bool)
     mask[idx] = True
-    if x_in is None:
+    if x_in is None or moments is None:  # no full round ran (refit_iterations <= 1)
         x_in = cols.take(idx, axis=1)
+        centroid, scatter = _moments_cols(x_in)
+        moments = (centroid, *np.linalg.eigh(scatter))
     r_in = plane[:3] @ x_in + plane[3]
     rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
     return PlaneFit(plane=plane, inlier_mask=mask, inlier_ratio=n_in / n_pts, rms_m=rms, iterations=drawn,
-                    needed=needed, capped=timed_out or drawn < needed)
-
-
+                    needed=needed, capped=timed_out or drawn < needed, centroid=moments[0],
+                    scatter_evals=moments[1], scatter_evecs=moments[2])

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from boomtip.perception.cloud import as_points
-from boomtip.perception.plane import _plane_from_scatter, orient_plane_towards
+from boomtip.perception.plane import _plane_and_eig, orient_plane_towards
 
-__all__ = ["refine_plane_biweight"]
+__all__ = ["refine_plane_biweight", "refine_plane_biweight_cols"]
 
 
 def _biweight_step(cols: np.ndarray, plane: np.ndarray, inv_scale2: float) -> tuple[np.ndarray, float]:
@@ -24,7 +24,7 @@ def _biweight_step(cols: np.ndarray, plane: np.ndarray, inv_scale2: float) -> tu
     xw = cols * w
     centre = xw.sum(axis=1) / wsum
     scatter = np.einsum("ij,kj->ik", xw, cols) - wsum * np.outer(centre, centre)
-    new = _plane_from_scatter(centre, scatter)
+    new = _plane_and_eig(centre, scatter)[0]
     if new[:3] @ plane[:3] < 0:  # keep the start's orientation while iterating
         new = -new
     return new, abs(new[3] - plane[3]) + 10.0 * float(np.linalg.norm(new[:3] - plane[:3]))
@@ -44,10 +44,18 @@ def refine_plane_biweight(points: np.ndarray, plane: np.ndarray, scale_m: float,
     even stride through them), the last on all of them. Sensor frame, metres; oriented like
     the start (d >= 0)."""
     cols = np.ascontiguousarray(as_points(points).T)
+    return refine_plane_biweight_cols(cols, plane, scale_m, iterations, tol_m, max_points)
+
+
+def refine_plane_biweight_cols(cols: np.ndarray, plane: np.ndarray, scale_m: float, iterations: int = 10,
+                               tol_m: float = 1e-4, max_points: int = 8192) -> np.ndarray:
+    """:func:`refine_plane_biweight` on points stored column-wise, (3, N) C-contiguous float64."""
     plane = np.asarray(plane, dtype=np.float64).copy()
     # the plane moves by centimetres from a RANSAC start: the points within two scales of the
     # start are all the iterations can ever weigh, so they are gathered once
-    near = cols.take(np.flatnonzero(np.abs(plane[:3] @ cols + plane[3]) < 2.0 * scale_m), axis=1)
+    r = plane[:3] @ cols
+    r += plane[3]
+    near = cols.take(np.flatnonzero(np.abs(r, out=r) < 2.0 * scale_m), axis=1)
     if near.shape[1] < 3:
         return plane
     origin = near.mean(axis=1)

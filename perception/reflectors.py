@@ -164,19 +164,28 @@ def detect_reflectors(
     times = times if times is not None else StageTimes()
     empty = np.zeros((0, 3))
     with times.stage("reflectors.threshold"):
-        # Squared range by columns (einsum costs ~3x more here); the range compensation is only
+        # Squared range by columns into two buffers (einsum costs ~3x more here, and each further
+        # full-size temporary costs page faults on a busy machine); the range compensation is only
         # computed in full for the percentile's sample, the threshold test scales the other side.
         p = points_sensor
-        r2 = p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1] + p[:, 2] * p[:, 2]
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        r2 = np.multiply(x, x)
+        tmp = np.multiply(y, y)
+        r2 += tmp
+        r2 += np.multiply(z, z, out=tmp)
         if cfg.range_compensate:
             step = max(1, len(r2) // 2000)
             thr = intensity_threshold(intensity[::step] * (r2[::step] / INTENSITY_REFERENCE_RANGE_M**2), cfg)
-            idx = np.flatnonzero(intensity * r2 > thr * INTENSITY_REFERENCE_RANGE_M**2)  # NaN compares False
+            r2 *= intensity  # intensity x r^2, in place
+            idx = np.flatnonzero(r2 > thr * INTENSITY_REFERENCE_RANGE_M**2)  # NaN compares False
+            product_finite = np.isfinite(r2[idx]).all()
         else:
             thr = intensity_threshold(intensity, cfg)
             idx = np.flatnonzero(intensity > thr)
+            product_finite = False
         bright = p[idx]
-        bright = bright[np.isfinite(bright).all(axis=1) & np.isfinite(intensity[idx])]  # inf points are garbage
+        if not product_finite:  # a finite intensity x r^2 means a finite point and intensity
+            bright = bright[np.isfinite(bright).all(axis=1) & np.isfinite(intensity[idx])]  # inf points are garbage
     if len(bright) < 3:
         return ReflectorResult(float("nan"), None, empty, bright, thr, f"no reflectors ({len(bright)} bright points)")
     if len(bright) > cfg.max_bright_points:

@@ -167,9 +167,13 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
     # In acquisition order, as a run feeds them: the rotation-aware Doppler uses the latest deck.
     schedule = sorted([(i / scenario.installation.lidar.rate_hz, "lidar", i) for i in range(frames)]
                       + [(i / scenario.installation.radar.rate_hz, "radar", i) for i in range(n_radar)])
+    recorded = []  # each frame with what its stages were given, for the stage comparison below
     for t, sensor, i in schedule:
         fr = sim.lidar_frame(i, t) if sensor == "lidar" else sim.radar_frame(i, t)
-        for m in pipe.process(fr).measurements:
+        doppler_prior = pipe.last_doppler[1] if pipe.last_doppler and t - pipe.last_doppler[0] <= 0.2 else None
+        out = pipe.process(fr)
+        recorded.append((fr, out, doppler_prior, pipe._deck_prior(t, "lidar", out.reflectors) if sensor == "lidar" else None))
+        for m in out.measurements:
             d = per_method.setdefault(m.method, {"apt_ms": [], "err": [], "valid": 0, "frames": 0})
             d["apt_ms"].append(m.time_ms)
             d["frames"] += 1
@@ -183,6 +187,7 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
     }
     return {
         "frames": frames,
+        "heave_stages": _heave_stages_vs_reference(pipe, recorded),
         "points_per_frame": float(np.mean([len(sim.lidar_frame(0, 0.0))])),
         "preprocess_ms": {k: ms(v) for k, v in t_pre.items()},
         "preprocess_ratio": t_pre["open3d"] / t_pre["boomtip"],
@@ -196,6 +201,92 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
         "baseline": f"Open3D remove_non_finite_points + voxel_down_sample({voxel_m}) + remove_statistical_outlier({sor_nb}, {sor_std}) "
                     f"+ segment_plane x{LIDAR_DECK.multi_plane.max_planes} (Algorithm 3)",
     }
+
+
+def _heave_stages_vs_reference(pipe, recorded: list, repeats: int = 5) -> dict:
+    """The heave chain's stages (LiDAR deck, reflectors, the Doppler fit and the deck's spin for
+    the rotation-aware D-dot) against the same stages as they were (tools.heave_reference_deck,
+    tools.heave_reference), on the inputs the pipeline gave them. Each input is run `repeats`
+    times by each, alternating, and the least wall time of each counts (as timeit does: on a
+    shared machine a call that was preempted measures the machine, not the code). Ms per call
+    (the mean of those least times), their ratio, and the largest difference between the two
+    results (the same algorithm: zero up to rounding)."""
+    from boomtip.perception.deck import detect_deck
+    from boomtip.perception.doppler import doppler_velocity
+    from boomtip.perception.geometry import NormalRate
+    from boomtip.perception.pipeline import doppler_inputs
+    from boomtip.perception.reflectors import detect_reflectors
+    from boomtip.tools import heave_reference as ref
+    from boomtip.tools import heave_reference_deck as ref_deck
+
+    cfg = pipe.cfg
+    calls: dict[str, list] = {"deck_lidar": [], "reflectors_lidar": [], "doppler_fit": [], "deck_spin": []}
+    spins = (NormalRate(cfg.normal_window_s), ref.ReferenceNormalRate(cfg.normal_window_s))
+    for fr, out, doppler_prior, deck_prior in recorded:
+        wire, p_tip = out.extras.get("wire_dir_sensor"), pipe.p_tip[fr.sensor]
+        if wire is None:
+            continue
+        if fr.sensor == "lidar":
+            seed = [pipe.seed, 1, fr.index]
+            args = (fr.points_sensor, wire, p_tip, cfg.deck_lidar)
+            kw = {"prior_D_m": deck_prior[0], "prior_tol_m": deck_prior[1]}
+            calls["deck_lidar"].append((
+                lambda a=args, k=kw, s=seed: detect_deck(*a, np.random.default_rng(s), **k).D_m,
+                lambda a=args, k=kw, s=seed: ref_deck.detect_deck(*a, np.random.default_rng(s), **k).D_m))
+            if "intensity" in fr.fields:
+                args = (fr.points_sensor, fr.fields["intensity"], wire, p_tip, cfg.reflectors)
+                calls["reflectors_lidar"].append((lambda a=args: detect_reflectors(*a).D_m,
+                                                  lambda a=args: ref.detect_reflectors(*a).D_m))
+            if out.deck_lidar is not None and out.deck_lidar.ok:
+                for nr in spins:
+                    nr.add(fr.t_s, out.extras["R_level_sensor"] @ out.deck_lidar.plane_sensor[:3])
+            continue
+        inputs = doppler_inputs(fr, cfg.doppler_preprocess)
+        if inputs is not None and len(inputs[0]) >= 3:
+            args = (*inputs, cfg.doppler, np.random.default_rng(0), doppler_prior)
+            calls["doppler_fit"].append((lambda a=args: _velocity(doppler_velocity(*a)),
+                                         lambda a=args: _velocity(ref.doppler_velocity(*a))))
+        if spins[0].omega(fr.t_s) is not None:
+            # the fit is redone on the first query after a new normal: each call starts afresh
+            calls["deck_spin"].append(tuple(lambda nr=nr, c=_spin_state(nr), t=fr.t_s: _fresh_omega(nr, c, t) for nr in spins))
+
+    out_stages = {}
+    for stage, pairs in calls.items():
+        best_ours, best_ref, diff = [], [], 0.0
+        for ours, theirs in pairs:
+            t_ours, t_ref = [], []
+            for r in range(repeats):
+                for fn, into in (((ours, t_ours), (theirs, t_ref)) if r % 2 == 0 else ((theirs, t_ref), (ours, t_ours))):
+                    t0 = time.perf_counter()
+                    value = fn()
+                    into.append(time.perf_counter() - t0)
+                    if fn is ours:
+                        v_ours = value
+                    else:
+                        v_ref = value
+            best_ours.append(min(t_ours))
+            best_ref.append(min(t_ref))
+            d = np.abs(np.asarray(v_ours, dtype=float) - np.asarray(v_ref, dtype=float))
+            diff = max(diff, float(np.nanmax(d)) if np.any(np.isfinite(d)) else 0.0)
+        n = max(len(pairs), 1)
+        out_stages[stage] = {"calls": len(pairs), "boomtip_ms": 1e3 * sum(best_ours) / n, "reference_ms": 1e3 * sum(best_ref) / n,
+                             "ratio": sum(best_ref) / sum(best_ours) if best_ours else float("nan"), "max_abs_difference": diff}
+    return out_stages
+
+
+def _velocity(fit) -> np.ndarray:
+    return fit.velocity_sensor if fit is not None else np.full(3, np.nan)
+
+
+def _spin_state(nr) -> dict:
+    return {k: list(v) if isinstance(v, list) else v for k, v in vars(nr).items()}
+
+
+def _fresh_omega(nr, state: dict, t_s: float) -> np.ndarray:
+    """The deck's spin at t_s from the normals held at the time (the cached fit dropped)."""
+    vars(nr).update(state)
+    nr._coef = None
+    return nr.omega(t_s)
 
 
 def bench_fusion(program: str = "hook-2", duration_s: float = 60.0, seed: int = 0) -> dict:

@@ -240,3 +240,50 @@ def test_normal_rate_refuses_a_jump_and_recovers_from_a_bad_start():
     # three refusals in a row: the history was the problem, start again
     assert not nr.add(0.7, np.array([0.3, 0.0, 1.0]))
     assert nr.add(0.8, np.array([0.3, 0.0, 1.0]))
+
+
+def test_deck_fit_carries_its_inliers_moments_and_sigma_from_them():
+    """The deck's fit carries the centroid and scatter of exactly the points in its inlier mask,
+    and D's sigma computed from them equals plane_sigma_at on those points."""
+    rng = np.random.default_rng(8)
+    pts, _, _ = _deck_scene(rng)
+    wire = np.array([0.02, 0.0, -1.0])
+    wire /= np.linalg.norm(wire)
+    p_tip = np.array([0.5, -0.3, 1.0])
+    res = detect_deck(pts, wire, p_tip, LIDAR_DECK, rng, StageTimes())
+    assert res.ok
+    inl = res.points_used[res.fit.inlier_mask]
+    c = inl.mean(axis=0)
+    X = inl - c
+    evals, evecs = np.linalg.eigh(X.T @ X)
+    assert np.allclose(res.fit.centroid, c, atol=1e-9)
+    # the in-plane spreads (what the deck test and the sigma use) to 1e-9; the residual one, from
+    # raw moments of points 40 m away, to 1e-6
+    assert np.allclose(res.fit.scatter_evals[1:], evals[1:], rtol=1e-9)
+    assert res.fit.scatter_evals[0] == pytest.approx(evals[0], rel=1e-6)
+    assert np.allclose(np.abs(res.fit.scatter_evecs.T @ evecs), np.eye(3), atol=1e-9)
+    query = p_tip + res.D_m * wire
+    assert res.sigma_m == pytest.approx(plane_sigma_at(inl, res.plane_sensor, query), rel=1e-9)
+    # the refined inliers are the points within the band of the refined plane, over all points
+    band = np.abs(res.points_used @ res.plane_sensor[:3] + res.plane_sensor[3]) < LIDAR_DECK.multi_plane.ransac.distance_threshold_m
+    assert np.array_equal(band, res.fit.inlier_mask)
+
+
+def test_normal_rate_fit_equals_a_quadratic_least_squares_fit():
+    """The deck normal's fit (its normal equations solved by the adjugate) equals numpy's
+    polynomial least squares, with 6+ samples (quadratic) and fewer (linear)."""
+    rng = np.random.default_rng(9)
+    for k, deg in ((9, 2), (5, 1)):
+        nr = NormalRate(window_s=1.0)
+        t = np.sort(rng.uniform(0, 0.9, k))
+        normals = np.array([[0.01 * np.sin(3 * s), 0.02 * np.cos(2 * s), 1.0] for s in t])
+        for ti, ni in zip(t, normals):
+            assert nr.add(float(ti), ni)
+        coef = np.asarray(nr._fit())
+        dt = t - t[-1]
+        stored = np.array(nr.n)
+        for c in range(3):
+            ref = np.polynomial.polynomial.polyfit(dt, stored[:, c], deg)
+            assert np.allclose(coef[: deg + 1, c], ref, rtol=1e-9, atol=1e-12)
+        if deg == 1:
+            assert np.all(coef[2] == 0.0)

@@ -15,6 +15,7 @@ from boomtip.perception.plane import (
     fit_plane_lsq,
     orient_plane_towards,
     ransac_plane,
+    ransac_plane_cols,
     transform_plane,
     wire_plane_distance,
 )
@@ -92,6 +93,21 @@ def test_ransac_plane_with_30pct_outliers():
     # plain least squares on everything is badly off: the outliers matter
     lsq = fit_plane_lsq(pts)
     assert angle_deg(lsq[:3], truth[:3]) > 0.1 or abs(lsq[3] - truth[3]) > 0.002
+
+
+def test_ransac_on_columns_is_ransac_and_carries_the_inliers_moments():
+    rng = np.random.default_rng(11)
+    pts, _, _ = _plane_with_outliers(rng)
+    fit = ransac_plane(pts, RansacConfig(), np.random.default_rng(3))
+    fit_cols = ransac_plane_cols(np.ascontiguousarray(pts.T), RansacConfig(), np.random.default_rng(3))
+    assert np.array_equal(fit.plane, fit_cols.plane) and np.array_equal(fit.inlier_mask, fit_cols.inlier_mask)
+    inl = pts[fit.inlier_mask]
+    assert np.allclose(fit.centroid, inl.mean(axis=0), atol=1e-12)
+    scatter = (inl - inl.mean(axis=0)).T @ (inl - inl.mean(axis=0))
+    assert np.allclose(fit.scatter_evecs @ np.diag(fit.scatter_evals) @ fit.scatter_evecs.T, scatter, rtol=1e-9, atol=1e-9)
+    # the plane is the scatter's smallest eigenvector through the centroid
+    assert angle_deg(fit.plane[:3], fit.scatter_evecs[:, 0]) < 1e-6
+    assert abs(fit.plane[:3] @ fit.centroid + fit.plane[3]) < 1e-12
 
 
 def test_ransac_adaptive_stop_and_none_cases():

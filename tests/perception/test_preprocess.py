@@ -115,6 +115,28 @@ def test_range_box_random_crop_keep_alignment():
     assert np.array_equal(a, b)
 
 
+def test_range_crop_returns_the_column_layout_and_aligned_attributes():
+    """The range crop alone: the points in input order, as the transpose of a C-contiguous (3, M)
+    array (no copy for the column layout), a new array even when every point is kept, and the
+    attributes aligned whether points were dropped or not."""
+    rng = np.random.default_rng(43)
+    pts = rng.uniform(-50, 50, (5000, 3))
+    label = np.arange(5000)
+    cfg = PreprocessConfig(min_range_m=0.0, max_range_m=1000.0)
+    out, attrs, stats = preprocess(pts, {"label": label}, cfg)
+    assert np.array_equal(out, pts) and out.T.flags.c_contiguous and not np.shares_memory(out, pts)
+    assert np.array_equal(attrs["label"], label) and not np.shares_memory(attrs["label"], label)
+    assert stats["finite"] == stats["range"] == 5000
+    pts[[3, 10]] = np.nan
+    pts[20] = 0.0
+    pts[30] = [200.0, 0.0, 0.0]
+    cfg = PreprocessConfig(min_range_m=0.5, max_range_m=150.0)
+    out, attrs, stats = preprocess(pts, {"label": label}, cfg)
+    keep = np.setdiff1d(label, [3, 10, 20, 30])
+    assert np.array_equal(out, pts[keep]) and np.array_equal(attrs["label"], keep) and out.T.flags.c_contiguous
+    assert stats["finite"] == 4997 and stats["range"] == 4996
+
+
 def test_statistical_outliers_match_open3d_and_remove_isolated_points():
     rng = np.random.default_rng(43)
     pts = deck_cloud(rng, n=8000)
