@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from boomtip.data.sim.raycast import Hits
+from boomtip.data.sim.raycast import Fans, Hits
 from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
 
@@ -38,6 +38,7 @@ class ScanPattern:
     dirs_sensor: np.ndarray  # (K,3) unit
     column: np.ndarray  # (K,) which firing column each ray belongs to
     column_time_s: np.ndarray  # (C,) time offset of each column from the frame start
+    fans: Fans  # the same rays as fans, one per azimuth (for the ray caster)
 
 
 def lidar_pattern(cfg: Lidar) -> ScanPattern:
@@ -52,15 +53,16 @@ def lidar_pattern(cfg: Lidar) -> ScanPattern:
         column_time = np.arange(cfg.columns) / cfg.columns / cfg.rate_hz  # one revolution per frame
     az_g, el_g = np.meshgrid(az, el, indexing="ij")
     column = np.repeat(np.arange(len(az)), len(el))
-    return ScanPattern(spherical_dirs(az_g.ravel(), el_g.ravel()), column, column_time)
+    dirs = spherical_dirs(az_g.ravel(), el_g.ravel())
+    return ScanPattern(dirs, column, column_time, Fans(dirs, az, el))
 
 
 def radar_pattern(cfg: Radar) -> ScanPattern:
     az = axis_grid(cfg.fov_az_deg, cfg.res_az_deg)
     el = axis_grid(cfg.fov_el_deg, cfg.res_el_deg)
     az_g, el_g = np.meshgrid(az, el, indexing="ij")
-    k = az_g.size
-    return ScanPattern(spherical_dirs(az_g.ravel(), el_g.ravel()), np.zeros(k, dtype=np.int64), np.zeros(1))
+    dirs = spherical_dirs(az_g.ravel(), el_g.ravel())
+    return ScanPattern(dirs, np.zeros(len(dirs), dtype=np.int64), np.zeros(1), Fans(dirs, az, el))
 
 
 @dataclass

@@ -159,27 +159,29 @@ class Simulation(FrameSource):
                 cache[sensor] = {crane: self.world.caster.cast_in_body_frame(crane, T_cs[:3, 3], pat.dirs_sensor @ T_cs[:3, :3].T)}
         return cache[sensor]
 
+    def _lidar_hits(self, t_s: float, scene_poses, fixed_hits=None):
+        """The LiDAR's hits at true time t_s and the sensor's world pose (R (M,3,3), p (M,3)):
+        M = 1, or one pose per column when the scene moves during the sweep."""
+        w, pat = self.world, self.lidar_pattern
+        times = t_s + pat.column_time_s if w.lidar.motion_during_sweep else np.array([t_s])
+        R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
+        hits = w.caster.cast_fans(pat.fans, R_ws, p_ws, Rs, ps, scales, fixed_hits)
+        return hits, R_ws, p_ws
+
     def _lidar_frame_from(self, index: int, t_s: float, scene_poses, fixed_hits=None) -> Frame:
         w = self.world
         cfg, pat = w.lidar, self.lidar_pattern
-        if cfg.motion_during_sweep:
-            times = t_s + pat.column_time_s
-            pose_index = pat.column
-        else:
-            times = np.array([t_s])
-            pose_index = None
-        R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
-        if pose_index is None:
-            dirs_w = pat.dirs_sensor @ R_ws[0].T
-            origins_w = p_ws[0]
-        else:
-            dirs_w = np.einsum("kij,kj->ki", R_ws[pose_index], pat.dirs_sensor)
-            origins_w = p_ws[pose_index]
-        hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index, scales, fixed_hits)
+        hits, R_ws, p_ws = self._lidar_hits(t_s, scene_poses, fixed_hits)
         sea = self.scenario.world.sea
+        dirs_w = origin_z = None
+        if sea.spray.probability > 0:  # only the spray needs the rays in world axes
+            if len(R_ws) == 1:
+                dirs_w, origin_z = pat.dirs_sensor @ R_ws[0].T, p_ws[0, 2]
+            else:
+                dirs_w, origin_z = np.einsum("kij,kj->ki", R_ws[pat.column], pat.dirs_sensor), p_ws[pat.column, 2]
         points, fields = lidar_measure(
             cfg, hits, pat, dirs_w, w.faces, w.sea_index, sea.clutter_probability, self._rng("lidar", index),
-            spray=sea.spray, origin_z_world=np.asarray(origins_w)[..., 2],
+            spray=sea.spray, origin_z_world=origin_z,
         )
         return Frame("lidar", index, t_s, points, fields)
 
