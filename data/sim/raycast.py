@@ -162,16 +162,22 @@ class RayCaster:
         m = len(R_world_sensor)
         if m not in (1, len(fans.az_rad)):
             raise ValueError(f"cast_fans: {m} sensor poses for {len(fans.az_rad)} fans (expected 1 or one per fan)")
-        best_t = np.full(k, np.inf, dtype=np.float32)
-        best_body = np.full(k, -1, dtype=np.int64)
-        best_face = np.full(k, -1, dtype=np.int64)
-        cos_inc = np.zeros(k, dtype=np.float32)
+        best_t = best_body = best_face = cos_inc = None  # set by the first body
         for b, scene in enumerate(self.scenes):
             if fixed_hits is not None and b in fixed_hits:
                 t, face, c = fixed_hits[b]
-                closer = np.flatnonzero(t < best_t)
-                best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                if best_t is None:
+                    best_t, best_face, cos_inc = t.copy(), face.copy(), c.copy()
+                    best_body = np.where(np.isfinite(t), b, -1)
+                else:
+                    closer = np.flatnonzero(t < best_t)
+                    best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
                 continue
+            if best_t is None:
+                best_t = np.full(k, np.inf, dtype=np.float32)
+                best_body = np.full(k, -1, dtype=np.int64)
+                best_face = np.full(k, -1, dtype=np.int64)
+                cos_inc = np.zeros(k, dtype=np.float32)
             R, p = R_world_body[b], p_world_body[b]
             scale = None if scale_body is None else scale_body[b]
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
@@ -179,7 +185,7 @@ class RayCaster:
             A = np.einsum("mji,mjk->mik", R, R_world_sensor)
             o = np.einsum("mji,mj->mi", R, p_world_sensor - p)
             ray_k = fans.reaching_box(self.box_lo[b], self.box_hi[b], A, o, scale)
-            if (best_body >= 0).any():  # rays already stopped before the box need no cast
+            if b > 0:  # rays already stopped before the box need no cast
                 dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale)
                 ray_k = ray_k[best_t[ray_k] > (dist[0] if m == 1 else dist[ray_k // n_el])]
             if len(ray_k) == 0:

@@ -12,7 +12,7 @@ from typing import Iterator
 import numpy as np
 
 from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
-from boomtip.data.sim.motion import BodyStates, ShipMotion
+from boomtip.data.sim.motion import BodyStates, ShipMotion, rpy_matrices
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.scenario import Scenario
 from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
@@ -60,6 +60,22 @@ class SimScene:
             else:
                 out.append(None)  # static in the world
         return out
+
+    def body_poses(self, t_s: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Every body's rotation (M,3,3) and position (M,3) at the times: `poses(body_states(t))`
+        without the velocities, which casting does not need."""
+        motions = {"crane": self.crane_motion, "feeder": self.feeder_motion}
+        Rs, ps = [], []
+        for b in self.bodies:
+            motion = motions.get(b.name)
+            if motion is None:  # static in the world
+                Rs.append(np.broadcast_to(np.eye(3), (len(t_s), 3, 3)))
+                ps.append(np.zeros((len(t_s), 3)))
+            else:
+                q = motion.bank.eval(t_s)
+                Rs.append(rpy_matrices(q[:, 3:]))
+                ps.append(motion.rest_position_m + q[:, :3])
+        return Rs, ps
 
     def poses(self, states: list[BodyStates | None], m: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
         Rs, ps = [], []
@@ -137,10 +153,9 @@ class Simulation(FrameSource):
         """Sensor pose (R (M,3,3), p (M,3)) and every body's pose (lists of (M,3,3), (M,3),
         and per-body axis scales or None) at the given times."""
         w = self.world
-        states = w.body_states(times)
-        R_ws, p_ws = w.sensor_pose(states[0], sensor)
-        Rs, ps = w.poses(states, len(times))
-        return R_ws, p_ws, Rs, ps, None
+        Rs, ps = w.body_poses(times)
+        T_cs = w.T_crane_boomtip @ w.T_boomtip_sensor[sensor]  # the sensor rides on the crane vessel (body 0)
+        return Rs[0] @ T_cs[:3, :3], Rs[0] @ T_cs[:3, 3] + ps[0], Rs, ps, None
 
     def lidar_frame(self, index: int, t_s: float) -> Frame:
         return self._lidar_frame_from(index, t_s, self._scene_poses, self._sensor_fixed_hits("lidar"))
