@@ -204,15 +204,18 @@ class RayCaster:
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
-            closer = np.flatnonzero(t < best_t[ray_k])
-            hit_k = ray_k[closer]
-            best_t[hit_k] = t[closer]
+            closer = np.flatnonzero(t < np.take(best_t, ray_k))
+            hit_k = np.take(ray_k, closer)
+            best_t[hit_k] = np.take(t, closer)
             best_body[hit_k] = b
-            face = ans["primitive_ids"].numpy()[closer]
+            face = np.take(ans["primitive_ids"].numpy(), closer)
             best_face[hit_k] = face
-            # Incidence in the body frame (as in `cast`).
-            d_b = rays[closer, 3:]
-            c = np.abs(np.einsum("ij,ij->i", self.face_normals32[b][face], d_b))
+            # Incidence in the body frame (as in `cast`), one product at a time.
+            n_b, d_b = np.take(self.face_normals32[b], face, axis=0), np.take(rays, closer, axis=0)[:, 3:]
+            c = n_b[:, 0] * d_b[:, 0]
+            c += n_b[:, 1] * d_b[:, 1]
+            c += n_b[:, 2] * d_b[:, 2]
+            np.abs(c, out=c)
             if scale is not None:
                 c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
             cos_inc[hit_k] = c
@@ -268,35 +271,32 @@ class Fans:
         corners = np.where(_CORNER_BITS, box_hi, box_lo)  # (8,3)
         if scale is not None:
             corners = corners * scale[:, None]  # (M,8,3)
-        corners_s = (corners - o[:, None]) @ A  # x_s = A^T (S x_b - o), rows
+        corners_s = (corners - o[:, None]) @ A  # x_s = A^T (S x_b - o), as rows
+        # g[:, f, c] = (signed distance to fan f's plane, coordinate along u_f, z) of corner c.
+        g = np.empty((3, n_fan, 8))
         if len(A) == 1:
-            sd_u = corners_s[0, :, :2] @ self.basis  # (8, 2F)
-            side, along = sd_u[:, :n_fan].T, sd_u[:, n_fan:].T  # (F,8)
-            height = np.broadcast_to(corners_s[0, :, 2], side.shape)
+            g[:2] = (corners_s[0, :, :2] @ self.basis).reshape(8, 2, n_fan).transpose(1, 2, 0)
+            g[2] = corners_s[0, :, 2]
         else:
-            side = np.einsum("fkj,jf->fk", corners_s[..., :2], self.basis[:, :n_fan])
-            along = np.einsum("fkj,jf->fk", corners_s[..., :2], self.basis[:, n_fan:])
-            height = corners_s[..., 2]
-        # Edge (c0, c1) meets the plane where side = 0; an edge lying in it gives its ends.
-        s0, s1 = side[:, _EDGES[:, 0]], side[:, _EDGES[:, 1]]
-        meets = s0 * s1 <= 0
+            g[:2] = np.einsum("fcj,jaf->afc", corners_s[..., :2], self.basis.reshape(2, 2, n_fan))
+            g[2] = corners_s[..., 2]
+        # Edge (c0, c1) meets the plane where the distance is 0 (an edge lying in it gives its ends).
+        g0, g1 = np.take(g, _EDGES[:, 0], axis=2), np.take(g, _EDGES[:, 1], axis=2)  # (3,F,12)
+        s0, s1 = g0[0], g1[0]
         lam = s0 / np.where(s0 != s1, s0 - s1, 1.0)
-        u0, z0 = along[:, _EDGES[:, 0]], height[:, _EDGES[:, 0]]
-        u = u0 + lam * (along[:, _EDGES[:, 1]] - u0)
-        z = z0 + lam * (height[:, _EDGES[:, 1]] - z0)
-        u_min = np.where(meets, u, np.inf).min(axis=1)
-        u_max = np.where(meets, u, -np.inf).max(axis=1)
+        u, z = g0[1:] + lam * (g1[1:] - g0[1:])
+        u[s0 * s1 > 0] = np.nan  # not a vertex; fmin / fmax skip NaN
+        u_min, u_max = np.fmin.reduce(u, axis=1), np.fmax.reduce(u, axis=1)
         ang = np.arctan2(z, u)
         eps = 1e-9  # rad: far above the angles' rounding, far below any ray spacing
-        lo = np.where(meets, ang, np.inf).min(axis=1) - eps
-        hi = np.where(meets, ang, -np.inf).max(axis=1) + eps
-        front = np.isfinite(u_min) & (u_min > 0)
-        k0 = np.where(front, np.searchsorted(self.el_rad, lo, "left"), 0)
-        k1 = np.where(front, np.searchsorted(self.el_rad, hi, "right"), n_el)
-        k1 = np.where(u_max < 0, k0, k1)  # behind the sensor, or no polygon at all (u_max = -inf)
+        front = u_min > 0  # a polygon, all of it where u > 0 (NaN: no polygon)
+        k0 = np.where(front, np.searchsorted(self.el_rad, np.fmin.reduce(ang, axis=1) - eps, "left"), 0)
+        k1 = np.where(front, np.searchsorted(self.el_rad, np.fmax.reduce(ang, axis=1) + eps, "right"), n_el)
+        k1[~(u_max >= 0)] = 0  # behind the sensor, or no polygon at all: no ray
+        k0[~(u_max >= 0)] = 0
         length = k1 - k0
         run_first = np.cumsum(length) - length  # where each fan's run starts in the output
-        return np.repeat(self.first_ray + k0 - run_first, length) + np.arange(int(length.sum()))
+        return np.repeat(self.first_ray + k0 - run_first, length) + np.arange(run_first[-1] + length[-1])
 
 
 def box_distance(box_lo: np.ndarray, box_hi: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
