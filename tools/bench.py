@@ -41,7 +41,7 @@ def hits_difference(a, b, tol_m: float = 1e-4) -> dict:
     return {"rays": len(differ), "different": int(differ.sum()), "max_range_diff_m": float(gap.max(initial=0.0))}
 
 
-def raw_cast_efficiency(scenario: Scenario, frames: int, repeats: int = 3) -> dict:
+def raw_cast_efficiency(scenario: Scenario, frames: int, repeats: int = 15) -> dict:
     """Simulated LiDAR frames (cast and sensor model) per second against Open3D's raw
     `cast_rays` of the same world rays into one static scene holding every body posed at the
     frame's instant (the cast alone: the scene is built and committed untimed). Per frame the

@@ -156,8 +156,11 @@ class RayCaster:
         """Cast a scanning sensor's fans of rays (see `Fans`). The sensor pose (M,3,3), (M,3)
         and the bodies' poses are given at M = 1 instant (the whole frame) or at M = F, one per
         fan (motion during the sweep); `scale_body` and `fixed_hits` as in `cast`. The same
-        hits as `cast` on these rays in world axes; only rays that can reach a body's box,
-        nearer than the closest hit found so far, are cast into it."""
+        hits as `cast` on these rays in world axes. For fans spread over more than half a turn
+        (a spinning LiDAR, most of whose rays never come near a body) only the rays that can
+        reach a body's box, nearer than the closest hit found so far, are cast into it; a
+        narrower grid sees the ships with most of its rays, and the box test would cost more
+        than the few misses it saves."""
         k, n_el = len(fans.dirs), len(fans.el_rad)
         m = len(R_world_sensor)
         if m not in (1, len(fans.az_rad)):
@@ -184,28 +187,34 @@ class RayCaster:
             # (then divided by the body's scale, if stretched).
             A = np.einsum("mji,mjk->mik", R, R_world_sensor)
             o = np.einsum("mji,mj->mi", R, p_world_sensor - p)
-            ray_k = fans.reaching_box(self.box_lo[b], self.box_hi[b], A, o, scale)
-            if b > 0:  # rays already stopped before the box need no cast
-                dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale)
-                ray_k = ray_k[best_t[ray_k] > (dist[0] if m == 1 else dist[ray_k // n_el])]
-            if len(ray_k) == 0:
-                continue
-            rays = np.empty((len(ray_k), 6), dtype=np.float32)
+            if fans.wide:
+                ray_k = fans.reaching_box(self.box_lo[b], self.box_hi[b], A, o, scale)
+                if b > 0:  # rays already stopped before the box need no cast
+                    dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale)
+                    ray_k = ray_k[np.take(best_t, ray_k) > (dist[0] if m == 1 else np.take(dist, ray_k // n_el))]
+                if len(ray_k) == 0:
+                    continue
+                dirs_s = np.take(fans.dirs, ray_k, axis=0)
+                pose = ray_k // n_el if m > 1 else None
+            else:  # every ray (ray_k None)
+                ray_k, dirs_s, pose = None, fans.dirs, fans.fan if m > 1 else None
+            # Rays in float64, then rounded once to Embree's float32.
+            rays64 = np.empty((len(dirs_s), 6))
             if m == 1:
-                rays[:, :3] = o[0]
-                rays[:, 3:] = np.take(fans.dirs, ray_k, axis=0) @ A[0].T
+                rays64[:, :3] = o[0]
+                np.matmul(dirs_s, A[0].T, out=rays64[:, 3:])
             else:
-                pose = ray_k // n_el
-                rays[:, :3] = np.take(o, pose, axis=0)
-                rays[:, 3:] = np.einsum("kij,kj->ki", np.take(A, pose, axis=0), np.take(fans.dirs, ray_k, axis=0))
-            if scale is not None:
+                np.take(o, pose, axis=0, out=rays64[:, :3])
+                np.einsum("kij,kj->ki", np.take(A, pose, axis=0), dirs_s, out=rays64[:, 3:])
+            rays = rays64.astype(np.float32)
+            if scale is not None:  # after the rounding, as `cast` divides its float32 rays
                 s_ray = scale[0] if m == 1 else scale[pose]
                 rays[:, :3] /= s_ray
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
-            closer = np.flatnonzero(t < np.take(best_t, ray_k))
-            hit_k = np.take(ray_k, closer)
+            closer = np.flatnonzero(t < (best_t if ray_k is None else np.take(best_t, ray_k)))
+            hit_k = closer if ray_k is None else np.take(ray_k, closer)
             best_t[hit_k] = np.take(t, closer)
             best_body[hit_k] = b
             face = np.take(ans["primitive_ids"].numpy(), closer)
@@ -256,6 +265,8 @@ class Fans:
         ca, sa = np.cos(az_rad), np.sin(az_rad)
         self.basis = np.stack([np.concatenate([-sa, ca]), np.concatenate([ca, sa])])
         self.first_ray = np.arange(len(az_rad)) * len(el_rad)
+        self.fan = np.repeat(np.arange(len(az_rad)), len(el_rad))  # (K,) the fan of each ray
+        self.wide = np.ptp(az_rad) > np.pi
 
     def reaching_box(self, box_lo: np.ndarray, box_hi: np.ndarray, A: np.ndarray, o: np.ndarray,
                      scale: np.ndarray | None) -> np.ndarray:
