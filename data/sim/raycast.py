@@ -6,9 +6,10 @@ cast, and the nearest hit over all bodies is kept. Rigid transforms keep distanc
 t_hit is the world range. No scene is rebuilt per frame.
 
 `cast_fans` is the scanning sensors' path: their rays are fans (one azimuth, many
-elevations) from one origin, so before casting into a body it drops, per fan, the rays
-that cannot meet the body's bounding box (or only beyond a closer hit already found).
-Embree's cost is mostly per ray, so rays that would miss are the ones worth not casting.
+elevations) from one origin, moved into a body's frame by one transform per fan. For fans
+spread round the sensor it first drops, per fan, the rays that cannot meet the body's
+bounding box (or only beyond a closer hit already found): Embree's cost is mostly per ray,
+and most of a spinning LiDAR's rays would miss.
 """
 
 from __future__ import annotations

@@ -160,7 +160,7 @@ class Simulation(FrameSource):
     def lidar_frame(self, index: int, t_s: float) -> Frame:
         return self._lidar_frame_from(index, t_s, self._scene_poses, self._sensor_fixed_hits("lidar"))
 
-    def _sensor_fixed_hits(self, sensor: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    def _sensor_fixed_hits(self, sensor: str) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """The crane vessel carries the sensors (boom tip on the crane body), so the pattern's
         rays are fixed in the crane's frame and so are their hits on it: cast them once."""
         cache = self.__dict__.setdefault("_fixed_hits", {})
