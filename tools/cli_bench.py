@@ -33,22 +33,31 @@ ForceOpt = typer.Option(False, "--force", help="Replace an existing --json file.
 def bench_raycast_cmd(
     scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
     frames: int = typer.Option(20, "--frames", min=1),
+    spinning_frames: int = typer.Option(10, "--spinning-frames", min=1, help="Frames of the 128 x 1024 spinning LiDAR."),
+    repeats: int = typer.Option(30, "--repeats", min=1, help="Runs of each frame and of its raw cast, alternately; the fastest counts."),
     simulate_s: float = typer.Option(60.0, "--simulate-s", help="Also time `simulate` over this many seconds (0: skip)."),
     set_: Optional[list[str]] = SetOpt,
     json_path: Optional[Path] = JsonOpt,
     force: bool = ForceOpt,
 ) -> None:
-    """LiDAR frames/s vs the trimesh route on the same frames; simulate vs real time."""
+    """LiDAR frames/s vs Open3D's raw cast of the same rays (the scenario's LiDAR; 128 x 1024
+    spinning with motion during the sweep), hits vs the per-ray reference; vs the trimesh route; simulate vs real time."""
     from boomtip.tools.bench import bench_raycast
 
     with user_errors():
         s = resolve_scenario(scenario, set_)
-        r = bench_raycast(s, frames=frames, simulate_s=simulate_s)
+        r = bench_raycast(s, frames=frames, simulate_s=simulate_s, spinning_frames=spinning_frames, repeats=repeats)
         write_bench_json(json_path, r, force)
-    print(f"raycast  {r['triangles']} triangles, {r['rays_per_frame']} rays/frame, {r['points_per_frame']:.0f} points/frame, {frames} frames")
-    print(f"  boomtip (Open3D scenes, rays moved per body): {r['boomtip_fps']:8.1f} frames/s")
-    print(f"  baseline (posed trimesh + embreex per frame): {r['baseline_fps']:8.1f} frames/s")
-    print(f"  ratio {r['ratio']:.1f}x   hit agreement {100 * r['hit_agreement']:.2f} %")
+    print(f"raycast  {r['triangles']} triangles, {r['points_per_frame']:.0f} points/frame, fastest of {repeats} runs per frame")
+    print(f"  {'LiDAR':34s} {'rays':>7s} {'frames':>6s} {'boomtip f/s':>12s} {'raw cast f/s':>13s} {'efficiency':>10s}  hits vs reference")
+    for label, key, n in ((f"{s.name} (scenario's)", "grid", frames), ("128 x 1024 spinning, sweep motion", "spinning", spinning_frames)):
+        k = r[key]
+        h = k["hits_vs_reference"]
+        print(f"  {label:34s} {k['rays_per_frame']:7d} {n:6d} {k['boomtip_fps']:12.1f} {k['raw_cast_fps']:13.1f} {k['efficiency']:10.2f}  "
+              f"{h['different']} of {h['rays']} differ (max range diff {h['max_range_diff_m']:.1e} m)")
+    print(f"  baseline (posed trimesh + embreex per frame): {r['baseline_fps']:8.1f} frames/s vs boomtip {r['boomtip_fps']:.1f}: "
+          f"{r['ratio_trimesh']:.1f}x, hit agreement {100 * r['hit_agreement']:.2f} %")
+    print(f"  ratio {r['ratio']:.2f} (efficiency_grid {r['efficiency_grid']:.2f}, efficiency_spinning {r['efficiency_spinning']:.2f})")
     if "simulate_realtime_factor" in r:
         print(f"simulate {r['simulate_duration_s']:g} s of {s.name} in {r['simulate_wall_s']:.1f} s: "
               f"{r['simulate_realtime_factor']:.1f}x real time")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from boomtip.data.sim.raycast import Hits
+from boomtip.data.sim.raycast import Fans, Hits
 from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
 
@@ -38,6 +38,7 @@ class ScanPattern:
     dirs_sensor: np.ndarray  # (K,3) unit
     column: np.ndarray  # (K,) which firing column each ray belongs to
     column_time_s: np.ndarray  # (C,) time offset of each column from the frame start
+    fans: Fans  # the same rays as fans, one per azimuth (for the ray caster)
 
 
 def lidar_pattern(cfg: Lidar) -> ScanPattern:
@@ -52,15 +53,16 @@ def lidar_pattern(cfg: Lidar) -> ScanPattern:
         column_time = np.arange(cfg.columns) / cfg.columns / cfg.rate_hz  # one revolution per frame
     az_g, el_g = np.meshgrid(az, el, indexing="ij")
     column = np.repeat(np.arange(len(az)), len(el))
-    return ScanPattern(spherical_dirs(az_g.ravel(), el_g.ravel()), column, column_time)
+    dirs = spherical_dirs(az_g.ravel(), el_g.ravel())
+    return ScanPattern(dirs, column, column_time, Fans(dirs, az, el))
 
 
 def radar_pattern(cfg: Radar) -> ScanPattern:
     az = axis_grid(cfg.fov_az_deg, cfg.res_az_deg)
     el = axis_grid(cfg.fov_el_deg, cfg.res_el_deg)
     az_g, el_g = np.meshgrid(az, el, indexing="ij")
-    k = az_g.size
-    return ScanPattern(spherical_dirs(az_g.ravel(), el_g.ravel()), np.zeros(k, dtype=np.int64), np.zeros(1))
+    dirs = spherical_dirs(az_g.ravel(), el_g.ravel())
+    return ScanPattern(dirs, np.zeros(len(dirs), dtype=np.int64), np.zeros(1), Fans(dirs, az, el))
 
 
 @dataclass
@@ -102,22 +104,30 @@ def lidar_measure(
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label. With `spray`
     (world.sea.spray) some rays return early from droplets in its height band (world z), given
-    the rays' origin heights `origin_z_world`."""
-    keep = (hits.range_m >= cfg.min_range_m) & (hits.range_m <= cfg.max_range_m)  # a miss (inf) fails the max
+    the rays' directions `dirs_world` and origin heights `origin_z_world` (needed only then).
+    The arithmetic runs in place on the returns kept, in the dtypes of the expressions it
+    stands for (intensity float32, range float64), so frames do not depend on how it is laid out."""
+    r_all = hits.range_m
+    keep = r_all >= cfg.min_range_m
+    keep &= r_all <= cfg.max_range_m  # a miss (inf) fails the max
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
         sea = keep & (hits.body == sea_body)
         keep &= ~sea | (rng.random(len(keep)) < sea_probability)
     if cfg.dropout_probability > 0:
         keep &= rng.random(len(keep)) >= cfg.dropout_probability
     idx = np.flatnonzero(keep)
-    f = faces.offset[hits.body[idx]] + hits.face[idx]
-    r = hits.range_m[idx]
-    cos_inc = np.clip(hits.cos_incidence[idx], 1e-3, 1.0)
-    intensity = faces.reflectivity[f] * cos_inc  # diffuse (Lambert)
-    label = faces.label[f].astype(np.int32)
+    f = np.take(faces.offset, np.take(hits.body, idx))
+    f += np.take(hits.face, idx)
+    r = np.take(r_all, idx)
+    cos_inc = np.take(hits.cos_incidence, idx)
+    np.clip(cos_inc, 1e-3, 1.0, out=cos_inc)
+    intensity = np.take(faces.reflectivity, f)
+    intensity *= cos_inc  # diffuse (Lambert)
+    label = np.take(faces.label, f).astype(np.int32)
+    retro = np.take(faces.retro, f)
     if spray is not None and spray.probability > 0 and len(idx):
         # a droplet at a height z in the band, met by a downward ray before its surface
-        z0 = np.broadcast_to(np.asarray(origin_z_world, dtype=float), hits.range_m.shape)[idx]
+        z0 = np.broadcast_to(np.asarray(origin_z_world, dtype=float), r_all.shape)[idx]
         down = -dirs_world[idx, 2]
         z = rng.uniform(*spray.height_m, len(idx))
         r_spray = np.where(down > 1e-3, (z0 - z) / np.maximum(down, 1e-3), np.inf)
@@ -125,14 +135,17 @@ def lidar_measure(
         r = np.where(hit, r_spray, r)
         intensity = np.where(hit, spray.reflectivity, intensity)
         label = np.where(hit, int(Label.SPRAY), label)
+        retro &= ~hit
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
     # incidence. Only the few retro hits need the transcendental functions.
-    retro_i = np.flatnonzero(faces.retro[f] & (label != int(Label.SPRAY)))
+    retro_i = np.flatnonzero(retro)
     if len(retro_i):
         inc = np.arccos(cos_inc[retro_i])
         lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
         intensity[retro_i] = np.maximum(lobe, intensity[retro_i])
-    intensity *= (INTENSITY_REFERENCE_RANGE_M / r) ** 2
+    spread = np.divide(INTENSITY_REFERENCE_RANGE_M, r)
+    spread *= spread
+    intensity *= spread  # (r_ref / r)^2
     if cfg.extinction_per_km > 0:  # rain or fog: the light is attenuated out and back
         intensity *= np.exp(-2e-3 * cfg.extinction_per_km * r)
         seen = intensity >= cfg.detection_threshold
@@ -140,21 +153,28 @@ def lidar_measure(
     n = len(idx)
     noise = rng.standard_normal(2 * n) if (cfg.intensity_noise > 0 or cfg.range_noise_m > 0) else None
     if cfg.intensity_noise > 0:
-        intensity *= np.maximum(1 + cfg.intensity_noise * noise[:n], 0.05)
+        factor = noise[:n] * cfg.intensity_noise
+        factor += 1
+        intensity *= np.maximum(factor, 0.05, out=factor)
     if cfg.range_noise_m > 0:
         # Weaker returns are noisier: sigma grows as 1/sqrt(intensity), capped.
-        gain = np.clip(1.0 / np.sqrt(np.maximum(intensity, 1e-9)), 1.0, cfg.weak_return_noise_gain)
-        r = r + cfg.range_noise_m * gain * noise[n:]
+        gain = np.maximum(intensity, 1e-9)
+        np.sqrt(gain, out=gain)
+        np.divide(1.0, gain, out=gain)
+        np.clip(gain, 1.0, cfg.weak_return_noise_gain, out=gain)
+        gain *= cfg.range_noise_m
+        r = r + gain * noise[n:]
     if cfg.range_resolution_m > 0:
-        r = np.round(r / cfg.range_resolution_m) * cfg.range_resolution_m
-    points = pattern.dirs_sensor[idx] * r[:, None]
-    t_offset = pattern.column_time_s[pattern.column[idx]] if cfg.motion_during_sweep else np.zeros(len(idx))
-    fields = {
-        "intensity": intensity.astype(np.float32),
-        "t": t_offset.astype(np.float32),
-        "label": label,
-    }
-    return points, fields
+        r = r / cfg.range_resolution_m
+        np.round(r, out=r)
+        r *= cfg.range_resolution_m
+    points = np.take(pattern.dirs_sensor, idx, axis=0)
+    points *= r[:, None]
+    if cfg.motion_during_sweep:
+        t_offset = np.take(pattern.column_time_s, np.take(pattern.column, idx)).astype(np.float32)
+    else:
+        t_offset = np.zeros(n, dtype=np.float32)
+    return points, {"intensity": intensity.astype(np.float32, copy=False), "t": t_offset, "label": label}
 
 
 def radar_measure(

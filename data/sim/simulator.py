@@ -12,7 +12,7 @@ from typing import Iterator
 import numpy as np
 
 from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
-from boomtip.data.sim.motion import BodyStates, ShipMotion
+from boomtip.data.sim.motion import BodyStates, ShipMotion, rpy_matrices
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.scenario import Scenario
 from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
@@ -60,6 +60,22 @@ class SimScene:
             else:
                 out.append(None)  # static in the world
         return out
+
+    def body_poses(self, t_s: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Every body's rotation (M,3,3) and position (M,3) at the times: `poses(body_states(t))`
+        without the velocities, which casting does not need."""
+        motions = {"crane": self.crane_motion, "feeder": self.feeder_motion}
+        Rs, ps = [], []
+        for b in self.bodies:
+            motion = motions.get(b.name)
+            if motion is None:  # static in the world
+                Rs.append(np.broadcast_to(np.eye(3), (len(t_s), 3, 3)))
+                ps.append(np.zeros((len(t_s), 3)))
+            else:
+                q = motion.bank.eval(t_s)
+                Rs.append(rpy_matrices(q[:, 3:]))
+                ps.append(motion.rest_position_m + q[:, :3])
+        return Rs, ps
 
     def poses(self, states: list[BodyStates | None], m: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
         Rs, ps = [], []
@@ -138,15 +154,14 @@ class Simulation(FrameSource):
         """Sensor pose (R (M,3,3), p (M,3)) and every body's pose (lists of (M,3,3), (M,3),
         and per-body axis scales or None) at the given times."""
         w = self.world
-        states = w.body_states(times)
-        R_ws, p_ws = w.sensor_pose(states[0], sensor)
-        Rs, ps = w.poses(states, len(times))
-        return R_ws, p_ws, Rs, ps, None
+        Rs, ps = w.body_poses(times)
+        T_cs = w.T_crane_boomtip @ w.T_boomtip_sensor[sensor]  # the sensor rides on the crane vessel (body 0)
+        return Rs[0] @ T_cs[:3, :3], Rs[0] @ T_cs[:3, 3] + ps[0], Rs, ps, None
 
     def lidar_frame(self, index: int, t_s: float) -> Frame:
         return self._lidar_frame_from(index, t_s, self._scene_poses, self._sensor_fixed_hits("lidar"))
 
-    def _sensor_fixed_hits(self, sensor: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    def _sensor_fixed_hits(self, sensor: str) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """The crane vessel carries the sensors (boom tip on the crane body), so the pattern's
         rays are fixed in the crane's frame and so are their hits on it: cast them once."""
         cache = self.__dict__.setdefault("_fixed_hits", {})
@@ -160,27 +175,29 @@ class Simulation(FrameSource):
                 cache[sensor] = {crane: self.world.caster.cast_in_body_frame(crane, T_cs[:3, 3], pat.dirs_sensor @ T_cs[:3, :3].T)}
         return cache[sensor]
 
+    def _lidar_hits(self, t_s: float, scene_poses, fixed_hits=None):
+        """The LiDAR's hits at true time t_s and the sensor's world pose (R (M,3,3), p (M,3)):
+        M = 1, or one pose per column when the scene moves during the sweep."""
+        w, pat = self.world, self.lidar_pattern
+        times = t_s + pat.column_time_s if w.lidar.motion_during_sweep else np.array([t_s])
+        R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
+        hits = w.caster.cast_fans(pat.fans, R_ws, p_ws, Rs, ps, scales, fixed_hits)
+        return hits, R_ws, p_ws
+
     def _lidar_frame_from(self, index: int, t_s: float, scene_poses, fixed_hits=None) -> Frame:
         w = self.world
         cfg, pat = w.lidar, self.lidar_pattern
-        if cfg.motion_during_sweep:
-            times = t_s + pat.column_time_s
-            pose_index = pat.column
-        else:
-            times = np.array([t_s])
-            pose_index = None
-        R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
-        if pose_index is None:
-            dirs_w = pat.dirs_sensor @ R_ws[0].T
-            origins_w = p_ws[0]
-        else:
-            dirs_w = np.einsum("kij,kj->ki", R_ws[pose_index], pat.dirs_sensor)
-            origins_w = p_ws[pose_index]
-        hits = w.caster.cast(origins_w, dirs_w, Rs, ps, pose_index, scales, fixed_hits)
+        hits, R_ws, p_ws = self._lidar_hits(t_s, scene_poses, fixed_hits)
         sea = self.scenario.world.sea
+        dirs_w = origin_z = None
+        if sea.spray.probability > 0:  # only the spray needs the rays in world axes
+            if len(R_ws) == 1:
+                dirs_w, origin_z = pat.dirs_sensor @ R_ws[0].T, p_ws[0, 2]
+            else:
+                dirs_w, origin_z = np.einsum("kij,kj->ki", R_ws[pat.column], pat.dirs_sensor), p_ws[pat.column, 2]
         points, fields = lidar_measure(
             cfg, hits, pat, dirs_w, w.faces, w.sea_index, sea.clutter_probability, self._rng("lidar", index),
-            spray=sea.spray, origin_z_world=np.asarray(origins_w)[..., 2],
+            spray=sea.spray, origin_z_world=origin_z,
         )
         return Frame("lidar", index, t_s, points, fields)
 

@@ -1,0 +1,129 @@
+"""Fan casting (data/sim/raycast.py `RayCaster.cast_fans`, `Fans.reaching_box`): the LiDAR's
+hits must be those of the per-ray reference (every ray in world axes, moved into every body's
+frame at its own column's pose, cast into every body: `tools.bench.reference_lidar_hits`),
+ray by ray: the same body and face, ranges within 1e-4 m; and the box test must never drop a
+ray that meets the box."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from boomtip.data.scenario import load_scenario
+from boomtip.data.sim.raycast import Fans
+from boomtip.data.sim.sensors import spherical_dirs
+from boomtip.data.sim.simulator import Simulation
+from boomtip.tools.bench import SPINNING_128x1024, hits_difference, reference_lidar_hits
+
+SPIN_SMALL = ["lidar.pattern=spinning", "lidar.channels=32", "lidar.columns=256"]
+
+
+def assert_same_hits(sim, times, fixed):
+    for t in times:
+        fans, *_ = sim._lidar_hits(t, sim._scene_poses, fixed)
+        ref = reference_lidar_hits(sim, t, fixed)
+        d = hits_difference(fans, ref)
+        assert d["different"] == 0, d
+        assert d["max_range_diff_m"] <= 1e-4
+        assert np.array_equal(fans.body, ref.body) and np.array_equal(fans.face, ref.face)
+        np.testing.assert_allclose(fans.cos_incidence, ref.cos_incidence, atol=1e-6)
+        assert fans.hit.sum() > 0.1 * len(fans.range_m)  # the frame really sees the scene
+
+
+@pytest.mark.parametrize("overrides", [
+    [],  # document 000's grid, one pose per frame
+    ["lidar.motion_during_sweep=true", "lidar.sweep_fraction=0.5"],
+    [*SPIN_SMALL, "lidar.motion_during_sweep=true"],
+    [*SPIN_SMALL, "lidar.motion_during_sweep=false"],
+    ["sea.clutter=true", "lidar.motion_during_sweep=true"],  # a static body (the sea) too
+])
+def test_fan_hits_are_the_per_ray_reference_hits(overrides):
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=1", *overrides]))
+    assert_same_hits(sim, [0.0, 0.37, 2.9], sim._sensor_fixed_hits("lidar"))
+
+
+def test_fan_hits_match_with_stretched_bodies_and_no_fixed_hits():
+    """The hook scene: a moving boom carries the sensor, the rope is scaled along its axis."""
+    from boomtip.data.sim.hook_world import HookSimulation
+
+    sim = HookSimulation(load_scenario("hook-2", ["duration_s=2", "lidar.channels=32", "lidar.columns=256"]))
+    assert any(s is not None for s in sim._scene_poses(np.array([0.5]), "lidar")[4])
+    assert_same_hits(sim, [0.5, 1.3], None)
+
+
+def test_fan_casting_skips_the_rays_that_cannot_reach_the_feeder():
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=1", *SPINNING_128x1024]))
+    feeder = sim.world.caster.scenes[1]
+    sent = []
+
+    class Counting:  # wraps the feeder's scene to see how many rays it is asked to cast
+        def cast_rays(self, rays):
+            sent.append(len(rays))
+            return feeder.cast_rays(rays)
+
+    sim.world.caster.scenes[1] = Counting()
+    hits, *_ = sim._lidar_hits(0.2, sim._scene_poses, sim._sensor_fixed_hits("lidar"))
+    on_feeder = int((hits.body == 1).sum())
+    assert len(sent) == 1 and on_feeder <= sent[0] < 0.35 * len(hits.range_m)
+
+
+def slab_hits(lo, hi, o, d):
+    """Rays (origin o, directions d, body frame) that meet the box [lo, hi], in float64."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (lo - o) / d, (hi - o) / d
+    t_near = np.nanmax(np.minimum(t0, t1), axis=1)
+    t_far = np.nanmin(np.maximum(t0, t1), axis=1)
+    return t_far >= np.maximum(t_near, 0.0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_reaching_box_keeps_every_ray_that_meets_the_box(seed):
+    rng = np.random.default_rng(seed)
+    az = np.sort(rng.uniform(-np.pi, np.pi, 90))
+    el = np.linspace(-0.6, 0.6, 40)
+    az_g, el_g = np.meshgrid(az, el, indexing="ij")
+    fans = Fans(spherical_dirs(az_g.ravel(), el_g.ravel()), az, el)
+    lo = rng.uniform(-20, 0, 3)
+    hi = lo + rng.uniform(0.5, 15, 3)
+    meets_any = 0
+    for _ in range(20):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        A = q * np.sign(np.linalg.det(q))  # a rotation
+        o = rng.uniform(-30, 30, 3)
+        kept = np.zeros(len(fans.dirs), dtype=bool)
+        kept[fans.reaching_box(lo, hi, A[None], o[None], None)] = True
+        meets = slab_hits(lo, hi, o, fans.dirs @ A.T)
+        assert not np.any(meets & ~kept)
+        meets_any += meets.sum()
+        if np.all((o >= lo) & (o <= hi)):  # the sensor inside the box: every ray meets it
+            assert kept.all()
+    assert meets_any > 0
+
+
+def test_reaching_box_per_fan_poses_and_scale():
+    """One pose per fan and a stretched body: rays are x_b = S^-1 (A x_s + o) per fan."""
+    rng = np.random.default_rng(3)
+    az = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    el = np.linspace(-0.4, 0.4, 24)
+    az_g, el_g = np.meshgrid(az, el, indexing="ij")
+    fans = Fans(spherical_dirs(az_g.ravel(), el_g.ravel()), az, el)
+    lo, hi = np.array([-0.5, -0.5, 0.0]), np.array([0.5, 0.5, 1.0])
+    angle = np.linspace(0, 0.5, 64)
+    A = np.zeros((64, 3, 3))
+    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1], A[:, 2, 2] = np.cos(angle), -np.sin(angle), np.sin(angle), np.cos(angle), 1
+    o = np.column_stack([rng.uniform(-4, 4, 64), rng.uniform(-4, 4, 64), np.full(64, -1.0)])
+    scale = np.column_stack([np.linspace(3, 9, 64), np.ones(64), np.linspace(2, 8, 64)])
+    kept = np.zeros(len(fans.dirs), dtype=bool)
+    kept[fans.reaching_box(lo, hi, A, o, scale)] = True
+    fan = np.repeat(np.arange(64), 24)
+    d = np.einsum("kij,kj->ki", A[fan], fans.dirs) / scale[fan]
+    meets = slab_hits(lo, hi, o[fan] / scale[fan], d)
+    assert meets.any() and not np.any(meets & ~kept)
+    assert kept.sum() < 0.5 * len(kept)
+
+
+def test_fans_need_ascending_elevations():
+    az, el = np.array([0.0, 1.0]), np.array([0.2, 0.1])
+    az_g, el_g = np.meshgrid(az, el, indexing="ij")
+    with pytest.raises(ValueError, match="ascending"):
+        Fans(spherical_dirs(az_g.ravel(), el_g.ravel()), az, el)
