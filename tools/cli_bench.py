@@ -42,7 +42,7 @@ def bench_raycast_cmd(
 ) -> None:
     """LiDAR frames/s vs Open3D's raw cast of the same rays (the scenario's LiDAR; 128 x 1024
     spinning with motion during the sweep), hits vs the per-ray reference; vs the trimesh route; simulate vs real time."""
-    from boomtip.tools.bench import bench_raycast
+    from boomtip.tools.bench_raycast import bench_raycast
 
     with user_errors():
         s = resolve_scenario(scenario, set_)

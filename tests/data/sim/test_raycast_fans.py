@@ -1,6 +1,6 @@
 """Fan casting (data/sim/raycast.py `RayCaster.cast_fans`, `Fans.reaching_box`): the LiDAR's
 hits must be those of the per-ray reference (every ray in world axes, moved into every body's
-frame at its own column's pose, cast into every body: `tools.bench.reference_lidar_hits`),
+frame at its own column's pose, cast into every body: `tools.bench_raycast.reference_lidar_hits`),
 ray by ray: the same body and face, ranges within 1e-4 m; and the box test must never drop a
 ray that meets the box."""
 
@@ -13,7 +13,7 @@ from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.raycast import Fans
 from boomtip.data.sim.sensors import spherical_dirs
 from boomtip.data.sim.simulator import Simulation
-from boomtip.tools.bench import SPINNING_128x1024, hits_difference, reference_lidar_hits
+from boomtip.tools.bench_raycast import SPINNING_128x1024, hits_difference, reference_lidar_hits
 
 SPIN_SMALL = ["lidar.pattern=spinning", "lidar.channels=32", "lidar.columns=256"]
 
