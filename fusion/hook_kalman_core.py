@@ -10,7 +10,8 @@ motion (fusion/models/jacobian.py), refreshed every ``jacobian_interval_s`` (50 
 every step; ``F`` is rebuilt only when ``A`` or ``dt`` changes).
 UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points with
 Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
-batched (vectorised) RK4 step and recomputed from (x, P) before every LiDAR update.  The
+batched (vectorised) RK4 step (fusion/models/batched_model.py: the tip's kinematics once per
+step for the three input times) and recomputed from (x, P) before every LiDAR update.  The
 linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
 linear h the unscented transform gives the same result).  Every correction is
 ``x + K y``, ``P - K S K^T`` through the Cholesky factor of ``S`` (filterpy's EKF uses the
@@ -33,6 +34,7 @@ from scipy.linalg.lapack import dpotrf, dtrtri
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.models.autodiff import accel_jacobian
+from boomtip.fusion.models.batched_model import rk4_sigma_points, split_accelerations
 from boomtip.fusion.models.crane_pendulum import (
     HOOK_IX,
     IA,
@@ -157,6 +159,8 @@ class HookKalmanCore:
                                               kappa=self.cfg.ukf_kappa)
             self._Wm, self._Wc = self._pts.Wm, self._pts.Wc
             self._Wc_half = 0.5 * self._Wc
+            # the generated model (tip kinematics once per step); the core itself if untraceable
+            self._rk4_sigma = rk4_sigma_points if split_accelerations(self._prm, self.flex) else rk4_batch
 
     # ------------------------------------------------------------------ state access
     @property
@@ -261,7 +265,7 @@ class HookKalmanCore:
         else:
             # sigma points from (x, P), one batched RK4 step, unscented transform
             sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
-            Xf = rk4_batch(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
+            Xf = self._rk4_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
             x = Xf @ self._Wm
             D = Xf - x[:, None]
             kf.x = x

@@ -18,6 +18,7 @@ from boomtip.fusion.hook_kalman import HookFilter
 from boomtip.fusion.hook_run import run_hook_filter
 from boomtip.fusion.hook_tracker import HookTracker
 from boomtip.fusion.models.autodiff import accel_jacobian
+from boomtip.fusion.models.batched_model import rk4_sigma_points
 from boomtip.fusion.models.crane_pendulum import hook_pos_vel, hook_pos_vel_batch, rk4_batch, rk4_float, rk4_step
 from boomtip.tools.hook_eval import rmse_per_axis, world_hook_from_states
 
@@ -219,6 +220,8 @@ def test_rk4_variants_equal_generic_step(flex):
         assert rk4_float(prm, flex, x.tolist(), 0.005) == ref  # the same operations
     ref = np.array([rk4_step(math.sin, math.cos, prm, flex, x.tolist(), 0.005) for x in X])
     np.testing.assert_allclose(rk4_batch(prm, flex, X.T, 0.005).T, ref, rtol=1e-13, atol=1e-15)
+    # the generated model (tip kinematics once per step): the same operations, the same bits
+    np.testing.assert_array_equal(rk4_sigma_points(prm, flex, X.T, 0.005), rk4_batch(prm, flex, X.T, 0.005))
 
 
 def test_linear_update_equals_sequential_scalar_updates():
