@@ -18,6 +18,7 @@ among the project's dependencies, hence the generated Python.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -31,10 +32,10 @@ __all__ = ["split_accelerations", "rk4_sigma_points"]
 _SWAY = (IA, IAD, IB, IBD, IF, IFD)
 
 
-def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
-    """(inputs_part(u) -> list of arrays, sway_part(a, a', b, b', f, f', *inputs_part) ->
-    (a'', b''[, nu_f''])); u are the 15 input arrays (state indices 4..18). None when the core
-    is not traceable."""
+def _generate(prm: tuple, flex: bool, lib) -> tuple[Callable, Callable] | None:
+    """(inputs_part(u) -> list of values, sway_part(a, a', b, b', f, f', *inputs_part) ->
+    (a'', b''[, nu_f''])); u are the 15 inputs (state indices 4..18), arrays (``lib`` numpy)
+    or floats (``lib`` math). None when the core is not traceable."""
     n = 21 if flex else 19
     n_acc = 3 if flex else 2
     try:
@@ -103,7 +104,7 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
         if nd.id in live and nd.id in sway:
             emit(lines, expr, depth, nd, False)
     lines.append("    return " + ", ".join(expr[o.id] for o in outs))
-    ns = {"_sin": np.sin, "_cos": np.cos}
+    ns = {"_sin": lib.sin, "_cos": lib.cos}
     exec(compile("\n".join(lines), "<generated crane accelerations, batched>", "exec"), ns)
     return ns["_inputs"], ns["_sway"]
 
@@ -111,11 +112,11 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
 _SPLIT: dict[tuple, tuple[Callable, Callable] | None] = {}
 
 
-def split_accelerations(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
-    """Cached :func:`_generate` (None: the core is not traceable)."""
-    key = (prm, flex)
+def split_accelerations(prm: tuple, flex: bool, floats: bool = False) -> tuple[Callable, Callable] | None:
+    """Cached :func:`_generate` for arrays (or floats). None: the core is not traceable."""
+    key = (prm, flex, floats)
     if key not in _SPLIT:
-        _SPLIT[key] = _generate(prm, flex)
+        _SPLIT[key] = _generate(prm, flex, math if floats else np)
     return _SPLIT[key]
 
 
@@ -142,18 +143,24 @@ def rk4_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: float) -> np.ndar
     U[:, 1, 2] = qd + qdd * h
     U[:, 2, 1] = qdd
     U[:, 2, 2] = qdd
-    K = np.array(inputs_part(U.reshape(15, 3 * N))).reshape(-1, 3, N)
-    k0, k1, k2 = K[:, 0], K[:, 1], K[:, 2]
+    # each time's share of the inputs part as contiguous 1-D views (unpacking the rows of a
+    # 2-D array into the call, and the ufuncs on them, cost more than the 43-point arithmetic)
+    K = inputs_part(U.reshape(15, 3 * N))
+    k0, k1, k2 = ([v[j * N:(j + 1) * N] for v in K] for j in range(3))
     if flex:
         Y, V = X[[IA, IB, IF]], X[[IAD, IBD, IFD]]  # positions (a, b, nu_f), rates
 
         def acc(Yi, Vi, k):
-            return np.array(sway_part(Yi[0], Vi[0], Yi[1], Vi[1], Yi[2], Vi[2], *k))
+            y0, y1, y2 = Yi
+            v0, v1, v2 = Vi
+            return np.array(sway_part(y0, v0, y1, v1, y2, v2, *k))
     else:
         Y, V = X[[IA, IB]], X[[IAD, IBD]]
 
         def acc(Yi, Vi, k):
-            return np.array(sway_part(Yi[0], Vi[0], Yi[1], Vi[1], *k))
+            y0, y1 = Yi
+            v0, v1 = Vi
+            return np.array(sway_part(y0, v0, y1, v1, *k))
 
     a1 = acc(Y, V, k0)
     Y2, V2 = Y + h2 * V, V + h2 * a1
@@ -169,4 +176,5 @@ def rk4_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: float) -> np.ndar
     out[[IAD, IBD, IFD][:m]] = V + h6 * (a1 + 2 * a2 + 2 * a3 + a4)
     out[4:19] = U[:, :, 2].reshape(15, N)
     return out
+
 
