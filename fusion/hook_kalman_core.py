@@ -142,6 +142,8 @@ class HookKalmanCore:
         # MRU + encoders with the same time stamp as one update (H selects states, R diagonal)
         self._me_idx = np.array([IROLL, IPITCH, IROLL + 1, IPITCH + 1, INU, IMU, IL], np.intp)
         self._me_R = np.diag(np.concatenate([self._R_mru, self._R_enc]))
+        self._mru_idx = self._me_idx[:4].copy()
+        self._mru_R = np.diag(self._R_mru)
         self._q_cache: dict[float, np.ndarray] = {}
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
@@ -297,7 +299,8 @@ class HookKalmanCore:
         kf = self._kf
         x, P = kf.x, kf.P
         z = np.asarray(z, dtype=float)
-        if not np.all(np.isfinite(z)):  # a NaN sample updates nothing: the state never holds a NaN
+        # (the sum is NaN or inf with any NaN or inf sample; the cheaper test at 200 Hz)
+        if not math.isfinite(z.sum()) and not np.all(np.isfinite(z)):  # a NaN sample updates nothing
             keep = np.isfinite(z)
             if not keep.any():
                 return
@@ -319,8 +322,14 @@ class HookKalmanCore:
                    t: float | None = None) -> None:
         if t is not None:
             self.advance_to(t)
-        self._linear_update((IROLL, IPITCH, IROLL + 1, IPITCH + 1),
-                            np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]), self._R_mru)
+        self._selection_update(self._mru_idx, self._mru_R,
+                               np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]))
+
+    def update_mru_sample(self, mru: np.ndarray, t: float | None = None) -> None:
+        """:meth:`update_mru` with the sample as one array (roll, pitch, roll rate, pitch rate)."""
+        if t is not None:
+            self.advance_to(t)
+        self._selection_update(self._mru_idx, self._mru_R, mru)
 
     def update_mru_and_encoders(self, mru: Sequence[float], encoders: Sequence[float], t: float | None = None) -> None:
         """An MRU sample (roll, pitch, roll rate, pitch rate) and an encoder sample (slew, luff,
