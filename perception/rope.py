@@ -161,7 +161,11 @@ def fit_rope(
     d_max = hoist_length_m - cfg.block_clearance_m
     with times.stage("rope.gate"):
         q = pts - s
-        d, res, _ = _surface_residuals(q, u, r)
+        # the depth and surface residual of every point (as _surface_residuals, without the
+        # unit offsets, which only the gated points need)
+        d = q @ u
+        off = q - d[:, None] * u
+        res = np.sqrt(np.einsum("ij,ij->i", off, off)) - r
         half = np.minimum(cfg.gate_m + cfg.gate_sigmas * sigma_prior_rad * np.abs(d), cfg.max_gate_m)
         gate = np.flatnonzero((d > cfg.min_depth_m) & (d < d_max) & (np.abs(res) < half))
     if len(gate) < cfg.min_points:
