@@ -162,7 +162,8 @@ class HookKalmanCore:
             self._Wm, self._Wc = self._pts.Wm, self._pts.Wc
             self._Wc_half = 0.5 * self._Wc
             # the generated model (tip kinematics once per step); the core itself if untraceable
-            self._rk4_sigma = rk4_sigma_points if split_accelerations(self._prm, self.flex) else rk4_batch
+            generated = self.cfg.ukf_model == "generated" and split_accelerations(self._prm, self.flex) is not None
+            self._rk4_sigma = rk4_sigma_points if generated else rk4_batch
 
     # ------------------------------------------------------------------ state access
     @property

@@ -26,6 +26,7 @@ ROPE_STAGES = ("rope.gate", "rope.ransac", "rope.fit")
 def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: list[str] | None = None) -> dict:
     from boomtip.data.scenario import load_scenario
     from boomtip.data.sources import simulation_for
+    from boomtip.fusion.hook_run import run_hook_filter
     from boomtip.tools.runner import build_chain, outage_windows, processing_for, run_labels
 
     s = load_scenario(program, [f"duration_s={duration_s}", *(overrides or [])])
@@ -64,6 +65,17 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
         kpis = {**run_labels(sim, chain.name), **chain.kpis(result, sim.truth, outage_windows(sim))}
         chain.report(Path(tmp), kpis, result, sim.truth)
     wall_out, cpu_out = time.perf_counter() - t0, cpu() - c0
+    # the UKF's baseline in the same run: its sigma points through the crane model's core on
+    # arrays (4 evaluations per RK4 step) instead of the generated model
+    ukf_core = {}
+    for name in [k for k in result.runs if k.startswith("ukf_")]:
+        model = name.split("_")[1]
+        cfg = chain.filter_cfg.model_copy(update={"ukf_model": "core"})
+        run = run_hook_filter(result.measurements, "ukf", model,
+                              chain.params.model_copy(update={"flexible": model == "flexible"}), cfg)
+        ukf_core[name] = {"cpu_s": run.cpu_s, "runtime_s": run.runtime_s,
+                          "same_estimate": bool(np.array_equal(run.x, result.runs[name].x)),
+                          "cpu_ratio": run.cpu_s / result.runs[name].cpu_s}
     total = wall_sim + wall_perc + wall_filters + wall_out
     cpu_total = cpu_sim + cpu_perc + cpu_filters + cpu_out
     per_frame = {k: float(np.mean(v)) for k, v in sorted(stage_ms.items())}
@@ -84,6 +96,7 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
                   "end_to_end": cpu_total},
         "realtime_factor_cpu": {"simulation": duration_s / cpu_sim, "perception": duration_s / cpu_perc,
                                 "estimators": duration_s / cpu_filters, "end_to_end": duration_s / cpu_total},
+        "ukf_against_core_model": ukf_core,
         "peak_rss_mb_after": {"frames": rss_frames, "estimators": rss_filters, "outputs": _peak_rss_mb()},
         "estimators": estimators,
         "block_ms_per_frame": {"mean": float(np.mean(block)), "p95": float(np.percentile(block, 95))},

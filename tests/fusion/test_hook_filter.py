@@ -349,3 +349,14 @@ def test_full_covariance_fix_equals_isotropic_sigma():
     f3.initialize_from_measurements(np.array([0.5, -0.3, -60.0]), (0.1, 0.5, 60.0), (0.0, 0.0, 0.0, 0.0))
     f3.update_lidar(z, cov_m2=np.diag([1.0, 1.0, 0.01]))
     assert f3.P[0, 0] > 2 * f1.P[0, 0] and f3.P[2, 2] > 2 * f1.P[2, 2]
+
+
+@pytest.mark.parametrize("model", ["flexible", "rigid"])
+def test_ukf_generated_model_equals_the_core(truth, model):
+    """The UKF with the generated crane model and with the core on arrays: the same run."""
+    meas = measurements_from_truth(truth, seed=5)
+    gen = run_hook_filter(meas, "ukf", model, t_end=meas.t_lidar[0] + 0.5)
+    core = run_hook_filter(meas, "ukf", model, config=HookFilterConfig(ukf_model="core"), t_end=meas.t_lidar[0] + 0.5)
+    assert len(gen.t) > 90
+    np.testing.assert_array_equal(gen.x, core.x)
+    np.testing.assert_array_equal(gen.P_diag, core.P_diag)
