@@ -18,7 +18,6 @@ among the project's dependencies, hence the generated Python.
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
@@ -32,10 +31,10 @@ __all__ = ["split_accelerations", "rk4_sigma_points"]
 _SWAY = (IA, IAD, IB, IBD, IF, IFD)
 
 
-def _generate(prm: tuple, flex: bool, lib) -> tuple[Callable, Callable] | None:
-    """(inputs_part(u) -> list of values, sway_part(a, a', b, b', f, f', *inputs_part) ->
-    (a'', b''[, nu_f''])); u are the 15 inputs (state indices 4..18), arrays (``lib`` numpy)
-    or floats (``lib`` math). None when the core is not traceable."""
+def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
+    """(inputs_part(u) -> list of arrays, sway_part(a, a', b, b', f, f', *inputs_part) ->
+    (a'', b''[, nu_f''])); u are the 15 input arrays (state indices 4..18). None when the core
+    is not traceable."""
     n = 21 if flex else 19
     n_acc = 3 if flex else 2
     try:
@@ -104,7 +103,7 @@ def _generate(prm: tuple, flex: bool, lib) -> tuple[Callable, Callable] | None:
         if nd.id in live and nd.id in sway:
             emit(lines, expr, depth, nd, False)
     lines.append("    return " + ", ".join(expr[o.id] for o in outs))
-    ns = {"_sin": lib.sin, "_cos": lib.cos}
+    ns = {"_sin": np.sin, "_cos": np.cos}
     exec(compile("\n".join(lines), "<generated crane accelerations, batched>", "exec"), ns)
     return ns["_inputs"], ns["_sway"]
 
@@ -112,11 +111,11 @@ def _generate(prm: tuple, flex: bool, lib) -> tuple[Callable, Callable] | None:
 _SPLIT: dict[tuple, tuple[Callable, Callable] | None] = {}
 
 
-def split_accelerations(prm: tuple, flex: bool, floats: bool = False) -> tuple[Callable, Callable] | None:
-    """Cached :func:`_generate` for arrays (or floats). None: the core is not traceable."""
-    key = (prm, flex, floats)
+def split_accelerations(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
+    """Cached :func:`_generate` (None: the core is not traceable)."""
+    key = (prm, flex)
     if key not in _SPLIT:
-        _SPLIT[key] = _generate(prm, flex, math if floats else np)
+        _SPLIT[key] = _generate(prm, flex)
     return _SPLIT[key]
 
 
@@ -143,8 +142,8 @@ def rk4_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: float) -> np.ndar
     U[:, 1, 2] = qd + qdd * h
     U[:, 2, 1] = qdd
     U[:, 2, 2] = qdd
-    # each time's share of the inputs part as contiguous 1-D views (unpacking the rows of a
-    # 2-D array into the call, and the ufuncs on them, cost more than the 43-point arithmetic)
+    # each time's share of the inputs part as 1-D views (cheaper to pass than the rows of a
+    # 2-D array unpacked into the call)
     K = inputs_part(U.reshape(15, 3 * N))
     k0, k1, k2 = ([v[j * N:(j + 1) * N] for v in K] for j in range(3))
     if flex:
