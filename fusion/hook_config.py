@@ -81,6 +81,10 @@ class HookFilterConfig(BaseModel):
     # EKF: re-evaluate the continuous Jacobian A at most this often (F is rebuilt from the
     # cached A with the actual dt at every step); 0 = at every prediction.
     jacobian_interval_s: float = 0.02
+    # UKF sigma-point propagation: "generated" (fusion/models/batched_model.py, the tip's
+    # kinematics once per RK4 step) or "core" (the crane model's core on arrays, 4 times per
+    # step: benchmark variant); the same operations per element, the same result
+    ukf_model: Literal["generated", "core"] = "generated"
     ukf_alpha: float = 1e-3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0

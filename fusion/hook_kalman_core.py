@@ -10,7 +10,8 @@ motion (fusion/models/jacobian.py), refreshed every ``jacobian_interval_s`` (50 
 every step; ``F`` is rebuilt only when ``A`` or ``dt`` changes).
 UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points with
 Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
-batched (vectorised) RK4 step and recomputed from (x, P) before every LiDAR update.  The
+batched (vectorised) RK4 step (fusion/models/batched_model.py: the tip's kinematics once per
+step for the three input times) and recomputed from (x, P) before every LiDAR update.  The
 linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
 linear h the unscented transform gives the same result).  Every correction is
 ``x + K y``, ``P - K S K^T`` through the Cholesky factor of ``S`` (filterpy's EKF uses the
@@ -33,6 +34,7 @@ from scipy.linalg.lapack import dpotrf, dtrtri
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.models.autodiff import accel_jacobian
+from boomtip.fusion.models.batched_model import rk4_sigma_points, split_accelerations
 from boomtip.fusion.models.crane_pendulum import (
     HOOK_IX,
     IA,
@@ -140,6 +142,8 @@ class HookKalmanCore:
         # MRU + encoders with the same time stamp as one update (H selects states, R diagonal)
         self._me_idx = np.array([IROLL, IPITCH, IROLL + 1, IPITCH + 1, INU, IMU, IL], np.intp)
         self._me_R = np.diag(np.concatenate([self._R_mru, self._R_enc]))
+        self._mru_idx = self._me_idx[:4].copy()
+        self._mru_R = np.diag(self._R_mru)
         self._q_cache: dict[float, np.ndarray] = {}
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
@@ -157,6 +161,9 @@ class HookKalmanCore:
                                               kappa=self.cfg.ukf_kappa)
             self._Wm, self._Wc = self._pts.Wm, self._pts.Wc
             self._Wc_half = 0.5 * self._Wc
+            # the generated model (tip kinematics once per step); the core itself if untraceable
+            generated = self.cfg.ukf_model == "generated" and split_accelerations(self._prm, self.flex) is not None
+            self._rk4_sigma = rk4_sigma_points if generated else rk4_batch
 
     # ------------------------------------------------------------------ state access
     @property
@@ -261,7 +268,7 @@ class HookKalmanCore:
         else:
             # sigma points from (x, P), one batched RK4 step, unscented transform
             sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
-            Xf = rk4_batch(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
+            Xf = self._rk4_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
             x = Xf @ self._Wm
             D = Xf - x[:, None]
             kf.x = x
@@ -293,7 +300,8 @@ class HookKalmanCore:
         kf = self._kf
         x, P = kf.x, kf.P
         z = np.asarray(z, dtype=float)
-        if not np.all(np.isfinite(z)):  # a NaN sample updates nothing: the state never holds a NaN
+        # (the sum is NaN or inf with any NaN or inf sample; the cheaper test at 200 Hz)
+        if not math.isfinite(z.sum()) and not np.all(np.isfinite(z)):  # a NaN sample updates nothing
             keep = np.isfinite(z)
             if not keep.any():
                 return
@@ -315,8 +323,14 @@ class HookKalmanCore:
                    t: float | None = None) -> None:
         if t is not None:
             self.advance_to(t)
-        self._linear_update((IROLL, IPITCH, IROLL + 1, IPITCH + 1),
-                            np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]), self._R_mru)
+        self._selection_update(self._mru_idx, self._mru_R,
+                               np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]))
+
+    def update_mru_sample(self, mru: np.ndarray, t: float | None = None) -> None:
+        """:meth:`update_mru` with the sample as one array (roll, pitch, roll rate, pitch rate)."""
+        if t is not None:
+            self.advance_to(t)
+        self._selection_update(self._mru_idx, self._mru_R, mru)
 
     def update_mru_and_encoders(self, mru: Sequence[float], encoders: Sequence[float], t: float | None = None) -> None:
         """An MRU sample (roll, pitch, roll rate, pitch rate) and an encoder sample (slew, luff,

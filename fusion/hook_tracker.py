@@ -67,8 +67,7 @@ class HookTracker:
         while self._j < len(ev) and ev[self._j][0] <= t + 1e-9:
             te, s, i = ev[self._j]
             if s == 0:
-                r = mru[i]
-                f.update_mru(r[0], r[1], r[2], r[3], t=te)
+                f.update_mru_sample(mru[i], t=te)
             elif np.isfinite(enc[i, 2]):
                 e = enc[i]
                 f.update_encoders(e[0], e[1], e[2], t=te)

@@ -45,6 +45,9 @@ class BlockModel:
         centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         d, idx = self.tree.query(centres, distance_upper_bound=margin_m + grid_cell_m, workers=-1)
         self.grid = np.where(np.isfinite(d), idx, -1).astype(np.int32).reshape(tuple(self.shape))
+        self._grid_flat = self.grid.ravel()
+        self._strides = np.array([self.shape[1] * self.shape[2], self.shape[2], 1], np.int64)
+        self._shape_u = self.shape.astype(np.uint64)
 
     def mesh_distance(self, q: np.ndarray) -> np.ndarray:
         """Distance of each row of q (block frame) to the FULL mesh (any face, seen or not)."""
@@ -57,21 +60,34 @@ class BlockModel:
     def nearest_grid(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Grid lookup: (distance, index); distance inf and index -1 outside the grid's reach."""
         c = np.floor((q - self.lo) / self.cell).astype(np.int64)
-        inside = np.all((c >= 0) & (c < self.shape), axis=1)
-        idx = np.full(len(q), -1, dtype=np.int64)
-        ci = c[inside]
-        idx[inside] = self.grid[ci[:, 0], ci[:, 1], ci[:, 2]]
-        d = np.full(len(q), np.inf)
+        # one unsigned test for 0 <= c < shape (a negative index wraps to a huge one)
+        inside = (c.view(np.uint64) < self._shape_u).all(axis=1)
+        if inside.all():  # the usual case in the ICP: no masks
+            idx = self._grid_flat[c @ self._strides]
+        else:
+            idx = np.full(len(q), -1, dtype=np.int32)
+            idx[inside] = self._grid_flat[c[inside] @ self._strides]
         ok = idx >= 0
+        if ok.all():
+            diff = q - self.points[idx]
+            return np.sqrt(np.einsum("ij,ij->i", diff, diff)), idx
+        d = np.full(len(q), np.inf)
         diff = q[ok] - self.points[idx[ok]]
         d[ok] = np.sqrt(np.einsum("ij,ij->i", diff, diff))
         return d, idx
 
 
-@functools.lru_cache(maxsize=8)
+_MODELS: dict[tuple[float, int], BlockModel] = {}
+
+
 def block_model(height_m: float = 4.0, n: int = 6000) -> BlockModel:
-    """The known block's visible-surface model and indices (cached: ~0.5 s to build once)."""
-    return BlockModel(height_m, n)
+    """The known block's visible-surface model and indices (cached: ~0.5 s to build once).
+    Keyed on the values (an lru_cache keys ``f(4.0)`` and ``f(4.0, 6000)`` apart: the same
+    model built twice)."""
+    key = (float(height_m), int(n))
+    if key not in _MODELS:
+        _MODELS[key] = BlockModel(*key)
+    return _MODELS[key]
 
 
 @dataclass(frozen=True)
@@ -109,12 +125,18 @@ def rotation_hanging(u: np.ndarray) -> np.ndarray:
     """The minimal rotation taking the block's +z to -u (u: unit vector tip -> block, downward).
 
     Continuous for any sway below 90 deg; the block's yaw is a further rotation about its z.
+    Rodrigues' formula I + [v]x + [v]x^2 / (1 + c) written out on floats (called tens of times
+    per frame in the ICP, where the 3 x 3 numpy products cost more than the arithmetic).
     """
-    u = np.asarray(u, float)
-    b = -u / math.sqrt(float(u @ u))
+    ux, uy, uz = (float(c) for c in u)
+    r = math.sqrt(ux * ux + uy * uy + uz * uz)
+    bx, by, bz = -ux / r, -uy / r, -uz / r
     # a = (0, 0, 1): v = a x b = (-b_y, b_x, 0), c = a . b = b_z
-    vx = np.array([[0.0, 0.0, b[0]], [0.0, 0.0, b[1]], [-b[0], -b[1], 0.0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + b[2])
+    k = 1.0 + bz
+    xy = (bx * -by) / k
+    return np.array([[1.0 + (bx * -bx) / k, xy, bx],
+                     [xy, 1.0 + (by * -by) / k, by],
+                     [-bx, -by, 1.0 + ((-bx * bx) + (-by * by)) / k]])
 
 
 def rot_z(psi: float) -> np.ndarray:

@@ -40,23 +40,30 @@ def icp_4dof(p: np.ndarray, t0: np.ndarray, yaw0: float, model: BlockModel, cfg:
     """
     t = t0.copy()
     yaw = yaw0
+    pts = model.points
     for it in range(cfg.icp_iterations if max_iterations is None else max_iterations):
         coarse = it < coarse_iterations
         thr = cfg.icp_max_correspondence_m if coarse else cfg.icp_final_correspondence_m
         Ru = rotation_hanging(t)
-        pr = p @ Ru  # points in the rope frame (absolute)
-        q = (pr - Ru.T @ t) @ rot_z(yaw)  # model frame: Rz^T (pr - tr)
+        Rz = rot_z(yaw)
+        # model frame: Rz^T Ru^T (p - t), one 3 x 3 product for all points
+        q = p @ (Ru @ Rz) - (t @ Ru) @ Rz
         d, idx = model.nearest_grid(q)
         ok = d < thr
-        if np.count_nonzero(ok) < 3:
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok < 3:
             break
-        m, x = model.points[idx[ok]], pr[ok]
+        if n_ok == len(ok):
+            m, x = pts[idx], p @ Ru  # the points in the rope frame (absolute)
+        else:
+            m, x = pts[idx[ok]], p[ok] @ Ru
         mc, xc = m.mean(axis=0), x.mean(axis=0)
-        m0, x0 = m[:, :2] - mc[:2], x[:, :2] - xc[:2]
-        yaw_new = math.atan2(float(np.sum(m0[:, 0] * x0[:, 1] - m0[:, 1] * x0[:, 0])),
-                             float(np.sum(m0[:, 0] * x0[:, 0] + m0[:, 1] * x0[:, 1])))
+        # 2-D Procrustes: the cross-covariance of the centred xy coordinates
+        H = (m[:, :2] - mc[:2]).T @ (x[:, :2] - xc[:2])
+        yaw_new = math.atan2(float(H[0, 1] - H[1, 0]), float(H[0, 0] + H[1, 1]))
         t_new = Ru @ (xc - rot_z(yaw_new) @ mc)
-        step = float(np.linalg.norm(t_new - t))
+        dt = t_new - t
+        step = math.sqrt(float(dt @ dt))
         t, yaw = t_new, yaw_new
         if step < cfg.icp_tolerance_m and not coarse:
             break

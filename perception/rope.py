@@ -32,6 +32,7 @@ turn it into its own angles (fusion.hook_kalman.HookFilter.update_rope).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,11 +91,19 @@ class RopeFix:
 
 
 def tangent_basis(u: np.ndarray) -> np.ndarray:
-    """(3, 2): two unit vectors perpendicular to the unit vector u and to each other."""
-    a = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(u, a)
-    e1 /= np.linalg.norm(e1)
-    return np.column_stack([e1, np.cross(u, e1)])
+    """(3, 2): two unit vectors perpendicular to the unit vector u and to each other
+    (e1 = u x a / |u x a| with a = x or y, e2 = u x e1; the cross products written out on floats:
+    numpy's cross on 3-vectors costs more than the arithmetic, and this runs per Gauss-Newton step)."""
+    ux, uy, uz = (float(c) for c in u)
+    if abs(ux) < 0.9:  # a = x: u x a = (0, uz, -uy)
+        e1x, e1y, e1z = 0.0, uz, -uy
+    else:  # a = y: u x a = (-uz, 0, ux)
+        e1x, e1y, e1z = -uz, 0.0, ux
+    nrm = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / nrm, e1y / nrm, e1z / nrm
+    return np.array([[e1x, uy * e1z - uz * e1y],
+                     [e1y, uz * e1x - ux * e1z],
+                     [e1z, ux * e1y - uy * e1x]])
 
 
 def _surface_residuals(q: np.ndarray, u: np.ndarray, radius_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,7 +161,11 @@ def fit_rope(
     d_max = hoist_length_m - cfg.block_clearance_m
     with times.stage("rope.gate"):
         q = pts - s
-        d, res, _ = _surface_residuals(q, u, r)
+        # the depth and surface residual of every point (as _surface_residuals, without the
+        # unit offsets, which only the gated points need)
+        d = q @ u
+        off = q - d[:, None] * u
+        res = np.sqrt(np.einsum("ij,ij->i", off, off)) - r
         half = np.minimum(cfg.gate_m + cfg.gate_sigmas * sigma_prior_rad * np.abs(d), cfg.max_gate_m)
         gate = np.flatnonzero((d > cfg.min_depth_m) & (d < d_max) & (np.abs(res) < half))
     if len(gate) < cfg.min_points:

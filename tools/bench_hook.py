@@ -3,7 +3,9 @@
 The run is `boomtip run -s hook-2` taken apart: the simulator's frames (ray casting and the
 sensor model), the chain's perception per LiDAR frame (rope fit, block segmentation and
 model fit, tracker), each estimator over the whole run, and the outputs. The baseline is
-real time: a ratio above 1 keeps up with the sensors.
+real time: a ratio above 1 keeps up with the sensors. Each part is timed by the wall clock and
+by the process's CPU time (on a machine shared with other work the wall clock also counts the
+waits for a core); the peak RSS is read after each part (where the memory goes).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ ROPE_STAGES = ("rope.gate", "rope.ransac", "rope.fit")
 def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: list[str] | None = None) -> dict:
     from boomtip.data.scenario import load_scenario
     from boomtip.data.sources import simulation_for
+    from boomtip.fusion.hook_run import run_hook_filter
     from boomtip.tools.runner import build_chain, outage_windows, processing_for, run_labels
 
     s = load_scenario(program, [f"duration_s={duration_s}", *(overrides or [])])
@@ -31,48 +34,78 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
     chain = build_chain(sim, processing_for(sim))
     if chain.name != "hook":
         raise ValueError(f"{program}: not a hook scenario (its chain is {chain.name})")
-    wall_sim = wall_perc = 0.0
+    wall_sim = wall_perc = cpu_sim = cpu_perc = 0.0
+    cpu = time.process_time
     stage_ms: dict[str, list[float]] = defaultdict(list)
     frames = 0
     it = iter(sim)
     while True:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), cpu()
         frame = next(it, None)
         wall_sim += time.perf_counter() - t0
+        cpu_sim += cpu() - c0
         if frame is None:
             break
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), cpu()
         res = chain.process(frame)
         wall_perc += time.perf_counter() - t0
+        cpu_perc += cpu() - c0
         if res is not None and res.times is not None:
             frames += 1
             for k in set(BLOCK_STAGES + ROPE_STAGES) | set(res.times.ms):
                 stage_ms[k].append(res.times.ms.get(k, 0.0))
-    t0 = time.perf_counter()
+    rss_frames = _peak_rss_mb()
+    t0, c0 = time.perf_counter(), cpu()
     result = chain.finish(sim.duration_s, sim.meta.t_start_s)
-    wall_filters = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    wall_filters, cpu_filters = time.perf_counter() - t0, cpu() - c0
+    rss_filters = _peak_rss_mb()
+    t0, c0 = time.perf_counter(), cpu()
     with tempfile.TemporaryDirectory() as tmp:
         chain.write(Path(tmp), result)
         kpis = {**run_labels(sim, chain.name), **chain.kpis(result, sim.truth, outage_windows(sim))}
         chain.report(Path(tmp), kpis, result, sim.truth)
-    wall_out = time.perf_counter() - t0
+    wall_out, cpu_out = time.perf_counter() - t0, cpu() - c0
+    # the UKF's baseline in the same run: its sigma points through the crane model's core on
+    # arrays (4 evaluations per RK4 step) instead of the generated model
+    ukf_core = {}
+    for name in [k for k in result.runs if k.startswith("ukf_")]:
+        model = name.split("_")[1]
+        cfg = chain.filter_cfg.model_copy(update={"ukf_model": "core"})
+        run = run_hook_filter(result.measurements, "ukf", model,
+                              chain.params.model_copy(update={"flexible": model == "flexible"}), cfg)
+        ukf_core[name] = {"cpu_s": run.cpu_s, "runtime_s": run.runtime_s,
+                          "same_estimate": bool(np.array_equal(run.x, result.runs[name].x)),
+                          "cpu_ratio": run.cpu_s / result.runs[name].cpu_s}
     total = wall_sim + wall_perc + wall_filters + wall_out
+    cpu_total = cpu_sim + cpu_perc + cpu_filters + cpu_out
     per_frame = {k: float(np.mean(v)) for k, v in sorted(stage_ms.items())}
     block = np.sum([stage_ms[k] for k in BLOCK_STAGES], axis=0)
     rope = np.sum([stage_ms[k] for k in ROPE_STAGES], axis=0)
+    span = {name: run.runtime_s / max(run.realtime_fraction, 1e-12) for name, run in result.runs.items()}
     estimators = {name: {"runtime_s": run.runtime_s, "percent_of_real_time": 100.0 * run.realtime_fraction,
-                         "realtime_factor": 1.0 / max(run.realtime_fraction, 1e-12)} for name, run in result.runs.items()}
+                         "realtime_factor": 1.0 / max(run.realtime_fraction, 1e-12), "cpu_s": run.cpu_s,
+                         "cpu_percent_of_real_time": 100.0 * run.cpu_s / span[name]}
+                  for name, run in result.runs.items()}
     return {
         "program": program, "duration_s": duration_s, "lidar_frames": frames,
         "wall_s": {"simulation": wall_sim, "perception": wall_perc, "estimators": wall_filters, "outputs": wall_out,
                    "end_to_end": total},
         "realtime_factor": {"simulation": duration_s / wall_sim, "perception": duration_s / wall_perc,
                             "estimators": duration_s / wall_filters, "end_to_end": duration_s / total},
+        "cpu_s": {"simulation": cpu_sim, "perception": cpu_perc, "estimators": cpu_filters, "outputs": cpu_out,
+                  "end_to_end": cpu_total},
+        "realtime_factor_cpu": {"simulation": duration_s / cpu_sim, "perception": duration_s / cpu_perc,
+                                "estimators": duration_s / cpu_filters, "end_to_end": duration_s / cpu_total},
+        "ukf_against_core_model": ukf_core,
+        "peak_rss_mb_after": {"frames": rss_frames, "estimators": rss_filters, "outputs": _peak_rss_mb()},
         "estimators": estimators,
         "block_ms_per_frame": {"mean": float(np.mean(block)), "p95": float(np.percentile(block, 95))},
         "rope_ms_per_frame": {"mean": float(np.mean(rope)), "p95": float(np.percentile(rope, 95))},
         "stage_ms_per_frame": per_frame,
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "peak_rss_mb": _peak_rss_mb(),
         "ratio": duration_s / total,
     }
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -219,6 +219,13 @@ def bench_hook_cmd(
         print(f"  {name:28s} {e['runtime_s']:8.2f} {e['percent_of_real_time']:10.2f} % of real time")
     print(f"  block segmentation + fit: {r['block_ms_per_frame']['mean']:.1f} ms/frame (p95 {r['block_ms_per_frame']['p95']:.1f}); "
           f"rope fit {r['rope_ms_per_frame']['mean']:.1f} ms/frame; peak RSS {r['peak_rss_mb']:.0f} MB")
+    c = r["realtime_factor_cpu"]
+    print(f"  by CPU time: simulation {c['simulation']:.2f}x, perception {c['perception']:.2f}x, estimators "
+          f"{c['estimators']:.2f}x, end to end {c['end_to_end']:.2f}x; estimators "
+          + ", ".join(f"{k} {e['cpu_percent_of_real_time']:.2f} %" for k, e in r["estimators"].items()))
+    for name, u in r["ukf_against_core_model"].items():
+        print(f"  {name}: the core model on the sigma points {u['cpu_s']:.2f} s CPU, {u['cpu_ratio']:.2f}x the generated "
+              f"model's ({'the same estimate' if u['same_estimate'] else 'a different estimate'})")
     print(f"  ratio {r['ratio']:.2f}x real time end to end")
 
 

@@ -330,3 +330,34 @@ def test_timing_per_frame(frame_20m):
     print(f"\nhook 20 m: {len(pts)} points, median {np.median(totals):.1f} ms per frame "
           + " ".join(f"{k}={v:.1f}" for k, v in st.ms.items()))
     assert np.median(totals) < 150.0
+
+
+def test_block_model_geometry_helpers():
+    from boomtip.perception.hook_block import block_model
+    from boomtip.perception.rope import tangent_basis
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        u = rng.normal(size=3)
+        u[2] = -abs(u[2]) - 0.2  # hanging: below the tip
+        u *= rng.uniform(1.0, 250.0)
+        R = rotation_hanging(u)
+        un = u / np.linalg.norm(u)
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-14)
+        assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-14)
+        np.testing.assert_allclose(R @ [0.0, 0.0, 1.0], -un, atol=1e-14)  # block +z -> up the rope
+        # minimal: the rotation axis is normal to both z and u
+        np.testing.assert_allclose(R @ np.cross([0.0, 0.0, 1.0], un), np.cross([0.0, 0.0, 1.0], un), atol=1e-14)
+        E = tangent_basis(un)
+        np.testing.assert_allclose(E.T @ E, np.eye(2), atol=1e-14)
+        np.testing.assert_allclose(un @ E, 0.0, atol=1e-14)
+        np.testing.assert_allclose(E[:, 1], np.cross(un, E[:, 0]), atol=1e-14)
+    # the model is built once whatever the call's spelling
+    assert block_model(4.0) is block_model(4.0, 6000)
+    model = block_model(4.0)
+    q = np.vstack([model.points[:50] + rng.normal(0, 0.05, (50, 3)), [[50.0, 0.0, 0.0], [-50.0, 0.0, 0.0]]])
+    d, idx = model.nearest_grid(q)
+    assert np.all(idx[:50] >= 0) and np.all(idx[50:] == -1) and np.all(np.isinf(d[50:]))
+    d_exact, _ = model.nearest(q[:50])
+    np.testing.assert_allclose(d[:50], np.linalg.norm(q[:50] - model.points[idx[:50]], axis=1))
+    assert np.all(d[:50] <= d_exact + np.sqrt(3) * model.cell + 1e-12)  # at most a cell diagonal worse
