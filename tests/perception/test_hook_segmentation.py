@@ -10,7 +10,6 @@ suspension point. Frame: levelled, origin at the boom tip, z up.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -314,22 +313,16 @@ def test_segmentation_scores():
     assert math.isnan(p) and r == 0.0
 
 
-def test_timing_per_frame(frame_20m):
-    """Per-frame time of the four stages on a full OS1-128 frame (generous bound: shared CI cores)."""
+def test_each_stage_reports_its_time(frame_20m):
+    """The four stages time themselves (the APT tables come from these; their speed is
+    `boomtip bench hook`'s to measure against a baseline, not a test's)."""
     pts, lab, ref = frame_20m
     prior = ref + np.array([0.3, -0.2, 0.25])
-    detect(pts, prior, 20.0)  # warm-up (model build)
-    totals = []
-    for _ in range(5):
-        st = StageTimes()
-        t0 = time.perf_counter()
-        det = detect(pts, prior, 20.0, times=st)
-        totals.append((time.perf_counter() - t0) * 1e3)
-        assert det.ok
-        assert set(st.ms) == {"hook.gate", "hook.planes", "hook.cluster", "hook.fit"}
-    print(f"\nhook 20 m: {len(pts)} points, median {np.median(totals):.1f} ms per frame "
-          + " ".join(f"{k}={v:.1f}" for k, v in st.ms.items()))
-    assert np.median(totals) < 150.0
+    st = StageTimes()
+    det = detect(pts, prior, 20.0, times=st)
+    assert det.ok
+    assert set(st.ms) == {"hook.gate", "hook.planes", "hook.cluster", "hook.fit"}
+    assert all(v > 0 for v in st.ms.values())
 
 
 def test_block_model_geometry_helpers():
