@@ -10,6 +10,7 @@ import pytest
 from boomtip.perception.feeder import Footprint, centre_line_yaw, plane_in_level
 from boomtip.perception.feeder_registration import (
     FeederModel,
+    RegistrationConfig,
     condition_on,
     inverse,
     pose_information,
@@ -103,6 +104,26 @@ def test_registration_recovers_a_known_motion_and_conditioning_removes_tilt_leak
     assert abs(xy_yaw[0] - truth[0]) < 0.01 and abs(xy_yaw[1] - truth[1]) < 0.01
     assert abs(math.degrees(xy_yaw[2] - truth[5])) < 0.01
     assert np.all(np.linalg.eigvalsh(info) > 0)
+
+
+def test_a_looser_icp_convergence_lands_within_a_millimetre():
+    """relative_change 1e-4 (fewer ICP iterations) against 1e-6 on the same frame and guess."""
+    rng = np.random.default_rng(4)
+    scene = _deck_scene(rng)
+    structure = scene[np.abs(scene[:, 2]) > 0.2]
+    T_level_map0 = pose_matrix(0.0, 0.0, -45.0, 0.0, 0.0, 0.0)
+    truth = np.array([0.21, -0.13, -44.6, 0.004, -0.006, math.radians(0.3)])
+    other = _deck_scene(np.random.default_rng(5))
+    frame = transform(pose_matrix(*truth), other[np.abs(other[:, 2]) > 0.2])
+    guess = inverse(pose_matrix(*(truth + [0.02, -0.02, 0.0, 0.0, 0.0, math.radians(0.02)])))
+    poses = []
+    for change in (1e-6, 1e-4):
+        model = FeederModel(RegistrationConfig(relative_change=change))
+        model.set_keyframe(transform(T_level_map0, structure), inverse(T_level_map0))
+        poses.append(pose_vector(inverse(model.register(frame, guess, prior_sigma_m=0.03).T_map_level)))
+    assert np.abs(poses[1] - poses[0]).max() > 1e-7  # the setting reaches the ICP: it stops earlier
+    assert np.all(np.abs(poses[1][:3] - poses[0][:3]) < 0.001)
+    assert math.degrees(abs(poses[1][5] - poses[0][5])) < 0.002
 
 
 def test_conditioning_is_the_gaussian_conditional():
