@@ -19,7 +19,6 @@ from boomtip.fusion.models.relative_motion import (
     ACC,
     BODY_TILT,
     BODY_YAW,
-    CENTRE,
     HEADING_OFFSET,
     N_MOTION,
     N_STATE,
@@ -28,15 +27,11 @@ from boomtip.fusion.models.relative_motion import (
     RATE,
     deck_plane,
     feeder_mru_measurement,
-    centre_level,
     cross3,
     numeric_jacobian,
     omega,
-    origin_state,
-    origin_state_jacobian,
     point_velocity,
     point_velocity_jacobian,
-    swing_jacobian,
     transition,
     well_observed,
 )
@@ -67,10 +62,6 @@ class FeederFilterConfig(BaseModel):
     registration_floor: tuple[float, float] = Field((0.025, 0.08), description="1-sigma a registration is never better than: m (x, y), "
                                                     "deg (yaw); measured against the truth, ICP on a deck's structure is off by this")
     init_sigma_rate: tuple[float, float] = Field((0.5, 2.0), description="first-frame 1-sigma of the rates: m/s, deg/s")
-    centre_prior_m: tuple[float, float, float] = Field((0.0, 0.0, -5.0), description="the feeder's centre of rotation in the "
-                                                       "map frame before any measurement: below the deck point under the tip")
-    centre_prior_sigma_m: tuple[float, float, float] = Field((30.0, 15.0, 10.0), description="its 1-sigma: along the feeder "
-                                                             "(the tip may be anywhere over its deck), across it, below the deck")
     # A feeder MRU (when the source has one): its offsets from the map frame.
     heading_offset_walk_degps: float = Field(0.005, ge=0, description="random walk of the heading offset between the ships' "
                                              "heading frames (004: moored or on DP, slowly varying), deg per sqrt(s)")
@@ -125,8 +116,6 @@ class FeederFilter:
         P[ACC, ACC] = np.diag(self.sigma_acc ** 2)
         # The feeder MRU's offsets: unknown until its first sample (start_feeder_mru).
         P[OFFSETS, OFFSETS] = np.eye(OFFSETS.stop - OFFSETS.start) * math.pi ** 2
-        self.x[CENTRE] = self.cfg.centre_prior_m
-        P[CENTRE, CENTRE] = np.diag(np.square(self.cfg.centre_prior_sigma_m))
         self.P, self.t_s, self.tip_velocity = P, t_s, np.asarray(tip_velocity, dtype=float)
         self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
         self.record()
@@ -140,13 +129,7 @@ class FeederFilter:
         if dt <= 0:  # a late measurement is applied at the current time
             return
         F, Q = self._transition(dt)
-        # The origin swings about the centre of rotation: its velocity is the centre's (the
-        # Singer rates) less w x R c, taken at the interval's midpoint.
-        x_mid = 0.5 * (self.x + F @ self.x)
-        x_new = F @ self.x
-        x_new[0:3] -= dt * cross3(omega(x_mid[0:6], x_mid[6:12]), centre_level(x_mid))
-        F[0:3] -= dt * swing_jacobian(x_mid) @ (0.5 * (np.eye(N_STATE) + F))
-        self.x = x_new
+        self.x = F @ self.x
         if tip_position is not None and self.tip_position is not None:
             self.x[0:3] -= np.asarray(tip_position, dtype=float) - self.tip_position
         else:
@@ -157,8 +140,8 @@ class FeederFilter:
         self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
 
     def _transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(F, Q) of the whole state over dt; a copy of F (the swing is added to it). Cached:
-        frame intervals repeat, and assembling the blocks cost more than the filter's algebra."""
+        """(F, Q) of the whole state over dt. Cached: frame intervals repeat, and assembling the
+        blocks cost more than the filter's algebra."""
         key = round(float(dt), 9)
         if key not in self._fq:
             F_motion, Q_motion = transition(dt, self.tau, self.sigma_acc, self.rate_tau)
@@ -168,8 +151,7 @@ class FeederFilter:
             if len(self._fq) > 512:
                 self._fq.clear()
             self._fq[key] = (F, Q)
-        F, Q = self._fq[key]
-        return F.copy(), Q
+        return self._fq[key]
 
     def pose_sigma(self) -> np.ndarray:
         return np.sqrt(np.diag(self.P)[POSE])
@@ -261,9 +243,8 @@ class FeederFilter:
         P[OFFSETS, :], P[:, OFFSETS] = 0.0, 0.0
         P[BODY_YAW, BODY_YAW] = sm * sm
         P[BODY_TILT, BODY_TILT] = np.eye(2) * st * st
-        rest = np.r_[0:N_MOTION, CENTRE]
-        P[HEADING_OFFSET, rest] = P[5, rest]
-        P[rest, HEADING_OFFSET] = P[rest, 5]
+        P[HEADING_OFFSET, :N_MOTION] = P[5, :N_MOTION]
+        P[:N_MOTION, HEADING_OFFSET] = P[:N_MOTION, 5]
         P[HEADING_OFFSET, BODY_YAW] = P[BODY_YAW, HEADING_OFFSET] = -sm * sm
         P[HEADING_OFFSET, HEADING_OFFSET] = P[5, 5] + sm * sm + angle_sigma_rad ** 2
         self.feeder_mru_started = True
@@ -290,14 +271,8 @@ class FeederFilter:
         """The feeder MRU's offsets (heading offset, body yaw, body tilt about x, y; rad) and their 1-sigmas."""
         return self.x[OFFSETS].copy(), np.sqrt(np.diag(self.P)[OFFSETS])
 
-    def centre(self) -> tuple[np.ndarray, np.ndarray]:
-        """The centre of rotation in the map frame (m) and its 1-sigmas."""
-        return self.x[CENTRE].copy(), np.sqrt(np.diag(self.P)[CENTRE])
-
     def record(self) -> None:
         """Keep the state at the current time (once per frame, after its updates)."""
         self.out.t_s.append(self.t_s)
-        # pose and the ORIGIN's rates (the state has the centre's), with their covariance
-        J = origin_state_jacobian(self.x)
-        self.out.x.append(origin_state(self.x))
-        self.out.P.append(J @ self.P @ J.T)
+        self.out.x.append(self.x.copy())
+        self.out.P.append(self.P[:12, :12].copy())  # pose and rates: what the outputs use

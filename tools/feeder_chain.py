@@ -69,7 +69,6 @@ class FeederResult:
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the model's (map) frame
     model_points_map: np.ndarray | None = None  # the keyframe, for the display
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
-    centre: dict | None = None  # the feeder's centre of rotation in the feeder frame, as estimated
 
 
 class FeederChain:
@@ -340,12 +339,7 @@ class FeederChain:
         return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
                             self.frame_ms, notes, self.missing, T_map_feeder,
                             np.asarray(self.model.keyframe.points) if not self.model.empty else None,
-                            self._feeder_mru_summary(), self._centre_summary(T_map_feeder))
-
-    def _centre_summary(self, T_map_feeder: np.ndarray) -> dict:
-        c_map, c_sigma = self.filter.centre()
-        c_feeder = transform(inverse(T_map_feeder), c_map[None, :])[0]
-        return {"in_feeder_frame_m": np.round(c_feeder, 3).tolist(), "sigma_m": np.round(c_sigma, 3).tolist()}
+                            self._feeder_mru_summary())
 
     def _feeder_mru_summary(self) -> dict | None:
         if self.feeder_mru is None or not self.filter.feeder_mru_started:

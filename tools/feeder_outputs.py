@@ -77,8 +77,6 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
         out["centre_line"] = {"yaw_in_map_deg": round(math.degrees(res.centre_line[0]), 5), "frames": res.centre_line[1]}
     if res.feeder_mru is not None:
         out["feeder_mru"] = res.feeder_mru
-    if res.centre is not None:
-        out["centre_of_rotation"] = res.centre
     if res.notes:
         out["notes"] = res.notes
     if truth is None or len(res.t_s) == 0 or not {"feeder_x", "crane_x"} <= set(truth.columns):

@@ -4,13 +4,9 @@ filter models it: pure functions, no state.
 State: pose p = (x, y, z, roll, pitch, yaw) of the feeder's map frame in the level frame at
 the boom tip (the crane vessel's heading frame moved to the tip), R = Rz(yaw) Ry(pitch)
 Rx(roll); the rates of the feeder's motion relative to the crane VESSEL (6); their
-accelerations (6); the feeder MRU's offsets (4, below); the feeder's centre of rotation c in
-the map frame (3, constant). The translational rate is that of the centre, not of the map's
-origin: a ship rolls and pitches about a point of its own, so the deck point below the tip
-swings by w x (p - (p + R c)) on top of the centre's own, slower, translation. Modelled so, the
-swing comes from the rotation the deck plane and the MRU measure well, and only the centre's
-small translation is left to the Singer model and the radar's weak horizontal Doppler. The tip swings metres over the vessel's roll and pitch; the crane MRU's
-rates give that swing's velocity q_dot (the filter's input), so the position, relative to the
+accelerations (6); the feeder MRU's offsets (4, below). The tip swings metres over the
+vessel's roll and pitch; the crane MRU's rates give that swing's velocity q_dot (the filter's
+input), so the position, relative to the
 tip, moves by the integral of (rate - q_dot) while the rates and accelerations model only the
 feeder's own, smoother, wave motion. The MRU's rates, not its angles, carry the input: an
 angle's noise at the tip's 50 m lever is 2 cm a sample, a rate's integrated over a frame a
@@ -24,7 +20,7 @@ Measurements:
   and its origin lies on the deck, so (a, b, c) depend on z, roll, pitch (and, weakly, x, y, yaw);
 - a registration's x, y, yaw, projected on the directions the geometry constrains;
 - the velocity of the feeder's point at the radar (radar Doppler, made a velocity in the
-  level frame by perception): v_c + w x (xi - p - R c), w from the Euler rates;
+  level frame by perception): v + w x (xi - p), w from the Euler rates;
 - optionally an MRU on the feeder (document 004's second MRU): the feeder body's attitude in
   its own heading frame and its angular rates. Four constant-ish offsets relate it to the
   map frame (state 18-21): the heading offset between the feeder MRU's heading frame and the
@@ -43,8 +39,8 @@ import numpy as np
 from scipy.linalg import expm
 
 N_MOTION = 18  # pose, rates, accelerations
-N_STATE = 25  # and the feeder MRU's offsets, and the centre of rotation
-POSE, RATE, ACC, OFFSETS, CENTRE = slice(0, 6), slice(6, 12), slice(12, 18), slice(18, 22), slice(22, 25)
+N_STATE = 22  # and the feeder MRU's offsets
+POSE, RATE, ACC, OFFSETS = slice(0, 6), slice(6, 12), slice(12, 18), slice(18, 22)
 HEADING_OFFSET, BODY_YAW, BODY_TILT = 18, 19, slice(20, 22)
 YAW_LEVER_M = 10.0  # yaw is weighed against x and y at this lever when deciding what is observed
 
@@ -116,63 +112,21 @@ def deck_plane(x: np.ndarray) -> np.ndarray:
     return np.array([-n[0] / n[2], -n[1] / n[2], -d / n[2]])
 
 
-def centre_level(x: np.ndarray) -> np.ndarray:
-    """The centre of rotation's place relative to the map's origin, level axes (m)."""
-    return rotation(*x[3:6]) @ x[CENTRE]
-
-
 def point_velocity(x: np.ndarray, xi_level: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
     """Velocity relative to the tip (level frame at it) of the feeder's point at xi, m/s;
     tip_velocity: the tip's velocity relative to the vessel (q_dot)."""
-    return x[6:9] - tip_velocity + cross3(omega(x[0:6], x[6:12]), xi_level - x[0:3] - centre_level(x))
-
-
-def origin_velocity(x: np.ndarray) -> np.ndarray:
-    """The map origin's velocity relative to the vessel (level axes): the centre's, plus the
-    swing about it."""
-    return x[6:9] - cross3(omega(x[0:6], x[6:12]), centre_level(x))
-
-
-def origin_state(x: np.ndarray) -> np.ndarray:
-    """Pose and the rates of the map origin (its velocity, the Euler rates): what the outputs give."""
-    return np.concatenate([x[0:6], origin_velocity(x), x[9:12]])
-
-
-def swing_jacobian(x: np.ndarray) -> np.ndarray:
-    """d(w x R c)/dx (3 x N): analytic in the rates and the centre, by differences in the three
-    angles only (these run at every predict and record; full differences cost 30 evaluations)."""
-    R = rotation(*x[3:6])
-    rc = R @ x[CENTRE]
-    E = euler_rate_matrix(x)
-    J = np.zeros((3, len(x)))
-    J[:, 9:12] = -skew(rc) @ E  # w x rc = -rc x w
-    J[:, CENTRE] = skew(E @ x[9:12]) @ R
-    f = lambda z: cross3(omega(z[0:6], z[6:12]), centre_level(z))
-    J[:, 3:6] = numeric_jacobian(f, x, np.arange(3, 6))[:, 3:6]
-    return J
-
-
-def origin_state_jacobian(x: np.ndarray) -> np.ndarray:
-    """d origin_state / dx (12 x N)."""
-    J = np.zeros((12, len(x)))
-    J[0:6, 0:6] = np.eye(6)
-    J[6:9, 6:9] = np.eye(3)
-    J[9:12, 9:12] = np.eye(3)
-    J[6:9] -= swing_jacobian(x)
-    return J
+    return x[6:9] - tip_velocity + cross3(omega(x[0:6], x[6:12]), xi_level - x[0:3])
 
 
 def point_velocity_jacobian(x: np.ndarray, xi_level: np.ndarray) -> np.ndarray:
-    """d point_velocity / dx (3 x N), the yaw's column included (the caller chooses)."""
+    """d point_velocity / dx (3 x N): analytic in the position, velocity and rates, by
+    differences in the three angles only (it runs at every radar frame)."""
     w = omega(x[0:6], x[6:12])
     J = np.zeros((3, len(x)))
     J[:, 6:9] = np.eye(3)
     J[:, 0:3] = -skew(w)
-    r = xi_level - x[0:3] - centre_level(x)
-    E = euler_rate_matrix(x)
-    J[:, 9:12] = -skew(r) @ E
-    J[:, CENTRE] = -skew(w) @ rotation(*x[3:6])
-    f = lambda z: cross3(omega(z[0:6], z[6:12]), xi_level - z[0:3] - centre_level(z))
+    J[:, 9:12] = -skew(xi_level - x[0:3]) @ euler_rate_matrix(x)
+    f = lambda z: cross3(omega(z[0:6], z[6:12]), xi_level - z[0:3])
     J[:, 3:6] = numeric_jacobian(f, x, np.arange(3, 6))[:, 3:6]
     return J
 
