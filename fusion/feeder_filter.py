@@ -27,7 +27,6 @@ from boomtip.fusion.models.relative_motion import (
     RATE,
     deck_plane,
     feeder_mru_measurement,
-    cross3,
     numeric_jacobian,
     omega,
     point_velocity,
