@@ -17,6 +17,11 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
 
+def gap_free_segments(t_s: np.ndarray, max_gap_s: float) -> list[np.ndarray]:
+    """Index arrays of the stretches of t_s with no step longer than max_gap_s."""
+    return np.split(np.arange(len(t_s)), np.flatnonzero(np.diff(t_s) > max_gap_s) + 1)
+
+
 def complementary_attitude(log: MruLog, tau_s: float) -> MruLog:
     """The log with its angles filtered; rates unchanged. Runs per gap-free segment (a gap
     restarts the filter from the angles), at the segment's median sample period."""
@@ -24,8 +29,7 @@ def complementary_attitude(log: MruLog, tau_s: float) -> MruLog:
     if len(t) < 3 or not np.isfinite(log.max_gap_s):
         return log
     out = rpy.copy()
-    breaks = np.flatnonzero(np.diff(t) > log.max_gap_s) + 1
-    for seg in np.split(np.arange(len(t)), breaks):  # a loop over segments, not samples
+    for seg in gap_free_segments(t, log.max_gap_s):  # a loop over segments, not samples
         if len(seg) < 3:
             continue
         dt = float(np.median(np.diff(t[seg])))
@@ -50,9 +54,8 @@ def averaged_rates(log: MruLog, half_window_s: float) -> tuple[MruLog, int]:
     if len(t) < 3 or half_window_s <= 0 or not np.isfinite(log.max_gap_s):
         return log, 1
     rates = log.rpy_rate_radps.copy()
-    breaks = np.flatnonzero(np.diff(t) > log.max_gap_s) + 1
     n_used = []
-    for seg in np.split(np.arange(len(t)), breaks):  # a loop over segments, not samples
+    for seg in gap_free_segments(t, log.max_gap_s):  # a loop over segments, not samples
         dt = float(np.median(np.diff(t[seg]))) if len(seg) > 1 else 0.0
         k = int(half_window_s / dt) if dt > 0 else 0
         if k < 1 or len(seg) < 2 * k + 1:

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from boomtip.fusion.attitude_filter import gap_free_segments
 
 
 @dataclass
@@ -47,7 +48,7 @@ def tilt_from_normals(t_s: np.ndarray, normals_level: np.ndarray, min_span_s: fl
     t_s = np.asarray(t_s, dtype=float)
     n = normals_level / np.linalg.norm(normals_level, axis=1, keepdims=True)
     means, spans, sigmas = [], [], []
-    for seg in np.split(np.arange(len(t_s)), np.flatnonzero(np.diff(t_s) > max_gap_s) + 1):
+    for seg in gap_free_segments(t_s, max_gap_s):
         span = float(t_s[seg[-1]] - t_s[seg[0]]) if len(seg) else 0.0
         if len(seg) < 10 or span < min_span_s:
             continue

@@ -102,7 +102,7 @@ def plane_in_level(points_level: np.ndarray, inflation: float) -> PlaneLevel:
 class FeederPerception:
     """Built from the installation (mounts, tip) and the settings."""
 
-    def __init__(self, installation: Installation, cfg: FeederConfig | None = None) -> None:
+    def __init__(self, installation: Installation, cfg: FeederConfig | None = None, rates_averaged_over: int = 1) -> None:
         self.installation = installation
         self.cfg = cfg or FeederConfig()
         T_cb, T_bs = installation.T_crane_boomtip(), installation.T_boomtip_sensor()
@@ -110,12 +110,14 @@ class FeederPerception:
         # the sensors' positions relative to the tip, crane-vessel axes
         self.t_crane_sensor = {s: (T_cb @ T_bs[s])[:3, 3] - T_cb[:3, 3] for s in ("lidar", "radar")}
         self.t_crane_tip = T_cb[:3, 3]
-        self.rate_sigma_radps = math.radians(installation.mru.rate_noise_degps)
+        # the MRU's stated rate noise, over the samples the caller averages each rate of
+        rate_sigma = math.radians(installation.mru.rate_noise_degps)
+        self.rate_sigma_radps = rate_sigma / math.sqrt(rates_averaged_over)
         self.angle_sigma_rad = math.radians(installation.mru.angle_noise_deg)
         self.mount_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
         self.mru_bias_sigma_rad = math.radians(installation.mru.bias_accuracy_deg)
         # 1-sigma of the tip's velocity from the MRU's rates (its stated rate noise at the tip's lever)
-        self.tip_velocity_sigma = float(np.linalg.norm(self.t_crane_tip)) * self.rate_sigma_radps
+        self.tip_velocity_sigma = float(np.linalg.norm(self.t_crane_tip)) * rate_sigma / math.sqrt(rates_averaged_over)
 
     @staticmethod
     def R_level(rpy: np.ndarray) -> np.ndarray:

@@ -81,10 +81,7 @@ class FeederChain:
         # the levelling's attitude: the MRU's angles filtered with its rates (see attitude_filter)
         self.mru = complementary_attitude(source.mru, cfg.mru_tau_s) if cfg.mru_tau_s > 0 else source.mru
         self.mru, n_rates = averaged_rates(self.mru, cfg.mru_rate_half_window_s)
-        self.perception = FeederPerception(inst, cfg.perception)
-        # the averaged rates' noise: the data sheet's over the samples averaged
-        self.perception.rate_sigma_radps /= math.sqrt(n_rates)
-        self.perception.tip_velocity_sigma /= math.sqrt(n_rates)
+        self.perception = FeederPerception(inst, cfg.perception, rates_averaged_over=n_rates)
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
         self.filter = FeederFilter(cfg.filter)

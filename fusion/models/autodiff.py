@@ -100,23 +100,24 @@ class _Tape:
         return self.node("cos", (v,)) if isinstance(v, _TraceNode) else math.cos(v)
 
 
+
+def ancestors(roots) -> set[int]:
+    """The ids of every traced node the roots depend on (themselves included)."""
+    seen: set[int] = set()
+    stack = list(roots)
+    while stack:
+        nd = stack.pop()
+        if nd.id not in seen:
+            seen.add(nd.id)
+            stack.extend(a for a in nd.args if isinstance(a, _TraceNode))
+    return seen
+
 def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
     """Python source for ``jac(x) -> [d outs[r] / d x_k for r for k < n_in]``, compiled:
     the forward sweep (values used once are inlined into their consumer's expression) and
     one reverse sweep per output (an adjoint reached by a single path is passed on as an
     expression, others are summed in one statement)."""
     nodes = tape.nodes
-
-    def ancestors(roots):
-        seen: set[int] = set()
-        stack = list(roots)
-        while stack:
-            nd = stack.pop()
-            if nd.id not in seen:
-                seen.add(nd.id)
-                stack.extend(a for a in nd.args if isinstance(a, _TraceNode))
-        return seen
-
     live = ancestors(outs)
     sin_of = {nd.args[0].id: nd for nd in nodes if nd.op == "sin" and nd.id in live}
     cos_of = {nd.args[0].id: nd for nd in nodes if nd.op == "cos" and nd.id in live}

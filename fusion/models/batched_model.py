@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 
 from boomtip.data.crane_model import pendulum_accelerations_core
-from boomtip.fusion.models.autodiff import _Tape, _TraceNode
+from boomtip.fusion.models.autodiff import _Tape, _TraceNode, ancestors
 from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD
 
 __all__ = ["split_accelerations", "rk4_sigma_points"]
@@ -47,13 +47,7 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
     if not all(isinstance(o, _TraceNode) for o in outs):
         return None
     nodes = tape.nodes
-    live: set[int] = set()
-    stack = list(outs)
-    while stack:
-        nd = stack.pop()
-        if nd.id not in live:
-            live.add(nd.id)
-            stack.extend(a for a in nd.args if isinstance(a, _TraceNode))
+    live = ancestors(outs)
     sway = set(i for i in _SWAY if i < n)
     for nd in nodes[n:]:
         if any(isinstance(a, _TraceNode) and a.id in sway for a in nd.args):
