@@ -67,6 +67,7 @@ class LidarObservation:
     tip_level: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the tip's place and velocity in the vessel's heading frame (MRU)
     tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ms: float = 0.0  # time spent on it so far (the chain adds its own)
+    sample_returns_sensor: np.ndarray | None = None  # the measured return each sample stands for (its voxel's first): beams for the static test
 
 
 @dataclass
@@ -161,10 +162,11 @@ class FeederPerception:
         R_ls, t_ls = self.sensor_in_level("lidar", rpy)
         finite = np.all(np.isfinite(points_sensor), axis=1)
         pts = points_sensor[finite]
-        sample = voxel_downsample(pts, self.cfg.registration.sample_m)[0] if len(pts) else pts
+        sample, first = voxel_downsample(pts, self.cfg.registration.sample_m) if len(pts) else (pts, np.zeros(0, dtype=np.int64))
         plane = self.deck_plane("lidar", deck, R_ls, t_ls, extra_tilt_sigma_rad=self.angle_sigma_rad)
         status = "ok" if plane is not None else (f"no deck plane ({deck.status})" if deck is not None else "no deck plane")
-        return LidarObservation(t_s, sample, R_ls, t_ls, plane, status, *self.tip_motion(rpy, rpy_rate))
+        return LidarObservation(t_s, sample, R_ls, t_ls, plane, status, *self.tip_motion(rpy, rpy_rate),
+                                sample_returns_sensor=pts[first])
 
     def structure(self, obs: LidarObservation, static_mask: np.ndarray, plane_abc: np.ndarray,
                   footprint: Footprint | None = None, T_map_level: np.ndarray | None = None) -> np.ndarray:
