@@ -199,6 +199,9 @@ class FeederChain:
                     # the MRU's angle noise turns this frame about the tip: the deck below moves sideways
                     s_lvl = abs(float(f.x[2])) * self.perception.angle_sigma_rad
                     f.update_registration(xy_yaw, info, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
+                    if self.model.collect(structure, inverse(pose_matrix(*f.x[:6]))):
+                        with times.stage("feeder.model"):
+                            self.model.merge()
                     if self.model.keyframe_size < self.model.cfg.keyframe_frames:
                         self.model.extend_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
                         self.model.keyframe_size += 1
