@@ -62,8 +62,9 @@ class RegistrationConfig(BaseModel):
                                   "information of N points is that of N / this independent ones")
     min_points: int = Field(100, ge=10)
     keyframe_frames: int = Field(1, ge=1, description="frames merged into a keyframe (the first, then each registered one)")
-    model_frames: int = Field(100, ge=0, description="the first this many registered frames are aligned to each other and "
-                              "become the model (0: the first frame's keyframe stays the model)")
+    model_merges: tuple[int, ...] = Field((20, 50, 100), description="when this many frames are registered, they are aligned "
+                                          "to each other and become the model; the last is final (empty: the first frame's "
+                                          "keyframe stays the model)")
     model_iterations: int = Field(2, ge=1, le=10, description="rounds of aligning the model's frames to each other")
     model_voxel_m: float = Field(0.25, gt=0, description="the model's voxel")
     min_fitness: float = Field(0.3, gt=0, le=1, description="below this overlap with the keyframe a new keyframe is taken")
@@ -179,7 +180,7 @@ def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], 
 
 class FeederModel:
     """The feeder's model (map frame) and the registrations to it: the first frame's keyframe,
-    then the first `model_frames` frames aligned to each other and merged."""
+    then the first frames aligned to each other and merged, at each of `model_merges` frames."""
 
     def __init__(self, cfg: RegistrationConfig | None = None) -> None:
         from kiss_icp.mapping import VoxelHashMap
@@ -216,11 +217,11 @@ class FeederModel:
         self.collected = [(source_level, T_map_level)] if not self.merged else []
 
     def collect(self, source_level: np.ndarray, T_map_level: np.ndarray) -> bool:
-        """Keep a registered frame for the model; True once there are `model_frames` of them."""
-        if self.merged or self.cfg.model_frames == 0:
+        """Keep a registered frame for the model; True when it is time to merge."""
+        if self.merged or not self.cfg.model_merges:
             return False
         self.collected.append((source_level, T_map_level))
-        return len(self.collected) >= self.cfg.model_frames
+        return len(self.collected) in self.cfg.model_merges
 
     def merge(self) -> list[np.ndarray]:
         """The collected frames aligned to each other (the first is the keyframe's and holds
@@ -230,8 +231,10 @@ class FeederModel:
         self.keyframe = merged_cloud(frames, poses, self.cfg.model_voxel_m, self.cfg.normal_neighbours)
         self.kiss_map.clear()
         self.kiss_map.add_points(np.asarray(self.keyframe.points))
-        self.collected.clear()
-        self.merged = True
+        self.collected = list(zip(frames, poses))  # the next merge starts from these poses
+        if len(frames) >= max(self.cfg.model_merges):
+            self.collected.clear()
+            self.merged = True
         return poses
 
     def extend_keyframe(self, source_level: np.ndarray, T_map_level: np.ndarray) -> None:

@@ -144,11 +144,11 @@ def test_merged_model_frames_align_to_the_first_and_lose_their_shared_offset():
     shared 4 cm / 0.05 deg (what one frame's keyframe biases them by) and 1.5 cm of its own.
     Aligned to each other and to the first, which holds the map frame, they are back within
     a few millimetres (at most 1 cm), and the shared offset is gone."""
-    cfg = RegistrationConfig(model_frames=16)
+    cfg = RegistrationConfig(model_merges=(8, 16))
     model = FeederModel(cfg)
     rng = np.random.default_rng(8)
     truth, given, frames = [], [], []
-    for k in range(cfg.model_frames):
+    for k in range(16):
         scan = _deck_scene(np.random.default_rng(100 + k), n=2500)
         scan = scan[np.abs(scan[:, 2]) > 0.2]
         pose = np.array([0.3 * math.sin(k), 0.2 * math.cos(1.3 * k), -45.0 + 0.5 * math.sin(0.7 * k), 0.01 * math.sin(k),
@@ -160,7 +160,11 @@ def test_merged_model_frames_align_to_the_first_and_lose_their_shared_offset():
         noise = np.zeros(6) if k == 0 else np.r_[rng.normal(0, 0.015, 2), 0.0, 0.0, 0.0, rng.normal(0, math.radians(0.02))]
         given.append(inverse(pose_matrix(*(pose + off + noise))))
     model.set_keyframe(frames[0], given[0])
-    done = [model.collect(f, T) for f, T in zip(frames[1:], given[1:])]
+    done = [model.collect(f, T) for f, T in zip(frames[1:8], given[1:8])]
+    assert done[-1] and not any(done[:-1])
+    model.merge()
+    assert not model.merged and len(model.collected) == 8
+    done = [model.collect(f, T) for f, T in zip(frames[8:], given[8:])]
     assert done[-1] and not any(done[:-1])
     aligned = model.merge()
     assert model.merged and not model.collect(frames[1], given[1])
