@@ -47,6 +47,8 @@ class FeederProcessing(_Model):
     radar_deck_after_s: float = Field(0.5, gt=0, description="the radar's deck plane is used once the LiDAR has had none this long")
     rekey_after_failures: int = Field(20, ge=1, description="registrations failed in a row before a new keyframe is taken")
     centre_line_every: int = Field(5, ge=1, description="the hull edge is looked for every this many LiDAR frames")
+    hull_edge_min_points: int = Field(200, ge=10, description="the own hull's edge among the static returns counts with this "
+                                      "many points on it (the calibration's rotation about the vertical)")
     calibration_min_s: float = Field(30.0, gt=0, description="deck planes needed before the levelling calibration applies")
 
 

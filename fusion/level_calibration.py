@@ -8,7 +8,10 @@ tilt. The average is Hann-weighted over the whole history: a plain mean of a wav
 over a window W leaves an error of order T / W of its amplitude, the Hann window's of order
 (T / W)^3.
 
-Only the two tilt angles are observable this way; a rotation about the vertical is not.
+Only the two tilt angles are observable this way. The rotation about the vertical is, from the
+own vessel: its hull side, static in the sensor frame, is a long straight edge along the crane
+vessel's heading (the assumption: a parallel midbody), and its direction in the level frame is
+that rotation (`with_heading`).
 """
 
 from __future__ import annotations
@@ -28,6 +31,19 @@ class Tilt:
     ry_rad: float
     sigma_rad: float
     span_s: float
+    rz_rad: float = 0.0  # about the vertical, from the own hull's edge (with_heading)
+    rz_sigma_rad: float | None = None  # None: not calibrated, the survey's accuracy stands
+
+
+def with_heading(tilt: Tilt | None, hull_yaws_rad: np.ndarray) -> Tilt | None:
+    """The calibration with its rotation about the vertical: minus the median direction of the
+    own hull's edge in the level frame over frames, 1-sigma from their spread (a median's, 1.25
+    sigma / sqrt(n)). Needs three frames' edges."""
+    if tilt is None or len(hull_yaws_rad) < 3:
+        return tilt
+    m = float(np.median(hull_yaws_rad))
+    sigma = 1.2533 * 1.4826 * float(np.median(np.abs(hull_yaws_rad - m))) / np.sqrt(len(hull_yaws_rad))
+    return Tilt(tilt.rx_rad, tilt.ry_rad, tilt.sigma_rad, tilt.span_s, -m, sigma)
 
 
 def hann_mean(t_s: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -70,10 +86,10 @@ def correction(tilt: Tilt | None) -> np.ndarray:
     """3x3 rotation that takes the tilted level frame to the corrected one."""
     if tilt is None:
         return np.eye(3)
-    rx, ry = tilt.rx_rad, tilt.ry_rad
-    K = np.array([[0.0, 0.0, ry], [0.0, 0.0, -rx], [-ry, rx, 0.0]])
-    # exact rotation from the small axis-angle (rx, ry, 0)
-    th = float(np.hypot(rx, ry))
+    rx, ry, rz = tilt.rx_rad, tilt.ry_rad, tilt.rz_rad
+    K = np.array([[0.0, -rz, ry], [rz, 0.0, -rx], [-ry, rx, 0.0]])
+    # exact rotation from the small axis-angle (rx, ry, rz)
+    th = float(np.sqrt(rx * rx + ry * ry + rz * rz))
     if th == 0:
         return np.eye(3)
     return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th ** 2 * (K @ K)

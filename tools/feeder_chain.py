@@ -29,7 +29,7 @@ from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.processing import Processing
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
-from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
+from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals, with_heading
 from boomtip.fusion.models.relative_motion import deck_plane, rotation
 from boomtip.perception.feeder import (
     FeederPerception,
@@ -100,6 +100,7 @@ class FeederChain:
         self.pivots: list[np.ndarray] = []  # the LiDAR's position (level, from the tip) at each recorded state
         self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
         self.lines: list[tuple[float, int]] = []  # the centre line's yaw in the map frame, every few frames
+        self.hull_yaws: list[float] = []  # the own hull's edge in the level frame, every few frames
         self.lidar_frames = 0
         self.failed_registrations = 0  # in a row: after rekey_after_failures a new keyframe is taken
         self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck
@@ -216,6 +217,12 @@ class FeederChain:
                 line = centre_line_yaw(transform(inverse(pose_matrix(*f.x[:6])), structure), self.rng)
                 if line is not None:
                     self.lines.append(line)
+                # the own hull's side among the static returns (a wall: a line in plan), for the
+                # calibration's rotation about the vertical
+                static_level = obs.sample_sensor[mask] @ obs.R_level_sensor.T + obs.t_level_sensor
+                hull = centre_line_yaw(static_level, self.rng, band_m=(-np.inf, np.inf))
+                if hull is not None and hull[1] >= self.cfg.hull_edge_min_points:
+                    self.hull_yaws.append(hull[0])
         self.lidar_frames += 1
         self._record(obs)
 
@@ -285,9 +292,13 @@ class FeederChain:
         if self.normals:
             tilt = tilt_from_normals(np.array([n[0] for n in self.normals]), np.array([n[1] for n in self.normals]),
                                      self.cfg.calibration_min_s)
+            tilt = with_heading(tilt, np.array(self.hull_yaws))
         if not self.filter.started:
             return FeederResult(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12)), float("nan"), tilt, None,
                                 out.counts, self.frame_ms, ["feeder: no LiDAR deck plane in this run: no estimate"], self.missing)
+        if tilt is not None and tilt.rz_sigma_rad is None:
+            notes.append("feeder: no straight edge of the own hull among the static returns: the LiDAR mount's rotation "
+                         "about the vertical is the survey's")
         if tilt is None:
             notes.append(f"feeder: levelling not calibrated (under {self.cfg.calibration_min_s:g} s of deck planes): "
                          "the surveyed mount and the MRU are taken as they are")
@@ -328,8 +339,10 @@ class FeederChain:
             s_lvl = tl.sigma_rad if tl is not None else sigma_level
             lever = float(np.linalg.norm(y[:3] - pivot))
             s_mru = self.perception.mru_bias_sigma_rad
+            # about the vertical: the own hull's calibration, else the survey's mount accuracy
+            s_rz = tl.rz_sigma_rad if tl is not None and tl.rz_sigma_rad is not None else sigma_level
             extra = np.array([(lever * s_lvl) ** 2 + (y[2] * s_mru) ** 2] * 2
-                             + [(float(np.hypot(y[0], y[1])) * s_mru) ** 2, s_lvl ** 2, s_lvl ** 2, line_sigma ** 2])
+                             + [(float(np.hypot(y[0], y[1])) * s_mru) ** 2, s_lvl ** 2, s_lvl ** 2, line_sigma ** 2 + s_rz ** 2])
             pose.append(y)
             rates.append(J @ x[6:12])
             var.append(np.concatenate([np.diag(Pp) + extra, np.diag(Pr)]))

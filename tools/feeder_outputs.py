@@ -72,7 +72,9 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
                  "updates": res.counts, "missing": len(res.missing)}
     if res.tilt is not None:
         out["levelling_tilt_deg"] = {"about_x": round(math.degrees(res.tilt.rx_rad), 5), "about_y": round(math.degrees(res.tilt.ry_rad), 5),
-                                     "sigma": round(math.degrees(res.tilt.sigma_rad), 5), "span_s": round(res.tilt.span_s, 2)}
+                                     "sigma": round(math.degrees(res.tilt.sigma_rad), 5), "span_s": round(res.tilt.span_s, 2),
+                                     "about_z": round(math.degrees(res.tilt.rz_rad), 5),
+                                     "about_z_sigma": None if res.tilt.rz_sigma_rad is None else round(math.degrees(res.tilt.rz_sigma_rad), 5)}
     if res.centre_line is not None:
         out["centre_line"] = {"yaw_in_map_deg": round(math.degrees(res.centre_line[0]), 5), "frames": res.centre_line[1]}
     if res.feeder_mru is not None:
@@ -151,7 +153,10 @@ def report_section(kpis: dict, windows=()) -> str:
         t = f["levelling_tilt_deg"]
         lines.append(f"Levelling calibration (LiDAR mount and MRU bias together, from the deck normal over {t['span_s']:.0f} s; "
                      f"the feeder's mean roll and pitch taken as zero): {t['about_x']:.4f} deg about x, {t['about_y']:.4f} deg "
-                     f"about y (1-sigma {t['sigma']:.4f}). A rotation about the vertical is not observable this way.")
+                     f"about y (1-sigma {t['sigma']:.4f}). "
+                     + (f"About the vertical, from the own hull's edge (taken as along the crane's heading): {t['about_z']:.4f} deg "
+                        f"(1-sigma {t['about_z_sigma']:.4f})." if t.get("about_z_sigma") is not None
+                        else "About the vertical: not calibrated (no straight edge of the own hull found)."))
     if "feeder_mru" in f:
         m = f["feeder_mru"]
         lines.append(f"Feeder MRU (004's second MRU) used: heading offset between its heading frame and the crane's "

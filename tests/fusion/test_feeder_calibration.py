@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from boomtip.data.frames import MruLog
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_attitude
-from boomtip.fusion.level_calibration import correction, tilt_from_normals
+from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals, with_heading
 
 
 def _normals(tilt_x: float, tilt_y: float, t: np.ndarray) -> np.ndarray:
@@ -16,7 +16,7 @@ def _normals(tilt_x: float, tilt_y: float, t: np.ndarray) -> np.ndarray:
     r = math.radians(1.0) * np.sin(2 * np.pi * t / 10.0)
     p = math.radians(2.5) * np.sin(2 * np.pi * t / 10.0 + 0.7)
     n_true = np.column_stack([np.sin(p) * np.cos(r), -np.sin(r), np.cos(p) * np.cos(r)])
-    C = correction(type("T", (), {"rx_rad": tilt_x, "ry_rad": tilt_y})())
+    C = correction(Tilt(tilt_x, tilt_y, 0.0, 0.0))
     return n_true @ C  # tilted = C^T true
 
 
@@ -65,6 +65,35 @@ def test_complementary_filter_cuts_angle_noise_keeps_bias_and_motion():
     err = out.rpy_rad[2000:, :2] - true[2000:, :2]
     assert np.degrees(err.std(axis=0)).max() < 0.004  # from 0.02 deg
     assert np.degrees(err.mean(axis=0)) == pytest.approx(np.degrees(bias[:2]), abs=2e-3)
+
+
+def test_complementary_filter_starts_without_the_first_samples_noise():
+    """Started at the first sample, the first second carried its noise (e^(-t / tau)); started
+    from the backward pass it is filtered from the first sample on."""
+    errs = []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        t = np.arange(0.0, 20.0, 0.005)
+        true = np.column_stack([0.02 * np.sin(0.63 * t + seed), np.zeros_like(t), np.zeros_like(t)])
+        rate = np.column_stack([0.02 * 0.63 * np.cos(0.63 * t + seed), np.zeros_like(t), np.zeros_like(t)])
+        log = MruLog(t, true + rng.normal(0, math.radians(0.02), true.shape), rate + rng.normal(0, math.radians(0.025), rate.shape))
+        out = complementary_attitude(log, 1.0)
+        errs.append(out.rpy_rad[:20, 0] - true[:20, 0])  # the first 0.1 s
+    assert np.degrees(np.sqrt(np.mean(np.square(errs)))) < 0.005  # a single sample's: 0.02 deg
+
+
+def test_rotation_about_the_vertical_from_the_own_hulls_edge():
+    rng = np.random.default_rng(6)
+    tilt = Tilt(math.radians(0.03), math.radians(-0.02), 1e-5, 60.0)
+    hull = math.radians(0.03) + rng.normal(0, math.radians(0.002), 40)
+    assert with_heading(tilt, hull[:2]) is tilt  # too few edges: not calibrated
+    cal = with_heading(tilt, hull)
+    assert math.degrees(cal.rz_rad) == pytest.approx(-0.03, abs=0.0015)
+    assert math.degrees(cal.rz_sigma_rad) == pytest.approx(0.002 * 1.25 / math.sqrt(40), rel=0.4)
+    x_hull = np.array([math.cos(hull[0]), math.sin(hull[0]), 0.0])  # the edge as the level frame sees it
+    x_corr = correction(cal) @ x_hull
+    assert abs(math.degrees(math.atan2(x_corr[1], x_corr[0]))) < 0.004  # along the heading again
+    assert (cal.rx_rad, cal.ry_rad) == (tilt.rx_rad, tilt.ry_rad)
 
 
 def test_complementary_filter_restarts_at_a_gap():
