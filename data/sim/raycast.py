@@ -51,6 +51,8 @@ class RayCaster:
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             self.face_normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12))
             self.face_normals32.append(self.face_normals[-1].astype(np.float32))
+        # The same, one contiguous array per axis: gathers of one float each are the fast ones.
+        self.face_normals32_by_axis = [np.ascontiguousarray(n.T) for n in self.face_normals32]
         # Bounding boxes, padded well beyond float32 rounding of rays out to kilometres.
         lo = np.array([b.vertices.min(axis=0) for b in bodies])
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
@@ -162,7 +164,7 @@ class RayCaster:
         reach a body's box, nearer than the closest hit found so far, are cast into it; a
         narrower grid sees the ships with most of its rays, and the box test would cost more
         than the few misses it saves."""
-        k, n_el = len(fans.dirs), len(fans.el_rad)
+        k = len(fans.dirs)
         m = len(R_world_sensor)
         if m not in (1, len(fans.az_rad)):
             raise ValueError(f"cast_fans: {m} sensor poses for {len(fans.az_rad)} fans (expected 1 or one per fan)")
@@ -172,7 +174,7 @@ class RayCaster:
                 t, face, c = fixed_hits[b]
                 if best_t is None:
                     best_t, best_face, cos_inc = t.copy(), face.copy(), c.copy()
-                    best_body = np.where(np.isfinite(t), b, -1)
+                    best_body = np.where(face >= 0, b, -1)
                 else:
                     closer = np.flatnonzero(t < best_t)
                     best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
@@ -186,30 +188,20 @@ class RayCaster:
             scale = None if scale_body is None else scale_body[b]
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
             # (then divided by the body's scale, if stretched).
-            A = np.einsum("mji,mjk->mik", R, R_world_sensor)
-            o = np.einsum("mji,mj->mi", R, p_world_sensor - p)
+            A = transpose_times(R, R_world_sensor)
+            o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
+            ray_k = fan = None  # every ray, fan by fan
             if fans.wide:
-                ray_k = fans.reaching_box(self.box_lo[b], self.box_hi[b], A, o, scale)
+                ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], A, o, scale)
                 if b > 0:  # rays already stopped before the box need no cast
                     dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale)
-                    ray_k = ray_k[np.take(best_t, ray_k) > (dist[0] if m == 1 else np.take(dist, ray_k // n_el))]
+                    ahead = np.take(best_t, ray_k) > (dist[0] if m == 1 else np.take(dist, fan))
+                    ray_k, fan = ray_k[ahead], fan[ahead]
                 if len(ray_k) == 0:
                     continue
-                dirs_s = np.take(fans.dirs, ray_k, axis=0)
-                pose = ray_k // n_el if m > 1 else None
-            else:  # every ray (ray_k None)
-                ray_k, dirs_s, pose = None, fans.dirs, fans.fan if m > 1 else None
-            # Rays in float64, then rounded once to Embree's float32.
-            rays64 = np.empty((len(dirs_s), 6))
-            if m == 1:
-                rays64[:, :3] = o[0]
-                np.matmul(dirs_s, A[0].T, out=rays64[:, 3:])
-            else:
-                np.take(o, pose, axis=0, out=rays64[:, :3])
-                np.einsum("kij,kj->ki", np.take(A, pose, axis=0), dirs_s, out=rays64[:, 3:])
-            rays = rays64.astype(np.float32)
-            if scale is not None:  # after the rounding, as `cast` divides its float32 rays
-                s_ray = scale[0] if m == 1 else scale[pose]
+            rays = fans.body_frame_rays(A, o, ray_k, fan)
+            if scale is not None:  # after the rounding to float32, as `cast` divides its rays
+                s_ray = scale[0] if m == 1 else np.take(scale, fans.fan if fan is None else fan, axis=0)
                 rays[:, :3] /= s_ray
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
@@ -220,13 +212,17 @@ class RayCaster:
             best_body[hit_k] = b
             face = np.take(ans["primitive_ids"].numpy(), closer)
             best_face[hit_k] = face
-            # Incidence in the body frame (as in `cast`), one product at a time.
-            n_b, d_b = np.take(self.face_normals32[b], face, axis=0), np.take(rays, closer, axis=0)[:, 3:]
-            c = n_b[:, 0] * d_b[:, 0]
-            c += n_b[:, 1] * d_b[:, 1]
-            c += n_b[:, 2] * d_b[:, 2]
+            # Incidence in the body frame (as in `cast`), one component at a time in float32.
+            n_b = self.face_normals32_by_axis[b]
+            c = np.take(n_b[0], face)
+            c *= np.take(rays[:, 3], closer)
+            for i in (1, 2):
+                ci = np.take(n_b[i], face)
+                ci *= np.take(rays[:, 3 + i], closer)
+                c += ci
             np.abs(c, out=c)
             if scale is not None:
+                d_b = np.take(rays, closer, axis=0)[:, 3:]
                 c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
             cos_inc[hit_k] = c
         return Hits(best_t.astype(np.float64), best_body, best_face, cos_inc)
@@ -256,23 +252,60 @@ class Fans:
     azimuth az[f] (about the sensor z) and elevation el[k] (ascending), i.e. along
     cos(el) u_f + sin(el) z with u_f = (cos az, sin az, 0). Fan f lies in the plane through
     the origin spanned by u_f and z, which is what lets `reaching_box` find, fan by fan, the
-    run of elevations that can meet a box."""
+    run of elevations that can meet a box. A Fans object holds the buffer its body-frame
+    rays are built in: one caster at a time."""
 
     def __init__(self, dirs: np.ndarray, az_rad: np.ndarray, el_rad: np.ndarray) -> None:
         if len(dirs) != len(az_rad) * len(el_rad) or np.any(np.diff(el_rad) <= 0):
             raise ValueError("Fans: expected F*N rays, fan by fan, with ascending elevations")
         self.dirs, self.az_rad, self.el_rad = dirs, az_rad, el_rad
-        # (2, 2F): [x, y] @ basis gives every fan's (signed distance to its plane, coordinate along u_f).
-        ca, sa = np.cos(az_rad), np.sin(az_rad)
-        self.basis = np.stack([np.concatenate([-sa, ca]), np.concatenate([ca, sa])])
+        self.dirs_by_axis = np.ascontiguousarray(dirs.T)  # (3,K)
+        self.cos_az, self.sin_az = np.cos(az_rad), np.sin(az_rad)
+        self.cos_el, self.sin_el = np.cos(el_rad), np.sin(el_rad)
+        self.cos_el_ray, self.sin_el_ray = np.tile(self.cos_el, len(az_rad)), np.tile(self.sin_el, len(az_rad))
         self.first_ray = np.arange(len(az_rad)) * len(el_rad)
         self.fan = np.repeat(np.arange(len(az_rad)), len(el_rad))  # (K,) the fan of each ray
         self.wide = np.ptp(az_rad) > np.pi
+        self._rays = np.empty((len(dirs), 6), dtype=np.float32)
+
+    def body_frame_rays(self, A: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,
+                        fan: np.ndarray | None = None) -> np.ndarray:
+        """Rows [origin, direction] of the rays (all, or `ray_k` and their fans `fan`) in a
+        body frame where x_b = A x_s + o (per pose: M = 1 or one per fan), computed in float64
+        and rounded once to Embree's float32. A view of the buffer the next call overwrites."""
+        n = len(self.dirs) if ray_k is None else len(ray_k)
+        rays = self._rays[:n]
+        if len(A) == 1 and ray_k is None:  # one pose, every ray: one product
+            d = A[0] @ self.dirs_by_axis
+            for i in range(3):
+                rays[:, i] = o[0, i]
+                rays[:, 3 + i] = d[i]
+            return rays
+        # A fan's rays are cos(el) A u_f + sin(el) A z: two vectors per fan, not a matrix per ray.
+        a = A[:, :, 0].T * self.cos_az + A[:, :, 1].T * self.sin_az  # (3,F)
+        bz = A[:, :, 2].T  # (3,M)
+        n_fan, n_el = len(self.az_rad), len(self.el_rad)
+        for i in range(3):
+            if ray_k is None:  # every ray of every fan, one pose per fan
+                d = np.multiply.outer(a[i], self.cos_el)
+                d += np.multiply.outer(bz[i], self.sin_el)
+                rays[:, 3 + i] = d.reshape(-1)
+                rays.reshape(n_fan, n_el, 6)[:, :, i] = o[:, i, None]
+                continue
+            d = np.take(a[i], fan)
+            d *= np.take(self.cos_el_ray, ray_k)
+            s = np.take(self.sin_el_ray, ray_k)
+            s *= bz[i, 0] if len(A) == 1 else np.take(bz[i], fan)
+            d += s
+            rays[:, 3 + i] = d
+            rays[:, i] = o[0, i] if len(A) == 1 else np.take(o[:, i], fan)
+        return rays
 
     def reaching_box(self, box_lo: np.ndarray, box_hi: np.ndarray, A: np.ndarray, o: np.ndarray,
-                     scale: np.ndarray | None) -> np.ndarray:
+                     scale: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Indices (ascending) of the rays that can meet a box given in a body frame where
-        x_b = S^-1 (A x_s + o) (per pose: M = 1 or one per fan; S = diag(scale) or 1).
+        x_b = S^-1 (A x_s + o) (per pose: M = 1 or one per fan; S = diag(scale) or 1), and the
+        fan of each.
 
         The fan's plane cuts the box (an affine image of a box in the sensor frame) in a
         convex polygon whose vertices are where the box's edges meet the plane. If the polygon
@@ -280,35 +313,51 @@ class Fans:
         and greatest angle atan2(z, u); if it lies where u < 0, none; else (the sensor inside
         the box, or a polygon across u = 0) all of the fan."""
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
-        corners = np.where(_CORNER_BITS, box_hi, box_lo)  # (8,3)
+        corners = np.where(_CORNER_BITS, box_hi, box_lo)  # (8,3), body frame
+        # A corner c in fan f's coordinates (distance to the plane, along u_f, along z): e.x_s
+        # for e = n_f = (-sin az, cos az, 0), u_f, z, with x_s = A^T (S c - o), i.e.
+        # (S A e).c - (A e).o: three vectors per fan, then one product with the 8 corners.
+        Ae = np.empty((3, n_fan, 3))
+        Ae[0] = A[:, :, 1] * self.cos_az[:, None] - A[:, :, 0] * self.sin_az[:, None]
+        Ae[1] = A[:, :, 0] * self.cos_az[:, None] + A[:, :, 1] * self.sin_az[:, None]
+        Ae[2] = A[:, :, 2]
+        shift = np.einsum("qfi,fi->qf", Ae, np.broadcast_to(o, (n_fan, 3)))
         if scale is not None:
-            corners = corners * scale[:, None]  # (M,8,3)
-        corners_s = (corners - o[:, None]) @ A  # x_s = A^T (S x_b - o), as rows
-        # g[:, f, c] = (signed distance to fan f's plane, coordinate along u_f, z) of corner c.
-        g = np.empty((3, n_fan, 8))
-        if len(A) == 1:
-            g[:2] = (corners_s[0, :, :2] @ self.basis).reshape(8, 2, n_fan).transpose(1, 2, 0)
-            g[2] = corners_s[0, :, 2]
-        else:
-            g[:2] = np.einsum("fcj,jaf->afc", corners_s[..., :2], self.basis.reshape(2, 2, n_fan))
-            g[2] = corners_s[..., 2]
+            Ae *= scale
+        g = (Ae.reshape(3 * n_fan, 3) @ corners.T).reshape(3, n_fan, 8)
+        g -= shift[:, :, None]
+        g = g.transpose(0, 2, 1)  # (3,8,F)
         # Edge (c0, c1) meets the plane where the distance is 0 (an edge lying in it gives its ends).
-        g0, g1 = np.take(g, _EDGES[:, 0], axis=2), np.take(g, _EDGES[:, 1], axis=2)  # (3,F,12)
+        g0, g1 = np.take(g, _EDGES[:, 0], axis=1), np.take(g, _EDGES[:, 1], axis=1)  # (3,12,F)
         s0, s1 = g0[0], g1[0]
         lam = s0 / np.where(s0 != s1, s0 - s1, 1.0)
         u, z = g0[1:] + lam * (g1[1:] - g0[1:])
         u[s0 * s1 > 0] = np.nan  # not a vertex; fmin / fmax skip NaN
-        u_min, u_max = np.fmin.reduce(u, axis=1), np.fmax.reduce(u, axis=1)
-        ang = np.arctan2(z, u)
-        eps = 1e-9  # rad: far above the angles' rounding, far below any ray spacing
+        u_min, u_max = np.fmin.reduce(u, axis=0), np.fmax.reduce(u, axis=0)
         front = u_min > 0  # a polygon, all of it where u > 0 (NaN: no polygon)
-        k0 = np.where(front, np.searchsorted(self.el_rad, np.fmin.reduce(ang, axis=1) - eps, "left"), 0)
-        k1 = np.where(front, np.searchsorted(self.el_rad, np.fmax.reduce(ang, axis=1) + eps, "right"), n_el)
+        # Where u > 0 the angle atan2(z, u) grows with z / u: two arctangents per fan.
+        slope = np.full_like(z, np.nan)
+        np.divide(z, u, out=slope, where=u > 0)
+        eps = 1e-9  # rad: far above the angles' rounding, far below any ray spacing
+        ang_lo = np.arctan(np.fmin.reduce(slope, axis=0)) - eps
+        ang_hi = np.arctan(np.fmax.reduce(slope, axis=0)) + eps
+        k0 = np.where(front, np.searchsorted(self.el_rad, ang_lo, "left"), 0)
+        k1 = np.where(front, np.searchsorted(self.el_rad, ang_hi, "right"), n_el)
         k1[~(u_max >= 0)] = 0  # behind the sensor, or no polygon at all: no ray
         k0[~(u_max >= 0)] = 0
         length = k1 - k0
         run_first = np.cumsum(length) - length  # where each fan's run starts in the output
-        return np.repeat(self.first_ray + k0 - run_first, length) + np.arange(run_first[-1] + length[-1])
+        ray_k = np.repeat(self.first_ray + k0 - run_first, length) + np.arange(run_first[-1] + length[-1])
+        return ray_k, np.repeat(np.arange(n_fan), length)
+
+
+def transpose_times(R: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """R^T X for stacks (M,3,3) and (M,3,N), written out: numpy's batched products of 3 x 3
+    matrices go through a slow generic loop."""
+    out = R[:, 0, :, None] * X[:, 0, None, :]
+    out += R[:, 1, :, None] * X[:, 1, None, :]
+    out += R[:, 2, :, None] * X[:, 2, None, :]
+    return out
 
 
 def box_distance(box_lo: np.ndarray, box_hi: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
