@@ -58,6 +58,7 @@ class RayCaster:
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
+        self._fixed_body_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def cast(
         self,
@@ -174,7 +175,7 @@ class RayCaster:
                 t, face, c = fixed_hits[b]
                 if best_t is None:
                     best_t, best_face, cos_inc = t.copy(), face.copy(), c.copy()
-                    best_body = np.where(face >= 0, b, -1)
+                    best_body = self._fixed_body(b, face).copy()
                 else:
                     closer = np.flatnonzero(t < best_t)
                     best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
@@ -226,6 +227,14 @@ class RayCaster:
                 c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
             cos_inc[hit_k] = c
         return Hits(best_t.astype(np.float64), best_body, best_face, cos_inc)
+
+    def _fixed_body(self, b: int, face: np.ndarray) -> np.ndarray:
+        """Body index per ray (-1 on a miss) of fixed hits `face` on body b, kept while the
+        same fixed hits come back frame after frame."""
+        cached = self._fixed_body_cache.get(b)
+        if cached is None or cached[0] is not face:
+            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1))
+        return cached[1]
 
     def cast_in_body_frame(self, b: int, origin_body: np.ndarray, dirs_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Hits (t, face, |cos incidence|; inf, -1, 0 on a miss) of rays given in body b's own
