@@ -189,18 +189,21 @@ class RayCaster:
             scale = None if scale_body is None else scale_body[b]
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
             # (then divided by the body's scale, if stretched).
-            A = transpose_times(R, R_world_sensor)
             o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
+            axes = fans.axes_in(R, R_world_sensor)
             ray_k = fan = None  # every ray, fan by fan
             if fans.wide:
-                ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], A, o, scale)
+                ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], axes, o, scale)
                 if b > 0:  # rays already stopped before the box need no cast
                     dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale)
                     ahead = np.take(best_t, ray_k) > (dist[0] if m == 1 else np.take(dist, fan))
                     ray_k, fan = ray_k[ahead], fan[ahead]
                 if len(ray_k) == 0:
                     continue
-            rays = fans.body_frame_rays(A, o, ray_k, fan)
+            if m == 1 and ray_k is None:  # one pose, every ray: one product
+                rays = fans.body_frame_rays_one_pose(transpose_times(R, R_world_sensor)[0], o[0])
+            else:
+                rays = fans.body_frame_rays(axes, o, ray_k, fan)
             if scale is not None:  # after the rounding to float32, as `cast` divides its rays
                 s_ray = scale[0] if m == 1 else np.take(scale, fans.fan if fan is None else fan, axis=0)
                 rays[:, :3] /= s_ray
@@ -277,44 +280,63 @@ class Fans:
         self.wide = np.ptp(az_rad) > np.pi
         self._rays = np.empty((len(dirs), 6), dtype=np.float32)
 
-    def body_frame_rays(self, A: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,
+    def axes_in(self, R_world_body: np.ndarray, R_world_sensor: np.ndarray) -> np.ndarray:
+        """(3,F,3): each fan's plane normal n_f = (-sin az, cos az, 0), its horizontal
+        u_f = (cos az, sin az, 0) and the sensor's z, in a body's axes: A e with A = R_b^T R_s
+        (poses (M,3,3), M = 1 or one per fan)."""
+        R_s = R_world_sensor
+        world = np.empty((3, len(self.az_rad), 3))
+        world[0] = R_s[:, :, 1] * self.cos_az[:, None] - R_s[:, :, 0] * self.sin_az[:, None]
+        world[1] = R_s[:, :, 0] * self.cos_az[:, None] + R_s[:, :, 1] * self.sin_az[:, None]
+        world[2] = R_s[:, :, 2]
+        axes = R_world_body[:, 0] * world[..., 0:1]  # R_b^T v, written out
+        axes += R_world_body[:, 1] * world[..., 1:2]
+        axes += R_world_body[:, 2] * world[..., 2:3]
+        return axes
+
+    def body_frame_rays_one_pose(self, A: np.ndarray, o: np.ndarray) -> np.ndarray:
+        """Rows [origin, direction] of every ray in a body frame where x_b = A x_s + o (one
+        pose), computed in float64 and rounded once to Embree's float32. A view of the buffer
+        the next call overwrites."""
+        rays = self._rays
+        d = A @ self.dirs_by_axis
+        for i in range(3):
+            rays[:, i] = o[i]
+            rays[:, 3 + i] = d[i]
+        return rays
+
+    def body_frame_rays(self, axes: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,
                         fan: np.ndarray | None = None) -> np.ndarray:
-        """Rows [origin, direction] of the rays (all, or `ray_k` and their fans `fan`) in a
-        body frame where x_b = A x_s + o (per pose: M = 1 or one per fan), computed in float64
-        and rounded once to Embree's float32. A view of the buffer the next call overwrites."""
+        """As `body_frame_rays_one_pose` for the rays (all, or `ray_k` and their fans `fan`)
+        given the fans' `axes_in` the body and the origin o (M = 1 or one per fan): a fan's
+        rays are cos(el) A u_f + sin(el) A z, two vectors per fan, not a matrix per ray."""
         n = len(self.dirs) if ray_k is None else len(ray_k)
         rays = self._rays[:n]
-        if len(A) == 1 and ray_k is None:  # one pose, every ray: one product
-            d = A[0] @ self.dirs_by_axis
-            for i in range(3):
-                rays[:, i] = o[0, i]
-                rays[:, 3 + i] = d[i]
-            return rays
-        # A fan's rays are cos(el) A u_f + sin(el) A z: two vectors per fan, not a matrix per ray.
-        a = A[:, :, 0].T * self.cos_az + A[:, :, 1].T * self.sin_az  # (3,F)
-        bz = A[:, :, 2].T  # (3,M)
+        a, bz = axes[1].T, axes[2].T  # (3,F)
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
-        for i in range(3):
-            if ray_k is None:  # every ray of every fan, one pose per fan
+        if ray_k is None:  # every ray of every fan, one pose per fan
+            for i in range(3):
                 d = np.multiply.outer(a[i], self.cos_el)
                 d += np.multiply.outer(bz[i], self.sin_el)
                 rays[:, 3 + i] = d.reshape(-1)
                 rays.reshape(n_fan, n_el, 6)[:, :, i] = o[:, i, None]
-                continue
+            return rays
+        ce, se = np.take(self.cos_el_ray, ray_k), np.take(self.sin_el_ray, ray_k)
+        for i in range(3):
             d = np.take(a[i], fan)
-            d *= np.take(self.cos_el_ray, ray_k)
-            s = np.take(self.sin_el_ray, ray_k)
-            s *= bz[i, 0] if len(A) == 1 else np.take(bz[i], fan)
+            d *= ce
+            s = np.take(bz[i], fan)
+            s *= se
             d += s
             rays[:, 3 + i] = d
-            rays[:, i] = o[0, i] if len(A) == 1 else np.take(o[:, i], fan)
+            rays[:, i] = o[0, i] if len(o) == 1 else np.take(o[:, i], fan)
         return rays
 
-    def reaching_box(self, box_lo: np.ndarray, box_hi: np.ndarray, A: np.ndarray, o: np.ndarray,
+    def reaching_box(self, box_lo: np.ndarray, box_hi: np.ndarray, axes: np.ndarray, o: np.ndarray,
                      scale: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Indices (ascending) of the rays that can meet a box given in a body frame where
-        x_b = S^-1 (A x_s + o) (per pose: M = 1 or one per fan; S = diag(scale) or 1), and the
-        fan of each.
+        x_b = S^-1 (A x_s + o) (per pose: M = 1 or one per fan; S = diag(scale) or 1; `axes`
+        the fans' `axes_in` the body), and the fan of each.
 
         The fan's plane cuts the box (an affine image of a box in the sensor frame) in a
         convex polygon whose vertices are where the box's edges meet the plane. If the polygon
@@ -324,36 +346,33 @@ class Fans:
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
         corners = np.where(_CORNER_BITS, box_hi, box_lo)  # (8,3), body frame
         # A corner c in fan f's coordinates (distance to the plane, along u_f, along z): e.x_s
-        # for e = n_f = (-sin az, cos az, 0), u_f, z, with x_s = A^T (S c - o), i.e.
-        # (S A e).c - (A e).o: three vectors per fan, then one product with the 8 corners.
-        Ae = np.empty((3, n_fan, 3))
-        Ae[0] = A[:, :, 1] * self.cos_az[:, None] - A[:, :, 0] * self.sin_az[:, None]
-        Ae[1] = A[:, :, 0] * self.cos_az[:, None] + A[:, :, 1] * self.sin_az[:, None]
-        Ae[2] = A[:, :, 2]
-        shift = np.einsum("qfi,fi->qf", Ae, np.broadcast_to(o, (n_fan, 3)))
+        # for e = n_f, u_f, z with x_s = A^T (S c - o), i.e. (S A e).c - (A e).o.
+        shift = np.einsum("qfi,fi->qf", axes, np.broadcast_to(o, (n_fan, 3)))
         if scale is not None:
-            Ae *= scale
-        g = (Ae.reshape(3 * n_fan, 3) @ corners.T).reshape(3, n_fan, 8)
-        g -= shift[:, :, None]
-        g = g.transpose(0, 2, 1)  # (3,8,F)
+            axes = axes * scale
+        g = (corners @ axes.reshape(3 * n_fan, 3).T).reshape(8, 3, n_fan)
+        g -= shift
+        # Only the fans whose plane has corners on both sides cut the box (most do not).
+        cut = np.flatnonzero((g[:, 0].min(axis=0) <= 0) & (g[:, 0].max(axis=0) >= 0))
+        g = np.take(g, cut, axis=2).transpose(1, 0, 2)  # (3,8,C)
         # Edge (c0, c1) meets the plane where the distance is 0 (an edge lying in it gives its ends).
-        g0, g1 = np.take(g, _EDGES[:, 0], axis=1), np.take(g, _EDGES[:, 1], axis=1)  # (3,12,F)
+        g0, g1 = np.take(g, _EDGES[:, 0], axis=1), np.take(g, _EDGES[:, 1], axis=1)  # (3,12,C)
         s0, s1 = g0[0], g1[0]
         lam = s0 / np.where(s0 != s1, s0 - s1, 1.0)
         u, z = g0[1:] + lam * (g1[1:] - g0[1:])
         u[s0 * s1 > 0] = np.nan  # not a vertex; fmin / fmax skip NaN
         u_min, u_max = np.fmin.reduce(u, axis=0), np.fmax.reduce(u, axis=0)
-        front = u_min > 0  # a polygon, all of it where u > 0 (NaN: no polygon)
+        front = u_min > 0  # a polygon, all of it where u > 0
         # Where u > 0 the angle atan2(z, u) grows with z / u: two arctangents per fan.
         slope = np.full_like(z, np.nan)
         np.divide(z, u, out=slope, where=u > 0)
         eps = 1e-9  # rad: far above the angles' rounding, far below any ray spacing
         ang_lo = np.arctan(np.fmin.reduce(slope, axis=0)) - eps
         ang_hi = np.arctan(np.fmax.reduce(slope, axis=0)) + eps
-        k0 = np.where(front, np.searchsorted(self.el_rad, ang_lo, "left"), 0)
-        k1 = np.where(front, np.searchsorted(self.el_rad, ang_hi, "right"), n_el)
-        k1[~(u_max >= 0)] = 0  # behind the sensor, or no polygon at all: no ray
-        k0[~(u_max >= 0)] = 0
+        k0, k1 = np.zeros(n_fan, dtype=np.int64), np.zeros(n_fan, dtype=np.int64)
+        k0[cut] = np.where(front, np.searchsorted(self.el_rad, ang_lo, "left"), 0)
+        # not all in front: the whole fan if part of the polygon is (u >= 0), else (behind) none
+        k1[cut] = np.where(front, np.searchsorted(self.el_rad, ang_hi, "right"), np.where(u_max >= 0, n_el, 0))
         length = k1 - k0
         run_first = np.cumsum(length) - length  # where each fan's run starts in the output
         ray_k = np.repeat(self.first_ray + k0 - run_first, length) + np.arange(run_first[-1] + length[-1])

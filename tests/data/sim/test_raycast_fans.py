@@ -91,7 +91,7 @@ def test_reaching_box_keeps_every_ray_that_meets_the_box(seed):
         A = q * np.sign(np.linalg.det(q))  # a rotation
         o = rng.uniform(-30, 30, 3)
         kept = np.zeros(len(fans.dirs), dtype=bool)
-        ray_k, fan = fans.reaching_box(lo, hi, A[None], o[None], None)
+        ray_k, fan = fans.reaching_box(lo, hi, fans.axes_in(np.eye(3)[None], A[None]), o[None], None)
         assert np.array_equal(fan, ray_k // len(el))
         kept[ray_k] = True
         meets = slab_hits(lo, hi, o, fans.dirs @ A.T)
@@ -116,7 +116,7 @@ def test_reaching_box_per_fan_poses_and_scale():
     o = np.column_stack([rng.uniform(-4, 4, 64), rng.uniform(-4, 4, 64), np.full(64, -1.0)])
     scale = np.column_stack([np.linspace(3, 9, 64), np.ones(64), np.linspace(2, 8, 64)])
     kept = np.zeros(len(fans.dirs), dtype=bool)
-    ray_k, fan = fans.reaching_box(lo, hi, A, o, scale)
+    ray_k, fan = fans.reaching_box(lo, hi, fans.axes_in(np.eye(3)[None], A), o, scale)
     assert np.array_equal(fan, ray_k // len(el))
     kept[ray_k] = True
     fan = np.repeat(np.arange(64), 24)
