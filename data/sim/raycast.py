@@ -190,7 +190,7 @@ class RayCaster:
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
             # (then divided by the body's scale, if stretched).
             o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
-            axes = fans.axes_in(R, R_world_sensor)
+            axes = None if m == 1 and not fans.wide else fans.axes_in(R, R_world_sensor)
             ray_k = fan = None  # every ray, fan by fan
             if fans.wide:
                 ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], axes, o, scale)
@@ -200,8 +200,8 @@ class RayCaster:
                     ray_k, fan = ray_k[ahead], fan[ahead]
                 if len(ray_k) == 0:
                     continue
-            if m == 1 and ray_k is None:  # one pose, every ray: one product
-                rays = fans.body_frame_rays_one_pose(transpose_times(R, R_world_sensor)[0], o[0])
+            if axes is None:  # one pose, every ray: one product
+                rays = fans.body_frame_rays_one_pose(R[0].T @ R_world_sensor[0], o[0])
             else:
                 rays = fans.body_frame_rays(axes, o, ray_k, fan)
             if scale is not None:  # after the rounding to float32, as `cast` divides its rays
@@ -312,7 +312,7 @@ class Fans:
         rays are cos(el) A u_f + sin(el) A z, two vectors per fan, not a matrix per ray."""
         n = len(self.dirs) if ray_k is None else len(ray_k)
         rays = self._rays[:n]
-        a, bz = axes[1].T, axes[2].T  # (3,F)
+        a, bz = np.ascontiguousarray(axes[1].T), np.ascontiguousarray(axes[2].T)  # (3,F): fast gathers
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
         if ray_k is None:  # every ray of every fan, one pose per fan
             for i in range(3):
@@ -322,6 +322,7 @@ class Fans:
                 rays.reshape(n_fan, n_el, 6)[:, :, i] = o[:, i, None]
             return rays
         ce, se = np.take(self.cos_el_ray, ray_k), np.take(self.sin_el_ray, ray_k)
+        o_by_axis = np.ascontiguousarray(o.T)
         for i in range(3):
             d = np.take(a[i], fan)
             d *= ce
@@ -329,7 +330,7 @@ class Fans:
             s *= se
             d += s
             rays[:, 3 + i] = d
-            rays[:, i] = o[0, i] if len(o) == 1 else np.take(o[:, i], fan)
+            rays[:, i] = o[0, i] if len(o) == 1 else np.take(o_by_axis[i], fan)
         return rays
 
     def reaching_box(self, box_lo: np.ndarray, box_hi: np.ndarray, axes: np.ndarray, o: np.ndarray,
