@@ -58,7 +58,7 @@ class RayCaster:
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
-        self._fixed_body_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._fixed_body_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def cast(
         self,
@@ -174,16 +174,16 @@ class RayCaster:
             if fixed_hits is not None and b in fixed_hits:
                 t, face, c = fixed_hits[b]
                 if best_t is None:
-                    best_t, best_face, cos_inc = t.copy(), face.copy(), c.copy()
-                    best_body = self._fixed_body(b, face).copy()
+                    body32, face32 = self._fixed_body_face(b, face)
+                    best_t, best_body, best_face, cos_inc = t.copy(), body32.copy(), face32.copy(), c.copy()
                 else:
                     closer = np.flatnonzero(t < best_t)
                     best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
                 continue
             if best_t is None:
                 best_t = np.full(k, np.inf, dtype=np.float32)
-                best_body = np.full(k, -1, dtype=np.int64)
-                best_face = np.full(k, -1, dtype=np.int64)
+                best_body = np.full(k, -1, dtype=np.int32)
+                best_face = np.full(k, -1, dtype=np.int32)
                 cos_inc = np.zeros(k, dtype=np.float32)
             R, p = R_world_body[b], p_world_body[b]
             scale = None if scale_body is None else scale_body[b]
@@ -231,13 +231,14 @@ class RayCaster:
             cos_inc[hit_k] = c
         return Hits(best_t.astype(np.float64), best_body, best_face, cos_inc)
 
-    def _fixed_body(self, b: int, face: np.ndarray) -> np.ndarray:
-        """Body index per ray (-1 on a miss) of fixed hits `face` on body b, kept while the
-        same fixed hits come back frame after frame."""
+    def _fixed_body_face(self, b: int, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Body index (-1 on a miss) and face per ray of fixed hits `face` on body b, as int32
+        (the fans' hits: half the memory to copy and gather), kept while the same fixed hits
+        come back frame after frame."""
         cached = self._fixed_body_cache.get(b)
         if cached is None or cached[0] is not face:
-            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1))
-        return cached[1]
+            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1).astype(np.int32), face.astype(np.int32))
+        return cached[1], cached[2]
 
     def cast_in_body_frame(self, b: int, origin_body: np.ndarray, dirs_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Hits (t, face, |cos incidence|; inf, -1, 0 on a miss) of rays given in body b's own
@@ -312,25 +313,25 @@ class Fans:
         rays are cos(el) A u_f + sin(el) A z, two vectors per fan, not a matrix per ray."""
         n = len(self.dirs) if ray_k is None else len(ray_k)
         rays = self._rays[:n]
-        a, bz = np.ascontiguousarray(axes[1].T), np.ascontiguousarray(axes[2].T)  # (3,F): fast gathers
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
         if ray_k is None:  # every ray of every fan, one pose per fan
             for i in range(3):
-                d = np.multiply.outer(a[i], self.cos_el)
-                d += np.multiply.outer(bz[i], self.sin_el)
+                d = np.multiply.outer(axes[1, :, i], self.cos_el)
+                d += np.multiply.outer(axes[2, :, i], self.sin_el)
                 rays[:, 3 + i] = d.reshape(-1)
                 rays.reshape(n_fan, n_el, 6)[:, :, i] = o[:, i, None]
             return rays
         ce, se = np.take(self.cos_el_ray, ray_k), np.take(self.sin_el_ray, ray_k)
-        o_by_axis = np.ascontiguousarray(o.T)
+        # Each ray's fan vectors A u_f, A z and origin, in one gather.
+        per_fan = np.empty((9, len(self.az_rad)))
+        per_fan[0:3], per_fan[3:6], per_fan[6:9] = axes[1].T, axes[2].T, o.T
+        g = np.take(per_fan, fan, axis=1)  # (9,n)
         for i in range(3):
-            d = np.take(a[i], fan)
-            d *= ce
-            s = np.take(bz[i], fan)
-            s *= se
+            d = g[i] * ce
+            s = g[3 + i] * se
             d += s
             rays[:, 3 + i] = d
-            rays[:, i] = o[0, i] if len(o) == 1 else np.take(o_by_axis[i], fan)
+            rays[:, i] = g[6 + i]
         return rays
 
     def reaching_box(self, box_lo: np.ndarray, box_hi: np.ndarray, axes: np.ndarray, o: np.ndarray,
