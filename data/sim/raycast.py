@@ -58,7 +58,7 @@ class RayCaster:
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
-        self._fixed_body_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
 
     def cast(
         self,
@@ -170,21 +170,28 @@ class RayCaster:
         if m not in (1, len(fans.az_rad)):
             raise ValueError(f"cast_fans: {m} sensor poses for {len(fans.az_rad)} fans (expected 1 or one per fan)")
         best_t = best_body = best_face = cos_inc = None  # set by the first body
+        pending = None  # a first body's fixed hits, copied only if needed (see below)
         for b, scene in enumerate(self.scenes):
             if fixed_hits is not None and b in fixed_hits:
-                t, face, c = fixed_hits[b]
+                if best_t is None and pending is None:
+                    pending = b
+                    continue
                 if best_t is None:
-                    body32, face32 = self._fixed_body_face(b, face)
-                    best_t, best_body, best_face, cos_inc = t.copy(), body32.copy(), face32.copy(), c.copy()
-                else:
-                    closer = np.flatnonzero(t < best_t)
-                    best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                    best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
+                    pending = None
+                t, face, c = fixed_hits[b]
+                closer = np.flatnonzero(t < best_t)
+                best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
                 continue
-            if best_t is None:
-                best_t = np.full(k, np.inf, dtype=np.float32)
-                best_body = np.full(k, -1, dtype=np.int32)
-                best_face = np.full(k, -1, dtype=np.int32)
-                cos_inc = np.zeros(k, dtype=np.float32)
+            if best_t is None and fans.wide:
+                if pending is not None:
+                    best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
+                    pending = None
+                else:
+                    best_t = np.full(k, np.inf, dtype=np.float32)
+                    best_body = np.full(k, -1, dtype=np.int32)
+                    best_face = np.full(k, -1, dtype=np.int32)
+                    cos_inc = np.zeros(k, dtype=np.float32)
             R, p = R_world_body[b], p_world_body[b]
             scale = None if scale_body is None else scale_body[b]
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
@@ -210,26 +217,61 @@ class RayCaster:
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
+            if best_t is None:
+                # The first cast, of every ray: its answer is the best so far (Open3D's invalid
+                # id, 2^32 - 1, reads -1 as int32), and the fixed hits before it, few, go back
+                # where they are at least as close.
+                best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
+                hit = best_face >= 0
+                best_body = np.where(hit, np.int32(b), np.int32(-1))
+                cos_inc = self._incidence(b, best_face, rays, None, scale)  # (misses: any face)
+                cos_inc *= hit
+                if pending is not None:
+                    t_f, face_f, c_f = fixed_hits[pending]
+                    k_f = self._fixed_rays(pending, face_f)
+                    k_f = k_f[~(np.take(t, k_f) < np.take(t_f, k_f))]
+                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_f[k_f], pending, face_f[k_f], c_f[k_f]
+                    pending = None
+                continue
             closer = np.flatnonzero(t < (best_t if ray_k is None else np.take(best_t, ray_k)))
             hit_k = closer if ray_k is None else np.take(ray_k, closer)
             best_t[hit_k] = np.take(t, closer)
             best_body[hit_k] = b
             face = np.take(ans["primitive_ids"].numpy(), closer)
             best_face[hit_k] = face
-            # Incidence in the body frame (as in `cast`), one component at a time in float32.
-            n_b = self.face_normals32_by_axis[b]
-            c = np.take(n_b[0], face)
-            c *= np.take(rays[:, 3], closer)
-            for i in (1, 2):
-                ci = np.take(n_b[i], face)
-                ci *= np.take(rays[:, 3 + i], closer)
-                c += ci
-            np.abs(c, out=c)
-            if scale is not None:
-                d_b = np.take(rays, closer, axis=0)[:, 3:]
-                c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
-            cos_inc[hit_k] = c
+            cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
+        if best_t is None:  # no body cast: the fixed hits alone
+            best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
         return Hits(best_t.astype(np.float64), best_body, best_face, cos_inc)
+
+    def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
+                   scale: np.ndarray | None) -> np.ndarray:
+        """|cos| of the incidence of `rays` (all, or rows ray_i) on body b's faces `face`, in
+        the body frame (as in `cast`), one component at a time in float32. Rotated unit rays
+        stay unit; only a stretched body's rays need normalising."""
+        n_b = self.face_normals32_by_axis[b]
+        c = np.take(n_b[0], face)
+        c *= rays[:, 3] if ray_i is None else np.take(rays[:, 3], ray_i)
+        for i in (1, 2):
+            ci = np.take(n_b[i], face)
+            ci *= rays[:, 3 + i] if ray_i is None else np.take(rays[:, 3 + i], ray_i)
+            c += ci
+        np.abs(c, out=c)
+        if scale is not None:
+            d_b = rays[:, 3:] if ray_i is None else np.take(rays, ray_i, axis=0)[:, 3:]
+            c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
+        return c
+
+    def _fixed_arrays(self, b: int, fixed: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """Copies of fixed hits on body b as the fans' best hits so far: t, body, face, cos."""
+        t, face, c = fixed
+        body32, face32 = self._fixed_body_face(b, face)
+        return t.copy(), body32.copy(), face32.copy(), c.copy()
+
+    def _fixed_rays(self, b: int, face: np.ndarray) -> np.ndarray:
+        """The rays with a fixed hit `face` on body b (kept, as `_fixed_body_face`)."""
+        self._fixed_body_face(b, face)
+        return self._fixed_body_cache[b][3]
 
     def _fixed_body_face(self, b: int, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Body index (-1 on a miss) and face per ray of fixed hits `face` on body b, as int32
@@ -237,7 +279,8 @@ class RayCaster:
         come back frame after frame."""
         cached = self._fixed_body_cache.get(b)
         if cached is None or cached[0] is not face:
-            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1).astype(np.int32), face.astype(np.int32))
+            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1).astype(np.int32), face.astype(np.int32),
+                                                  np.flatnonzero(face >= 0))
         return cached[1], cached[2]
 
     def cast_in_body_frame(self, b: int, origin_body: np.ndarray, dirs_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
