@@ -322,7 +322,12 @@ class Fans:
         self.first_ray = np.arange(len(az_rad)) * len(el_rad)
         self.fan = np.repeat(np.arange(len(az_rad)), len(el_rad))  # (K,) the fan of each ray
         self.wide = np.ptp(az_rad) > np.pi
-        self._rays = np.empty((len(dirs), 6), dtype=np.float32)
+        self._rays: np.ndarray | None = None  # (K,6) float32, allocated on first use
+
+    def _ray_buffer(self, n: int) -> np.ndarray:
+        if self._rays is None:
+            self._rays = np.empty((len(self.dirs), 6), dtype=np.float32)
+        return self._rays[:n]
 
     def axes_in(self, R_world_body: np.ndarray, R_world_sensor: np.ndarray) -> np.ndarray:
         """(3,F,3): each fan's plane normal n_f = (-sin az, cos az, 0), its horizontal
@@ -342,7 +347,7 @@ class Fans:
         """Rows [origin, direction] of every ray in a body frame where x_b = A x_s + o (one
         pose), computed in float64 and rounded once to Embree's float32. A view of the buffer
         the next call overwrites."""
-        rays = self._rays
+        rays = self._ray_buffer(len(self.dirs))
         d = A @ self.dirs_by_axis
         for i in range(3):
             rays[:, i] = o[i]
@@ -355,7 +360,7 @@ class Fans:
         given the fans' `axes_in` the body and the origin o (M = 1 or one per fan): a fan's
         rays are cos(el) A u_f + sin(el) A z, two vectors per fan, not a matrix per ray."""
         n = len(self.dirs) if ray_k is None else len(ray_k)
-        rays = self._rays[:n]
+        rays = self._ray_buffer(n)
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
         if ray_k is None:  # every ray of every fan, one pose per fan
             for i in range(3):
