@@ -42,6 +42,14 @@ def test_fan_hits_are_the_per_ray_reference_hits(overrides):
     assert_same_hits(sim, [0.0, 0.37, 2.9], sim._sensor_fixed_hits("lidar"))
 
 
+@pytest.mark.parametrize("overrides", [[], [*SPIN_SMALL, "lidar.motion_during_sweep=true"]])
+def test_fan_hits_without_fixed_hits(overrides):
+    """Every body cast, the crane vessel too: the grid's first cast is kept as the best hits,
+    the spinning LiDAR's rays are culled per body."""
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=1", *overrides]))
+    assert_same_hits(sim, [0.0, 0.61], None)
+
+
 def test_fan_hits_match_with_stretched_bodies_and_no_fixed_hits():
     """The hook scene: a moving boom carries the sensor, the rope is scaled along its axis."""
     from boomtip.data.sim.hook_world import HookSimulation
