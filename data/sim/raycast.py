@@ -6,10 +6,12 @@ cast, and the nearest hit over all bodies is kept. Rigid transforms keep distanc
 t_hit is the world range. No scene is rebuilt per frame.
 
 `cast_fans` is the scanning sensors' path: their rays are fans (one azimuth, many
-elevations) from one origin, moved into a body's frame by one transform per fan. For fans
-spread round the sensor it first drops, per fan, the rays that cannot meet the body's
-bounding box (or only beyond a closer hit already found): Embree's cost is mostly per ray,
-and most of a spinning LiDAR's rays would miss.
+elevations) from one origin, so a fan's rays in a body's frame are cos(el) A u_f + sin(el) A z:
+two vectors per fan, not a matrix per ray. For fans spread round the sensor it first drops,
+per fan, the rays that cannot meet the body's bounding box (or only beyond a closer hit
+already found): Embree's cost is mostly per ray, and most of a spinning LiDAR's rays would
+miss. The rays are built in float64 and rounded once to Embree's float32, into a buffer kept
+between frames.
 """
 
 from __future__ import annotations
