@@ -15,7 +15,8 @@ from functools import cached_property
 
 import numpy as np
 
-from boomtip.data.sim.raycast import Fans, Hits
+from boomtip.data.sim.fans import Fans
+from boomtip.data.sim.raycast import Hits
 from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
 

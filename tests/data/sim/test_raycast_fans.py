@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from boomtip.data.scenario import load_scenario
-from boomtip.data.sim.raycast import Fans
+from boomtip.data.sim.fans import Fans
 from boomtip.data.sim.sensors import spherical_dirs
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.bench_raycast import SPINNING_128x1024, hits_difference, reference_lidar_hits
