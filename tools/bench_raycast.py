@@ -4,6 +4,7 @@ same input in the same run and reports the ratio."""
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -112,6 +113,7 @@ def bench_raycast(scenario: Scenario, frames: int = 20, simulate_s: float = 60.0
     from boomtip.data.scenario import apply_overrides, scenario_from_dict
     from boomtip.data.sim.simulator import Simulation
 
+    load_start = os.getloadavg()[0]  # the raw cast uses both cores: the ratio depends on what else runs
     grid = raw_cast_efficiency(scenario, frames, repeats)
     spin_s = scenario_from_dict(apply_overrides(scenario.model_dump(mode="json"), SPINNING_128x1024)[0])
     spinning = raw_cast_efficiency(spin_s, spinning_frames, repeats)
@@ -186,6 +188,7 @@ def bench_raycast(scenario: Scenario, frames: int = 20, simulate_s: float = 60.0
         "efficiency_spinning": spinning["efficiency"],
         # The target's figure: the smaller of the two efficiencies.
         "ratio": min(grid["efficiency"], spinning["efficiency"]),
+        "load_average_1min": [load_start, os.getloadavg()[0]],  # at the start and at the end of the timings
     }
     if simulate_s > 0:
         s = scenario.model_copy(update={"duration_s": simulate_s})

@@ -6,10 +6,12 @@ cast, and the nearest hit over all bodies is kept. Rigid transforms keep distanc
 t_hit is the world range. No scene is rebuilt per frame.
 
 `cast_fans` is the scanning sensors' path: their rays are fans (one azimuth, many
-elevations) from one origin, moved into a body's frame by one transform per fan. For fans
-spread round the sensor it first drops, per fan, the rays that cannot meet the body's
-bounding box (or only beyond a closer hit already found): Embree's cost is mostly per ray,
-and most of a spinning LiDAR's rays would miss.
+elevations) from one origin, so a fan's rays in a body's frame are cos(el) A u_f + sin(el) A z:
+two vectors per fan, not a matrix per ray. For fans spread round the sensor it first drops,
+per fan, the rays that cannot meet the body's bounding box (or only beyond a closer hit
+already found): Embree's cost is mostly per ray, and most of a spinning LiDAR's rays would
+miss. The rays are built in float64 and rounded once to Embree's float32, into a buffer kept
+between frames.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 import open3d as o3d
 
 from boomtip.data.meshes import Body
+from boomtip.data.sim.fans import Fans, transpose_times
 
 
 @dataclass
@@ -51,11 +54,14 @@ class RayCaster:
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             self.face_normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12))
             self.face_normals32.append(self.face_normals[-1].astype(np.float32))
+        # The same, one contiguous array per axis: gathers of one float each are the fast ones.
+        self.face_normals32_by_axis = [np.ascontiguousarray(n.T) for n in self.face_normals32]
         # Bounding boxes, padded well beyond float32 rounding of rays out to kilometres.
         lo = np.array([b.vertices.min(axis=0) for b in bodies])
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
+        self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
 
     def cast(
         self,
@@ -146,7 +152,7 @@ class RayCaster:
 
     def cast_fans(
         self,
-        fans: "Fans",
+        fans: Fans,
         R_world_sensor: np.ndarray,
         p_world_sensor: np.ndarray,
         R_world_body: list[np.ndarray],
@@ -162,74 +168,123 @@ class RayCaster:
         reach a body's box, nearer than the closest hit found so far, are cast into it; a
         narrower grid sees the ships with most of its rays, and the box test would cost more
         than the few misses it saves."""
-        k, n_el = len(fans.dirs), len(fans.el_rad)
+        k = len(fans.dirs)
         m = len(R_world_sensor)
         if m not in (1, len(fans.az_rad)):
             raise ValueError(f"cast_fans: {m} sensor poses for {len(fans.az_rad)} fans (expected 1 or one per fan)")
         best_t = best_body = best_face = cos_inc = None  # set by the first body
+        pending = None  # a first body's fixed hits, copied only if needed (see below)
         for b, scene in enumerate(self.scenes):
             if fixed_hits is not None and b in fixed_hits:
-                t, face, c = fixed_hits[b]
+                if best_t is None and pending is None:
+                    pending = b
+                    continue
                 if best_t is None:
-                    best_t, best_face, cos_inc = t.copy(), face.copy(), c.copy()
-                    best_body = np.where(np.isfinite(t), b, -1)
-                else:
-                    closer = np.flatnonzero(t < best_t)
-                    best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                    best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
+                    pending = None
+                t, face, c = fixed_hits[b]
+                closer = np.flatnonzero(t < best_t)
+                best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
                 continue
-            if best_t is None:
-                best_t = np.full(k, np.inf, dtype=np.float32)
-                best_body = np.full(k, -1, dtype=np.int64)
-                best_face = np.full(k, -1, dtype=np.int64)
-                cos_inc = np.zeros(k, dtype=np.float32)
+            if best_t is None and fans.wide:
+                if pending is not None:
+                    best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
+                    pending = None
+                else:
+                    best_t = np.full(k, np.inf, dtype=np.float32)
+                    best_body = np.full(k, -1, dtype=np.int32)
+                    best_face = np.full(k, -1, dtype=np.int32)
+                    cos_inc = np.zeros(k, dtype=np.float32)
             R, p = R_world_body[b], p_world_body[b]
             scale = None if scale_body is None else scale_body[b]
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
             # (then divided by the body's scale, if stretched).
-            A = np.einsum("mji,mjk->mik", R, R_world_sensor)
-            o = np.einsum("mji,mj->mi", R, p_world_sensor - p)
+            o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
+            axes = None if m == 1 and not fans.wide else fans.axes_in(R, R_world_sensor)
+            ray_k = fan = None  # every ray, fan by fan
             if fans.wide:
-                ray_k = fans.reaching_box(self.box_lo[b], self.box_hi[b], A, o, scale)
+                ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], axes, o, scale)
                 if b > 0:  # rays already stopped before the box need no cast
                     dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale)
-                    ray_k = ray_k[np.take(best_t, ray_k) > (dist[0] if m == 1 else np.take(dist, ray_k // n_el))]
+                    ahead = np.take(best_t, ray_k) > (dist[0] if m == 1 else np.take(dist, fan))
+                    ray_k, fan = ray_k[ahead], fan[ahead]
                 if len(ray_k) == 0:
                     continue
-                dirs_s = np.take(fans.dirs, ray_k, axis=0)
-                pose = ray_k // n_el if m > 1 else None
-            else:  # every ray (ray_k None)
-                ray_k, dirs_s, pose = None, fans.dirs, fans.fan if m > 1 else None
-            # Rays in float64, then rounded once to Embree's float32.
-            rays64 = np.empty((len(dirs_s), 6))
-            if m == 1:
-                rays64[:, :3] = o[0]
-                np.matmul(dirs_s, A[0].T, out=rays64[:, 3:])
+            if axes is None:  # one pose, every ray: one product
+                rays = fans.body_frame_rays_one_pose(R[0].T @ R_world_sensor[0], o[0])
             else:
-                np.take(o, pose, axis=0, out=rays64[:, :3])
-                np.einsum("kij,kj->ki", np.take(A, pose, axis=0), dirs_s, out=rays64[:, 3:])
-            rays = rays64.astype(np.float32)
-            if scale is not None:  # after the rounding, as `cast` divides its float32 rays
-                s_ray = scale[0] if m == 1 else scale[pose]
+                rays = fans.body_frame_rays(axes, o, ray_k, fan)
+            if scale is not None:  # after the rounding to float32, as `cast` divides its rays
+                s_ray = scale[0] if m == 1 else np.take(scale, fans.fan if fan is None else fan, axis=0)
                 rays[:, :3] /= s_ray
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
+            if best_t is None:
+                # The first cast, of every ray: its answer is the best so far (Open3D's invalid
+                # id, 2^32 - 1, reads -1 as int32), and the fixed hits before it, few, go back
+                # where they are at least as close.
+                best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
+                hit = best_face >= 0
+                best_body = np.where(hit, np.int32(b), np.int32(-1))
+                cos_inc = self._incidence(b, best_face, rays, None, scale)  # (misses: any face)
+                cos_inc *= hit
+                if pending is not None:
+                    t_f, face_f, c_f = fixed_hits[pending]
+                    k_f = self._fixed_rays(pending, face_f)
+                    k_f = k_f[~(np.take(t, k_f) < np.take(t_f, k_f))]
+                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_f[k_f], pending, face_f[k_f], c_f[k_f]
+                    pending = None
+                continue
             closer = np.flatnonzero(t < (best_t if ray_k is None else np.take(best_t, ray_k)))
             hit_k = closer if ray_k is None else np.take(ray_k, closer)
             best_t[hit_k] = np.take(t, closer)
             best_body[hit_k] = b
             face = np.take(ans["primitive_ids"].numpy(), closer)
             best_face[hit_k] = face
-            # Incidence in the body frame (as in `cast`), one product at a time.
-            n_b, d_b = np.take(self.face_normals32[b], face, axis=0), np.take(rays, closer, axis=0)[:, 3:]
-            c = n_b[:, 0] * d_b[:, 0]
-            c += n_b[:, 1] * d_b[:, 1]
-            c += n_b[:, 2] * d_b[:, 2]
-            np.abs(c, out=c)
-            if scale is not None:
-                c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
-            cos_inc[hit_k] = c
+            cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
+        if best_t is None:  # no body cast: the fixed hits alone
+            best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
         return Hits(best_t.astype(np.float64), best_body, best_face, cos_inc)
+
+    def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
+                   scale: np.ndarray | None) -> np.ndarray:
+        """|cos| of the incidence of `rays` (all, or rows ray_i) on body b's faces `face`, in
+        the body frame (as in `cast`), one component at a time in float32. Rotated unit rays
+        stay unit; only a stretched body's rays need normalising."""
+        n_b = self.face_normals32_by_axis[b]
+        c = np.take(n_b[0], face)
+        c *= rays[:, 3] if ray_i is None else np.take(rays[:, 3], ray_i)
+        for i in (1, 2):
+            ci = np.take(n_b[i], face)
+            ci *= rays[:, 3 + i] if ray_i is None else np.take(rays[:, 3 + i], ray_i)
+            c += ci
+        np.abs(c, out=c)
+        if scale is not None:
+            d_b = rays[:, 3:] if ray_i is None else np.take(rays, ray_i, axis=0)[:, 3:]
+            c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
+        return c
+
+    def _fixed_arrays(self, b: int, fixed: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """Copies of fixed hits on body b as the fans' best hits so far: t, body, face, cos."""
+        t, face, c = fixed
+        body32, face32 = self._fixed_body_face(b, face)
+        return t.copy(), body32.copy(), face32.copy(), c.copy()
+
+    def _fixed_rays(self, b: int, face: np.ndarray) -> np.ndarray:
+        """The rays with a fixed hit `face` on body b (kept, as `_fixed_body_face`)."""
+        self._fixed_body_face(b, face)
+        return self._fixed_body_cache[b][3]
+
+    def _fixed_body_face(self, b: int, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Body index (-1 on a miss) and face per ray of fixed hits `face` on body b, as int32
+        (the fans' hits: half the memory to copy and gather), kept while the same fixed hits
+        come back frame after frame."""
+        cached = self._fixed_body_cache.get(b)
+        if cached is None or cached[0] is not face:
+            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1).astype(np.int32), face.astype(np.int32),
+                                                  np.flatnonzero(face >= 0))
+        return cached[1], cached[2]
 
     def cast_in_body_frame(self, b: int, origin_body: np.ndarray, dirs_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Hits (t, face, |cos incidence|; inf, -1, 0 on a miss) of rays given in body b's own
@@ -244,71 +299,6 @@ class RayCaster:
         cos_inc = np.zeros(len(t), dtype=np.float32)
         cos_inc[hit] = np.abs(np.einsum("ij,ij->i", self.face_normals[b][face[hit]], dirs_body[hit]))
         return t, face, cos_inc
-
-
-# Corner c of a box has bits (x, y, z) = (c >> 2, c >> 1, c) & 1; its 12 edges join corners one bit apart.
-_CORNER_BITS = (np.arange(8)[:, None] >> np.array([2, 1, 0])) & 1
-_EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1])
-
-
-class Fans:
-    """A scanning sensor's rays as F fans of N rays from its origin: ray f*N + k points along
-    azimuth az[f] (about the sensor z) and elevation el[k] (ascending), i.e. along
-    cos(el) u_f + sin(el) z with u_f = (cos az, sin az, 0). Fan f lies in the plane through
-    the origin spanned by u_f and z, which is what lets `reaching_box` find, fan by fan, the
-    run of elevations that can meet a box."""
-
-    def __init__(self, dirs: np.ndarray, az_rad: np.ndarray, el_rad: np.ndarray) -> None:
-        if len(dirs) != len(az_rad) * len(el_rad) or np.any(np.diff(el_rad) <= 0):
-            raise ValueError("Fans: expected F*N rays, fan by fan, with ascending elevations")
-        self.dirs, self.az_rad, self.el_rad = dirs, az_rad, el_rad
-        # (2, 2F): [x, y] @ basis gives every fan's (signed distance to its plane, coordinate along u_f).
-        ca, sa = np.cos(az_rad), np.sin(az_rad)
-        self.basis = np.stack([np.concatenate([-sa, ca]), np.concatenate([ca, sa])])
-        self.first_ray = np.arange(len(az_rad)) * len(el_rad)
-        self.fan = np.repeat(np.arange(len(az_rad)), len(el_rad))  # (K,) the fan of each ray
-        self.wide = np.ptp(az_rad) > np.pi
-
-    def reaching_box(self, box_lo: np.ndarray, box_hi: np.ndarray, A: np.ndarray, o: np.ndarray,
-                     scale: np.ndarray | None) -> np.ndarray:
-        """Indices (ascending) of the rays that can meet a box given in a body frame where
-        x_b = S^-1 (A x_s + o) (per pose: M = 1 or one per fan; S = diag(scale) or 1).
-
-        The fan's plane cuts the box (an affine image of a box in the sensor frame) in a
-        convex polygon whose vertices are where the box's edges meet the plane. If the polygon
-        lies where u > 0, the rays reaching it are those with el between its vertices' least
-        and greatest angle atan2(z, u); if it lies where u < 0, none; else (the sensor inside
-        the box, or a polygon across u = 0) all of the fan."""
-        n_fan, n_el = len(self.az_rad), len(self.el_rad)
-        corners = np.where(_CORNER_BITS, box_hi, box_lo)  # (8,3)
-        if scale is not None:
-            corners = corners * scale[:, None]  # (M,8,3)
-        corners_s = (corners - o[:, None]) @ A  # x_s = A^T (S x_b - o), as rows
-        # g[:, f, c] = (signed distance to fan f's plane, coordinate along u_f, z) of corner c.
-        g = np.empty((3, n_fan, 8))
-        if len(A) == 1:
-            g[:2] = (corners_s[0, :, :2] @ self.basis).reshape(8, 2, n_fan).transpose(1, 2, 0)
-            g[2] = corners_s[0, :, 2]
-        else:
-            g[:2] = np.einsum("fcj,jaf->afc", corners_s[..., :2], self.basis.reshape(2, 2, n_fan))
-            g[2] = corners_s[..., 2]
-        # Edge (c0, c1) meets the plane where the distance is 0 (an edge lying in it gives its ends).
-        g0, g1 = np.take(g, _EDGES[:, 0], axis=2), np.take(g, _EDGES[:, 1], axis=2)  # (3,F,12)
-        s0, s1 = g0[0], g1[0]
-        lam = s0 / np.where(s0 != s1, s0 - s1, 1.0)
-        u, z = g0[1:] + lam * (g1[1:] - g0[1:])
-        u[s0 * s1 > 0] = np.nan  # not a vertex; fmin / fmax skip NaN
-        u_min, u_max = np.fmin.reduce(u, axis=1), np.fmax.reduce(u, axis=1)
-        ang = np.arctan2(z, u)
-        eps = 1e-9  # rad: far above the angles' rounding, far below any ray spacing
-        front = u_min > 0  # a polygon, all of it where u > 0 (NaN: no polygon)
-        k0 = np.where(front, np.searchsorted(self.el_rad, np.fmin.reduce(ang, axis=1) - eps, "left"), 0)
-        k1 = np.where(front, np.searchsorted(self.el_rad, np.fmax.reduce(ang, axis=1) + eps, "right"), n_el)
-        k1[~(u_max >= 0)] = 0  # behind the sensor, or no polygon at all: no ray
-        k0[~(u_max >= 0)] = 0
-        length = k1 - k0
-        run_first = np.cumsum(length) - length  # where each fan's run starts in the output
-        return np.repeat(self.first_ray + k0 - run_first, length) + np.arange(run_first[-1] + length[-1])
 
 
 def box_distance(box_lo: np.ndarray, box_hi: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> np.ndarray:

@@ -11,10 +11,12 @@ ray-cast hits into what the sensor reports (noise, quantisation, intensity, drop
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from boomtip.data.sim.raycast import Fans, Hits
+from boomtip.data.sim.fans import Fans
+from boomtip.data.sim.raycast import Hits
 from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
 
@@ -39,6 +41,16 @@ class ScanPattern:
     column: np.ndarray  # (K,) which firing column each ray belongs to
     column_time_s: np.ndarray  # (C,) time offset of each column from the frame start
     fans: Fans  # the same rays as fans, one per azimuth (for the ray caster)
+
+    @cached_property
+    def ray_time_s32(self) -> np.ndarray:
+        """(K,) float32: each ray's column time, the points' `t` field."""
+        return np.take(self.column_time_s, self.column).astype(np.float32)
+
+    @cached_property
+    def dirs_by_axis(self) -> np.ndarray:
+        """(3,K) the directions one axis per row: gathers of one float each are the fast ones."""
+        return np.ascontiguousarray(self.dirs_sensor.T)
 
 
 def lidar_pattern(cfg: Lidar) -> ScanPattern:
@@ -79,7 +91,7 @@ class FaceLookup:
     def from_bodies(cls, bodies: list[Body]) -> "FaceLookup":
         sizes = np.array([len(b.face_label) for b in bodies])
         return cls(
-            np.concatenate([b.face_label for b in bodies]),
+            np.concatenate([b.face_label for b in bodies]).astype(np.int32),  # the frames' label dtype
             np.concatenate([b.face_reflectivity for b in bodies]),
             np.concatenate([b.face_retro for b in bodies]),
             np.concatenate([b.face_rcs for b in bodies]),
@@ -123,7 +135,7 @@ def lidar_measure(
     np.clip(cos_inc, 1e-3, 1.0, out=cos_inc)
     intensity = np.take(faces.reflectivity, f)
     intensity *= cos_inc  # diffuse (Lambert)
-    label = np.take(faces.label, f).astype(np.int32)
+    label = np.take(faces.label, f)
     retro = np.take(faces.retro, f)
     if spray is not None and spray.probability > 0 and len(idx):
         # a droplet at a height z in the band, met by a downward ray before its surface
@@ -168,10 +180,11 @@ def lidar_measure(
         r = r / cfg.range_resolution_m
         np.round(r, out=r)
         r *= cfg.range_resolution_m
-    points = np.take(pattern.dirs_sensor, idx, axis=0)
-    points *= r[:, None]
+    points = np.empty((n, 3))
+    for i in range(3):
+        np.multiply(np.take(pattern.dirs_by_axis[i], idx), r, out=points[:, i])
     if cfg.motion_during_sweep:
-        t_offset = np.take(pattern.column_time_s, np.take(pattern.column, idx)).astype(np.float32)
+        t_offset = np.take(pattern.ray_time_s32, idx)
     else:
         t_offset = np.zeros(n, dtype=np.float32)
     return points, {"intensity": intensity.astype(np.float32, copy=False), "t": t_offset, "label": label}
@@ -203,7 +216,7 @@ def radar_measure(
     az = np.arctan2(d[:, 1], d[:, 0]) + np.deg2rad(cfg.azimuth_noise_deg) * rng.standard_normal(n)
     el = np.arcsin(np.clip(d[:, 2], -1, 1)) + np.deg2rad(cfg.elevation_noise_deg) * rng.standard_normal(n)
     rr = range_rate_true_mps[idx] + cfg.range_rate_noise_mps * rng.standard_normal(n)
-    label = faces.label[f_all[idx]].astype(np.int32)
+    label = faces.label[f_all[idx]]
     # False alarms: uniform in the field of view, range and range rate.
     n_fa = rng.poisson(cfg.false_alarms_per_scan) if cfg.false_alarms_per_scan > 0 else 0
     if n_fa:

@@ -156,7 +156,8 @@ class Simulation(FrameSource):
         w = self.world
         Rs, ps = w.body_poses(times)
         T_cs = w.T_crane_boomtip @ w.T_boomtip_sensor[sensor]  # the sensor rides on the crane vessel (body 0)
-        return Rs[0] @ T_cs[:3, :3], Rs[0] @ T_cs[:3, 3] + ps[0], Rs, ps, None
+        R_crane = Rs[0].reshape(-1, 3)  # (M*3,3): one product, not M small ones
+        return (R_crane @ T_cs[:3, :3]).reshape(-1, 3, 3), (R_crane @ T_cs[:3, 3]).reshape(-1, 3) + ps[0], Rs, ps, None
 
     def lidar_frame(self, index: int, t_s: float) -> Frame:
         return self._lidar_frame_from(index, t_s, self._scene_poses, self._sensor_fixed_hits("lidar"))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from boomtip.data.scenario import load_scenario
-from boomtip.data.sim.raycast import Fans
+from boomtip.data.sim.fans import Fans
 from boomtip.data.sim.sensors import spherical_dirs
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.bench_raycast import SPINNING_128x1024, hits_difference, reference_lidar_hits
@@ -40,6 +40,14 @@ def assert_same_hits(sim, times, fixed):
 def test_fan_hits_are_the_per_ray_reference_hits(overrides):
     sim = Simulation(load_scenario("sts-loaded", ["duration_s=1", *overrides]))
     assert_same_hits(sim, [0.0, 0.37, 2.9], sim._sensor_fixed_hits("lidar"))
+
+
+@pytest.mark.parametrize("overrides", [[], [*SPIN_SMALL, "lidar.motion_during_sweep=true"]])
+def test_fan_hits_without_fixed_hits(overrides):
+    """Every body cast, the crane vessel too: the grid's first cast is kept as the best hits,
+    the spinning LiDAR's rays are culled per body."""
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=1", *overrides]))
+    assert_same_hits(sim, [0.0, 0.61], None)
 
 
 def test_fan_hits_match_with_stretched_bodies_and_no_fixed_hits():
@@ -91,7 +99,9 @@ def test_reaching_box_keeps_every_ray_that_meets_the_box(seed):
         A = q * np.sign(np.linalg.det(q))  # a rotation
         o = rng.uniform(-30, 30, 3)
         kept = np.zeros(len(fans.dirs), dtype=bool)
-        kept[fans.reaching_box(lo, hi, A[None], o[None], None)] = True
+        ray_k, fan = fans.reaching_box(lo, hi, fans.axes_in(np.eye(3)[None], A[None]), o[None], None)
+        assert np.array_equal(fan, ray_k // len(el))
+        kept[ray_k] = True
         meets = slab_hits(lo, hi, o, fans.dirs @ A.T)
         assert not np.any(meets & ~kept)
         meets_any += meets.sum()
@@ -114,7 +124,9 @@ def test_reaching_box_per_fan_poses_and_scale():
     o = np.column_stack([rng.uniform(-4, 4, 64), rng.uniform(-4, 4, 64), np.full(64, -1.0)])
     scale = np.column_stack([np.linspace(3, 9, 64), np.ones(64), np.linspace(2, 8, 64)])
     kept = np.zeros(len(fans.dirs), dtype=bool)
-    kept[fans.reaching_box(lo, hi, A, o, scale)] = True
+    ray_k, fan = fans.reaching_box(lo, hi, fans.axes_in(np.eye(3)[None], A), o, scale)
+    assert np.array_equal(fan, ray_k // len(el))
+    kept[ray_k] = True
     fan = np.repeat(np.arange(64), 24)
     d = np.einsum("kij,kj->ki", A[fan], fans.dirs) / scale[fan]
     meets = slab_hits(lo, hi, o[fan] / scale[fan], d)
