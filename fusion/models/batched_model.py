@@ -162,7 +162,7 @@ def _end_state(X: np.ndarray, h: float, Y1: np.ndarray, V1: np.ndarray) -> np.nd
     C = X[4:19].reshape(5, 3, N)
     q, qd, qdd = C[:, 0], C[:, 1], C[:, 2]
     out = np.empty((n, N))
-    out[0:4:2], out[1:4:2] = Y1[:2], V1[:2]
+    out[IA:IB + 1:2], out[IAD:IBD + 1:2] = Y1[:2], V1[:2]  # (a, b) at 0, 2; their rates at 1, 3
     if len(Y1) == 3:
         out[IF], out[IFD] = Y1[2], V1[2]
     Co = out[4:19].reshape(5, 3, N)

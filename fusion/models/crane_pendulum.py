@@ -36,7 +36,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "STATE_NAMES", "IA", "IAD", "IB", "IBD", "INU", "IMU", "IL", "IROLL", "IPITCH", "IF", "IFD",
-    "KIN_CHAINS", "HOOK_COLS", "HOOK_IX", "kin_at", "rk4_step", "rk4_float", "rk4_batch", "midpoint_float", "midpoint_batch", "process_noise",
+    "KIN_CHAINS", "HOOK_COLS", "HOOK_IX", "kin_at", "rk4_step", "rk4_float", "rk4_batch", "midpoint_float",
+    "midpoint_batch", "process_noise",
     "hook_pos_vel", "hook_pos_vel_batch", "lidar_h_jac", "sway_angles_from_direction",
 ]
 
@@ -192,7 +193,8 @@ def midpoint_float(prm, flex, x, h):
     t2 = 0.5 * h * h
     k1a, k1b, k1f = acc(sin, cos, prm, flex, a, ad, b, bd, nu, nud, nudd, mu, mud, mudd, l, ld, ldd,
                         r, rd, rdd, p, pd, pdd, f, fd)
-    a2, ad2, b2, bd2, f2, fd2 = a + h2 * ad, ad + h2 * k1a, b + h2 * bd, bd + h2 * k1b, f + h2 * fd, fd + h2 * k1f
+    a2, ad2, b2, bd2 = a + h2 * ad, ad + h2 * k1a, b + h2 * bd, bd + h2 * k1b
+    f2, fd2 = f + h2 * fd, fd + h2 * k1f
     k2a, k2b, k2f = acc(sin, cos, prm, flex, a2, ad2, b2, bd2,
                         nu + nud * h2 + nudd * t1, nud + nudd * h2, nudd, mu + mud * h2 + mudd * t1, mud + mudd * h2, mudd,
                         l + ld * h2 + ldd * t1, ld + ldd * h2, ldd, r + rd * h2 + rdd * t1, rd + rdd * h2, rdd,

@@ -236,9 +236,9 @@ def test_midpoint_variants_equal(flex):
     ref = np.array([midpoint_float(prm, flex, x.tolist(), 0.005) for x in X])
     np.testing.assert_array_equal(midpoint_batch(prm, flex, X.T, 0.005).T, ref)
     np.testing.assert_array_equal(midpoint_sigma_points(prm, flex, X.T, 0.005), midpoint_batch(prm, flex, X.T, 0.005))
-    def err(h):
-        return max(np.abs(np.subtract(midpoint_float(prm, flex, x.tolist(), h), rk4_float(prm, flex, x.tolist(), h)))[[1, 3]].max()
-                   for x in X)
+    def err(h):  # the largest difference in a' and b' after one step
+        return max(np.abs(np.subtract(midpoint_float(prm, flex, x.tolist(), h),
+                                      rk4_float(prm, flex, x.tolist(), h)))[[1, 3]].max() for x in X)
     assert 6.0 < err(0.01) / err(0.005) < 10.0  # local error O(h^3)
 
 
