@@ -82,9 +82,12 @@ class HookFilterConfig(BaseModel):
     # cached A with the actual dt at every step); 0 = at every prediction.
     jacobian_interval_s: float = 0.02
     # UKF sigma-point propagation: "generated" (fusion/models/batched_model.py, the tip's
-    # kinematics once per RK4 step) or "core" (the crane model's core on arrays, 4 times per
-    # step: benchmark variant); the same operations per element, the same result
+    # kinematics once per step) or "core" (the crane model's core on arrays, once per stage:
+    # benchmark variant); the same operations per element, the same result
     ukf_model: Literal["generated", "core"] = "generated"
+    # the prediction's integrator (both filters): "rk4" (document 002 4.4) or "midpoint" (the
+    # explicit midpoint rule, two evaluations of the crane model per step instead of four).
+    integrator: Literal["rk4", "midpoint"] = "midpoint"
     ukf_alpha: float = 1e-3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0

@@ -4,14 +4,18 @@ model (EKF or UKF) and the updates by the crane's own sensors (encoders, MRU).
 rope direction).
 
 EKF (the equations of filterpy's ``ExtendedKalmanFilter``, written out: its per-call
-overhead dominated the 200 Hz loop): mean by RK4, ``P = F P F^T + Q`` with
+overhead dominated the 200 Hz loop): mean by the integrator, ``P = F P F^T + Q`` with
 ``F = I + A dt + (A dt)^2 / 2`` and the continuous Jacobian ``A`` of the equations of
 motion (fusion/models/jacobian.py), refreshed every ``jacobian_interval_s`` (50 Hz; ``0`` =
 every step; ``F`` is rebuilt only when ``A`` or ``dt`` changes).
 UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points with
 Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
-batched (vectorised) RK4 step (fusion/models/batched_model.py: the tip's kinematics once per
-step for the three input times) and recomputed from (x, P) before every LiDAR update.  The
+batched (vectorised) step (fusion/models/batched_model.py: the tip's kinematics once per
+step for the step's input times) and recomputed from (x, P) before every LiDAR update.
+The integrator (``HookFilterConfig.integrator``): the explicit midpoint rule by default, two
+evaluations of the crane model per 5 ms step instead of RK4's four (document 002 4.4); at this
+step the estimates agree to micrometres (the pendulum's and the deflection's periods are
+seconds; BENCHMARKS.md, tests/fusion).  The
 linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
 linear h the unscented transform gives the same result).  Every correction is
 ``x + K y``, ``P - K S K^T`` through the Cholesky factor of ``S`` (filterpy's EKF uses the
@@ -34,7 +38,7 @@ from scipy.linalg.lapack import dpotrf, dtrtri
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.models.autodiff import accel_jacobian
-from boomtip.fusion.models.batched_model import rk4_sigma_points, split_accelerations
+from boomtip.fusion.models.batched_model import midpoint_sigma_points, rk4_sigma_points, split_accelerations
 from boomtip.fusion.models.crane_pendulum import (
     HOOK_IX,
     IA,
@@ -50,6 +54,8 @@ from boomtip.fusion.models.crane_pendulum import (
     IROLL,
     STATE_NAMES,
     hook_pos_vel,
+    midpoint_batch,
+    midpoint_float,
     process_noise,
     rk4_batch,
     rk4_float,
@@ -163,7 +169,11 @@ class HookKalmanCore:
             self._Wc_half = 0.5 * self._Wc
             # the generated model (tip kinematics once per step); the core itself if untraceable
             generated = self.cfg.ukf_model == "generated" and split_accelerations(self._prm, self.flex) is not None
-            self._rk4_sigma = rk4_sigma_points if generated else rk4_batch
+            if self.cfg.integrator == "rk4":
+                self._step_sigma = rk4_sigma_points if generated else rk4_batch
+            else:
+                self._step_sigma = midpoint_sigma_points if generated else midpoint_batch
+        self._step_float = rk4_float if self.cfg.integrator == "rk4" else midpoint_float
 
     # ------------------------------------------------------------------ state access
     @property
@@ -242,7 +252,7 @@ class HookKalmanCore:
 
     # ------------------------------------------------------------------ predict
     def predict(self, dt: float | None = None) -> None:
-        """Propagate the estimate by dt seconds (one RK4 step)."""
+        """Propagate the estimate by dt seconds (one step of the configured integrator)."""
         dt = self.dt_s if dt is None else float(dt)
         if dt <= 0:
             return
@@ -263,12 +273,12 @@ class HookKalmanCore:
                 Ad = self._A * dt
                 F = self._I + Ad + 0.5 * (Ad @ Ad)
                 self._F, self._Fh, self._F_key = F, 0.5 * F, key
-            kf.x = np.array(rk4_float(self._prm, self.flex, kf.x.tolist(), dt))
+            kf.x = np.array(self._step_float(self._prm, self.flex, kf.x.tolist(), dt))
             H = (self._Fh @ kf.P) @ self._F.T
         else:
-            # sigma points from (x, P), one batched RK4 step, unscented transform
+            # sigma points from (x, P), one batched step, unscented transform
             sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
-            Xf = self._rk4_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
+            Xf = self._step_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
             x = Xf @ self._Wm
             D = Xf - x[:, None]
             kf.x = x

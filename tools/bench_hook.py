@@ -76,6 +76,24 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
         ukf_core[name] = {"cpu_s": run.cpu_s, "runtime_s": run.runtime_s,
                           "same_estimate": bool(np.array_equal(run.x, result.runs[name].x)),
                           "cpu_ratio": run.cpu_s / result.runs[name].cpu_s}
+    # each estimator with RK4 (the integrator before the midpoint rule, otherwise the same code
+    # and the same operations) on the same measurements, the two run in turn twice (the least
+    # CPU time of each: on a shared machine a single pair is out by 10-20 %)
+    against_rk4 = {}
+    for name, new_run in result.runs.items():
+        kind, model = name.split("_")
+        params = chain.params.model_copy(update={"flexible": model == "flexible"})
+        cpu = {"rk4": [], "chain": []}
+        for _ in range(2):
+            for label, cfg in (("rk4", chain.filter_cfg.model_copy(update={"integrator": "rk4"})), ("chain", chain.filter_cfg)):
+                run = run_hook_filter(result.measurements, kind, model, params, cfg)
+                cpu[label].append(run.cpu_s)
+                if label == "rk4":
+                    rk4_run = run
+        against_rk4[name] = {"cpu_s": min(cpu["rk4"]), "cpu_s_chain": min(cpu["chain"]),
+                             "cpu_ratio": min(cpu["rk4"]) / min(cpu["chain"]),
+                             "max_pos_difference_m": float(np.abs(rk4_run.p_rel - new_run.p_rel).max()),
+                             "max_vel_difference_mps": float(np.abs(rk4_run.v_rel - new_run.v_rel).max())}
     total = wall_sim + wall_perc + wall_filters + wall_out
     cpu_total = cpu_sim + cpu_perc + cpu_filters + cpu_out
     per_frame = {k: float(np.mean(v)) for k, v in sorted(stage_ms.items())}
@@ -97,6 +115,7 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
         "realtime_factor_cpu": {"simulation": duration_s / cpu_sim, "perception": duration_s / cpu_perc,
                                 "estimators": duration_s / cpu_filters, "end_to_end": duration_s / cpu_total},
         "ukf_against_core_model": ukf_core,
+        "estimators_against_rk4": against_rk4,
         "peak_rss_mb_after": {"frames": rss_frames, "estimators": rss_filters, "outputs": _peak_rss_mb()},
         "estimators": estimators,
         "block_ms_per_frame": {"mean": float(np.mean(block)), "p95": float(np.percentile(block, 95))},

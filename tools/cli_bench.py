@@ -226,6 +226,9 @@ def bench_hook_cmd(
     for name, u in r["ukf_against_core_model"].items():
         print(f"  {name}: the core model on the sigma points {u['cpu_s']:.2f} s CPU, {u['cpu_ratio']:.2f}x the generated "
               f"model's ({'the same estimate' if u['same_estimate'] else 'a different estimate'})")
+    for name, u in r["estimators_against_rk4"].items():
+        print(f"  {name} with RK4: {u['cpu_s']:.2f} s CPU, {u['cpu_ratio']:.2f}x the chain's {u['cpu_s_chain']:.2f} s; the hook within "
+              f"{1e3 * u['max_pos_difference_m']:.4f} mm, {1e3 * u['max_vel_difference_mps']:.4f} mm/s")
     print(f"  ratio {r['ratio']:.2f}x real time end to end")
 
 

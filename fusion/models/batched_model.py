@@ -6,8 +6,9 @@ its cost is the call, not the arithmetic. The trace (fusion/models/autodiff.py: 
 parameters folded in, common subexpressions shared) splits the operations in two:
 
 * those of the inputs only (slew, luff, hoist, roll, pitch and their rates: the tip's
-  kinematics), evaluated once per RK4 step for the step's three input times together (t,
-  t + h/2, t + h) on one array of 3 x 43 columns, instead of once per RK4 stage (4 times);
+  kinematics), evaluated once per step for the step's input times together (RK4: t, t + h/2,
+  t + h on one array of 3 x 43 columns, instead of once per stage, 4 times; the midpoint rule:
+  t, t + h/2);
 * those of the sway and deflection states (a, a', b, b'[, nu_f, nu_f']), evaluated per stage.
 
 Both are compiled to straight-line numpy code (a value used once is inlined into its consumer's
@@ -26,7 +27,7 @@ from boomtip.data.crane_model import pendulum_accelerations_core
 from boomtip.fusion.models.autodiff import _Tape, _TraceNode, ancestors
 from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD
 
-__all__ = ["split_accelerations", "rk4_sigma_points"]
+__all__ = ["split_accelerations", "rk4_sigma_points", "midpoint_sigma_points"]
 
 _SWAY = (IA, IAD, IB, IBD, IF, IFD)
 
@@ -66,9 +67,16 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
             handed.append(o.id)
     handed_set = set(handed)
 
+    # a constant operand as a named 0-d array: numpy takes ~2x as long for an operation with a
+    # Python float as with an array (its scalar conversion), and the product is the same
+    consts: dict[str, str] = {}
+
+    def const(v):
+        return consts.setdefault(repr(v), f"_c{len(consts)}")
+
     def emit(lines, expr, depth, nd, keep):
         a = nd.args
-        ref = [expr[x.id] if isinstance(x, _TraceNode) else repr(x) for x in a]
+        ref = [expr[x.id] if isinstance(x, _TraceNode) else const(x) for x in a]
         if nd.op == "neg":
             e = f"(-{ref[0]})"
         elif nd.op in ("sin", "cos"):
@@ -97,7 +105,7 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
         if nd.id in live and nd.id in sway:
             emit(lines, expr, depth, nd, False)
     lines.append("    return " + ", ".join(expr[o.id] for o in outs))
-    ns = {"_sin": np.sin, "_cos": np.cos}
+    ns = {"_sin": np.sin, "_cos": np.cos, **{name: np.array(float(v)) for v, name in consts.items()}}
     exec(compile("\n".join(lines), "<generated crane accelerations, batched>", "exec"), ns)
     return ns["_inputs"], ns["_sway"]
 
@@ -113,6 +121,61 @@ def split_accelerations(prm: tuple, flex: bool) -> tuple[Callable, Callable] | N
     return _SPLIT[key]
 
 
+def _inputs_at(inputs_part, X: np.ndarray, taus: tuple[float, ...]) -> np.ndarray:
+    """The inputs part for the states X (n, N) at the times t + tau (taus[0] = 0), all times in
+    one call on T x N columns: the handed values (T, H, N)."""
+    N = X.shape[1]
+    C = X[4:19].reshape(5, 3, N)  # per chain (q, q', q'')
+    q, qd, qdd = C[:, 0], C[:, 1], C[:, 2]
+    U = np.empty((5, 3, len(taus), N))  # (chains, derivatives, times, N)
+    U[:, :, 0] = C
+    for j, tau in enumerate(taus[1:], 1):  # :func:`~.crane_pendulum.kin_at`'s operations
+        U[:, 0, j] = q + qd * tau + qdd * (0.5 * tau * tau)
+        U[:, 1, j] = qd + qdd * tau
+        U[:, 2, j] = qdd
+    # one array of the handed values: each time's share is then a (H, N) view whose rows unpack
+    # into the sway part in C (cheaper than a Python list of per-time slices)
+    K = np.array(inputs_part(U.reshape(15, len(taus) * N)))
+    return K.reshape(len(K), len(taus), N).transpose(1, 0, 2)
+
+
+def _sway_evaluator(sway_part, flex: bool) -> Callable:
+    """acc(Y, V, k) -> (a'', b''[, nu_f'']) as one (m, N) array, for positions Y = (a, b[, nu_f])
+    and rates V (m, N) and the handed values k (H, N)."""
+    if flex:
+        def acc(Y, V, k):
+            y0, y1, y2 = Y
+            v0, v1, v2 = V
+            return np.array(sway_part(y0, v0, y1, v1, y2, v2, *k))
+    else:
+        def acc(Y, V, k):
+            y0, y1 = Y
+            v0, v1 = V
+            return np.array(sway_part(y0, v0, y1, v1, *k))
+    return acc
+
+
+def _end_state(X: np.ndarray, h: float, Y1: np.ndarray, V1: np.ndarray) -> np.ndarray:
+    """The state after a step h: positions Y1 and rates V1 (m, N) of the sway (and deflection),
+    the kinematic chains extrapolated exactly (constant acceleration)."""
+    n, N = X.shape
+    C = X[4:19].reshape(5, 3, N)
+    q, qd, qdd = C[:, 0], C[:, 1], C[:, 2]
+    out = np.empty((n, N))
+    out[IA:IB + 1:2], out[IAD:IBD + 1:2] = Y1[:2], V1[:2]  # (a, b) at 0, 2; their rates at 1, 3
+    if len(Y1) == 3:
+        out[IF], out[IFD] = Y1[2], V1[2]
+    Co = out[4:19].reshape(5, 3, N)
+    Co[:, 0] = q + qd * h + qdd * (0.5 * h * h)
+    Co[:, 1] = qd + qdd * h
+    Co[:, 2] = qdd
+    return out
+
+
+def _positions_rates(X: np.ndarray, flex: bool) -> tuple[np.ndarray, np.ndarray]:
+    return (X[[IA, IB, IF]], X[[IAD, IBD, IFD]]) if flex else (X[[IA, IB]], X[[IAD, IBD]])
+
+
 def rk4_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: float) -> np.ndarray | None:
     """One RK4 step of the states X (n, N) -> (n, N): the same operations as
     :func:`~boomtip.fusion.models.crane_pendulum.rk4_batch` with the tip's kinematics evaluated
@@ -121,40 +184,10 @@ def rk4_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: float) -> np.ndar
     if split is None:
         return None
     inputs_part, sway_part = split
-    n, N = X.shape
     h2 = 0.5 * h
-    t1 = 0.5 * h2 * h2
-    t2 = 0.5 * h * h
-    C = X[4:19].reshape(5, 3, N)  # per chain (q, q', q'')
-    q, qd, qdd = C[:, 0], C[:, 1], C[:, 2]
-    # the inputs at t, t + h/2 and t + h side by side: U (5 chains, 3 derivatives, 3 times, N)
-    U = np.empty((5, 3, 3, N))
-    U[:, :, 0] = C
-    U[:, 0, 1] = q + qd * h2 + qdd * t1
-    U[:, 1, 1] = qd + qdd * h2
-    U[:, 0, 2] = q + qd * h + qdd * t2
-    U[:, 1, 2] = qd + qdd * h
-    U[:, 2, 1] = qdd
-    U[:, 2, 2] = qdd
-    # each time's share of the inputs part as 1-D views (cheaper to pass than the rows of a
-    # 2-D array unpacked into the call)
-    K = inputs_part(U.reshape(15, 3 * N))
-    k0, k1, k2 = ([v[j * N:(j + 1) * N] for v in K] for j in range(3))
-    if flex:
-        Y, V = X[[IA, IB, IF]], X[[IAD, IBD, IFD]]  # positions (a, b, nu_f), rates
-
-        def acc(Yi, Vi, k):
-            y0, y1, y2 = Yi
-            v0, v1, v2 = Vi
-            return np.array(sway_part(y0, v0, y1, v1, y2, v2, *k))
-    else:
-        Y, V = X[[IA, IB]], X[[IAD, IBD]]
-
-        def acc(Yi, Vi, k):
-            y0, y1 = Yi
-            v0, v1 = Vi
-            return np.array(sway_part(y0, v0, y1, v1, *k))
-
+    k0, k1, k2 = _inputs_at(inputs_part, X, (0.0, h2, h))
+    acc = _sway_evaluator(sway_part, flex)
+    Y, V = _positions_rates(X, flex)
     a1 = acc(Y, V, k0)
     Y2, V2 = Y + h2 * V, V + h2 * a1
     a2 = acc(Y2, V2, k1)
@@ -163,11 +196,23 @@ def rk4_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: float) -> np.ndar
     Y4, V4 = Y + h * V3, V + h * a3
     a4 = acc(Y4, V4, k2)
     h6 = h / 6.0
-    out = np.empty((n, N))
-    m = len(Y)
-    out[[IA, IB, IF][:m]] = Y + h6 * (V + 2 * V2 + 2 * V3 + V4)
-    out[[IAD, IBD, IFD][:m]] = V + h6 * (a1 + 2 * a2 + 2 * a3 + a4)
-    out[4:19] = U[:, :, 2].reshape(15, N)
-    return out
+    return _end_state(X, h, Y + h6 * (V + 2 * V2 + 2 * V3 + V4), V + h6 * (a1 + 2 * a2 + 2 * a3 + a4))
 
 
+def midpoint_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: float) -> np.ndarray | None:
+    """One explicit midpoint step (second-order Runge-Kutta, two evaluations of the model
+    instead of RK4's four) of the states X (n, N) -> (n, N): the same operations as
+    :func:`~boomtip.fusion.models.crane_pendulum.midpoint_batch`. None when the core is not
+    traceable."""
+    split = split_accelerations(prm, flex)
+    if split is None:
+        return None
+    inputs_part, sway_part = split
+    h2 = 0.5 * h
+    k0, k1 = _inputs_at(inputs_part, X, (0.0, h2))
+    acc = _sway_evaluator(sway_part, flex)
+    Y, V = _positions_rates(X, flex)
+    a1 = acc(Y, V, k0)
+    Ym, Vm = Y + h2 * V, V + h2 * a1
+    a2 = acc(Ym, Vm, k1)
+    return _end_state(X, h, Y + h * Vm, V + h * a2)
