@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import heave_distance, prediction_sigma
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
-from boomtip.perception.plane import PlaneFit, RansacConfig, _moments_cols, _select_inliers, ransac_plane_cols
+from boomtip.perception.plane import PlaneFit, RansacConfig, _moments_cols, _select_inliers, eigh3, ransac_plane_cols
 from boomtip.perception.plane_refine import refine_plane_biweight_cols
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes
@@ -168,7 +168,7 @@ def detect_deck(
 def _inlier_moments(x_in: np.ndarray) -> dict:
     """A PlaneFit's moment fields for the inliers stored column-wise, (3, M)."""
     centroid, scatter = _moments_cols(x_in)
-    evals, evecs = np.linalg.eigh(scatter)
+    evals, evecs = eigh3(scatter)
     return {"centroid": centroid, "scatter_evals": evals, "scatter_evecs": evecs}
 
 

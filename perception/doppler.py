@@ -234,10 +234,10 @@ def doppler_velocity(
     # Every detection valid (the usual case) iff the sums are finite and no beam is zero: three
     # reductions instead of five full-length masks
     all_valid = math.isfinite(float(r_all.sum()) + float(n2.sum())) and float(n2.min(initial=math.inf)) > 0
-    valid = np.ones(n_all, dtype=bool) if all_valid else np.isfinite(r_all) & np.isfinite(n2) & (n2 > 0)
-    if all_valid:
-        valid_sel, b_sel, r, n2_sel = None, b_all, r_all, n2
+    if all_valid:  # the mask is only built when RANSAC needs it (below)
+        valid, valid_sel, b_sel, r, n2_sel = None, None, b_all, r_all, n2
     else:
+        valid = np.isfinite(r_all) & np.isfinite(n2) & (n2 > 0)
         valid_sel, b_sel, r, n2_sel = valid, b_all[valid], r_all[valid], n2[valid]
     n = len(r)
     if n < 3:
@@ -253,7 +253,7 @@ def doppler_velocity(
             return fit
     rng = rng if rng is not None else np.random.default_rng(0)  # only RANSAC draws: built here, not per call
     b = np.ascontiguousarray(bT.T)
-    vidx = np.flatnonzero(valid)
+    vidx = np.arange(n_all) if valid is None else np.flatnonzero(valid)
     best_count, best_u, drawn = -1, None, 0
     needed = float(cfg.max_iterations)
     while drawn < min(needed, cfg.max_iterations):

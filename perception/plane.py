@@ -42,6 +42,11 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.perception.cloud import as_points
 
+try:  # LAPACK's symmetric eigensolver as np.linalg.eigh calls it, without the wrapper (see eigh3)
+    from numpy.linalg._umath_linalg import eigh_lo as _eigh_lo
+except ImportError:  # pragma: no cover - a numpy that moved it: the public call
+    _eigh_lo = None
+
 __all__ = [
     "RansacConfig",
     "PlaneFit",
@@ -127,10 +132,24 @@ def orient_plane_towards(plane: np.ndarray, point: np.ndarray | None = None) -> 
     return -plane if s < 0 else plane.copy()
 
 
+def eigh3(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.linalg.eigh`` of one real symmetric 3x3 matrix (eigenvalues ascending, eigenvectors
+    as columns), bit for bit: the same LAPACK routine through numpy's own ufunc, without the
+    wrapper's checks, type resolution and error-state context, which cost twice the solve and
+    run some ten times per LiDAR frame. A result that is not finite (non-finite input, no
+    convergence) goes through np.linalg.eigh, which raises or returns exactly as before."""
+    if _eigh_lo is not None:
+        with np.errstate(invalid="ignore"):
+            evals, vecs = _eigh_lo(a, signature="d->dd")
+        if math.isfinite(evals[0] + evals[1] + evals[2]):
+            return evals, vecs
+    return np.linalg.eigh(a)
+
+
 def _plane_and_eig(centroid: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Plane through ``centroid`` whose normal is the smallest-eigenvalue eigenvector of
     ``scatter``, oriented towards the sensor origin (d >= 0); with the eigenvalues and vectors."""
-    evals, vecs = np.linalg.eigh(scatter)
+    evals, vecs = eigh3(scatter)
     n = vecs[:, 0]
     n = n / np.sqrt(n.dot(n))  # np.linalg.norm's own arithmetic, without its wrapper
     plane = np.empty(4)
@@ -412,7 +431,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     if x_in is None or moments is None:  # no full round ran (refit_iterations <= 1)
         x_in = cols.take(idx, axis=1)
         centroid, scatter = _moments_cols(x_in)
-        moments = (centroid, *np.linalg.eigh(scatter))
+        moments = (centroid, *eigh3(scatter))
     r_in = plane[:3] @ x_in + plane[3]
     rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
     return PlaneFit(plane=plane, inlier_mask=mask, inlier_ratio=n_in / n_pts, rms_m=rms, iterations=drawn,
