@@ -173,7 +173,8 @@ def _moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # numpy's own sum-of-products loop, not BLAS: on a loaded 2-core machine a multithreaded BLAS
     # dot/GEMM here waited up to 100 ms for its helper thread (measured), einsum never does
     raw = np.einsum("ij,kj->ik", cols, cols)
-    return s / m, raw - np.outer(s, s) / m
+    raw -= (s[:, None] * s) / m  # np.outer's products, without its wrapper
+    return s / m, raw
 
 
 def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
@@ -335,6 +336,9 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     # and on a loaded 2-core machine one (128 x 4) @ (4 x 4000) product then took 30 ms instead of
     # 0.3 ms (measured). Scoring in row chunks below that size is as fast and never waits.
     chunk = max(1, 262143 // (4 * s))
+    dist_buf = np.empty((min(chunk, cfg.batch_size), s), dtype=np.float32)
+    # inlier counts accumulate in 16 bits while they fit: summing uint8 into int32 costs twice as much
+    count_dtype = np.uint16 if s < 65536 else np.int32
 
     cos_max = None
     if axis is not None and max_axis_angle_deg is not None:
@@ -385,11 +389,15 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
         hyp = np.empty((len(d), 4), dtype=np.float32)
         hyp[:, :3] = nrm.T
         hyp[:, 3] = d
-        dist = np.empty((len(d), s), dtype=np.float32)
+        counts = np.empty(len(d), dtype=count_dtype)
         for c0 in range(0, len(d), chunk):  # a few GEMM calls, see `chunk` above
-            np.matmul(hyp[c0 : c0 + chunk], sub_h, out=dist[c0 : c0 + chunk])
-        np.abs(dist, out=dist)
-        counts = (dist < thr32).view(np.uint8).sum(axis=1, dtype=np.int32)
+            # each chunk scored while its distances are still in cache (a whole batch's are
+            # larger than the L2 cache)
+            rows = hyp[c0 : c0 + chunk]
+            dist = dist_buf[: len(rows)]
+            np.matmul(rows, sub_h, out=dist)
+            np.abs(dist, out=dist)
+            (dist < thr32).view(np.uint8).sum(axis=1, dtype=count_dtype, out=counts[c0 : c0 + len(rows)])
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best_count = int(counts[k])
