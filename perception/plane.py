@@ -192,7 +192,9 @@ def _select_inliers(cols: np.ndarray, plane: np.ndarray, thr: float) -> np.ndarr
     r = plane[:3] @ cols
     r += plane[3]
     np.abs(r, out=r)
-    return np.flatnonzero(r < thr)
+    # nonzero() of the 1-D mask is np.flatnonzero without its ravel and wrapper (a few us per call,
+    # more in a cold cache: this runs on every cloud and subsample several times a frame)
+    return (r < thr).nonzero()[0]
 
 
 def fit_plane_lsq(points: np.ndarray) -> np.ndarray:
@@ -371,17 +373,17 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
         # degenerate (repeated or collinear) triplets: normal undefined
         scale = np.maximum(x1 * x1 + y1 * y1 + z1 * z1, x2 * x2 + y2 * y2 + z2 * z2)
         ok = norms > 1e-9 * np.maximum(scale, 1e-12)
-        if not ok.any():
+        if not np.count_nonzero(ok):  # ndarray.any() goes through Python wrappers, ~10x the cost
             continue
-        keep = np.flatnonzero(ok)
+        keep = ok.nonzero()[0]
         nrm = nrm.take(keep, axis=1)
         nrm /= norms[keep]
         p0 = p0.take(keep, axis=1)
         if cos_max is not None:
             tilt_ok = np.abs(ax[0] * nrm[0] + ax[1] * nrm[1] + ax[2] * nrm[2]) >= cos_max
-            if not tilt_ok.any():
+            if not np.count_nonzero(tilt_ok):
                 continue
-            keep = np.flatnonzero(tilt_ok)
+            keep = tilt_ok.nonzero()[0]
             nrm, p0 = nrm.take(keep, axis=1), p0.take(keep, axis=1)
         d = -(nrm[0] * p0[0] + nrm[1] * p0[1] + nrm[2] * p0[2])
         # (B, S) signed distances with ONE GEMM, then |.| < thr counted per hypothesis

@@ -63,7 +63,7 @@ def refine_plane_biweight_cols(cols: np.ndarray, plane: np.ndarray, scale_m: flo
     # start are all the iterations can ever weigh, so they are gathered once
     r = plane[:3] @ cols
     r += plane[3]
-    near = cols.take(np.flatnonzero(np.abs(r, out=r) < 2.0 * scale_m), axis=1)
+    near = cols.take((np.abs(r, out=r) < 2.0 * scale_m).nonzero()[0], axis=1)
     if near.shape[1] < 3:
         return plane
     origin = near.mean(axis=1)

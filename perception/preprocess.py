@@ -243,7 +243,7 @@ def preprocess(
         n_keep = int(np.count_nonzero(keep))
     idx = None  # None: every input point, in order
     if n_keep < n0:
-        idx = np.flatnonzero(keep)
+        idx = keep.nonzero()[0]
         cols = cols.take(idx, axis=1)  # take is 3x faster than boolean indexing
     pts = cols.T
     stats["range"] = len(pts)
