@@ -133,7 +133,7 @@ def orient_plane_towards(plane: np.ndarray, point: np.ndarray | None = None) -> 
 
 
 def eigh3(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.linalg.eigh`` of one real symmetric 3x3 matrix (eigenvalues ascending, eigenvectors
+    """``np.linalg.eigh`` of one symmetric 3x3 float64 matrix (eigenvalues ascending, eigenvectors
     as columns), bit for bit: the same LAPACK routine through numpy's own ufunc, without the
     wrapper's checks, type resolution and error-state context, which cost twice the solve and
     run some ten times per LiDAR frame. A result that is not finite (non-finite input, no
