@@ -12,7 +12,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import heave_distance, prediction_sigma
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
-from boomtip.perception.plane import PlaneFit, RansacConfig, _moments_cols, _select_inliers, eigh3, ransac_plane_cols
+from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane_cols
+from boomtip.perception.plane_moments import _moments_cols, _select_inliers, eigh3
 from boomtip.perception.plane_refine import refine_plane_biweight_cols
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes

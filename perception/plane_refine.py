@@ -9,7 +9,8 @@ import math
 import numpy as np
 
 from boomtip.perception.cloud import as_points
-from boomtip.perception.plane import _plane_and_eig, orient_plane_towards
+from boomtip.perception.plane import orient_plane_towards
+from boomtip.perception.plane_moments import _plane_and_eig
 
 __all__ = ["refine_plane_biweight", "refine_plane_biweight_cols"]
 

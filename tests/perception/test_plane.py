@@ -12,7 +12,6 @@ from scipy.spatial.transform import Rotation
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
 from boomtip.perception.plane import (
     RansacConfig,
-    eigh3,
     fit_plane_lsq,
     orient_plane_towards,
     ransac_plane,
@@ -42,20 +41,6 @@ def plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------
 # LSQ and RANSAC
 # --------------------------------------------------------------------------------------
-def test_eigh3_is_numpys_eigh_bit_for_bit_and_fails_as_it_does():
-    rng = np.random.default_rng(7)
-    for _ in range(300):  # scatters of patches from millimetres to kilometres across
-        a = rng.normal(size=(3, 40)) * 10.0 ** rng.uniform(-3, 3, size=(3, 1))
-        s = a @ a.T
-        w_ref, v_ref = np.linalg.eigh(s)
-        w, v = eigh3(s)
-        assert np.array_equal(w, w_ref) and np.array_equal(v, v_ref)
-    w, v = eigh3(np.diag([3.0, 1.0, 2.0]))
-    assert np.array_equal(w, [1.0, 2.0, 3.0]) and np.array_equal(np.abs(v), [[0, 0, 1], [1, 0, 0], [0, 1, 0]])
-    with pytest.raises(np.linalg.LinAlgError):
-        eigh3(np.full((3, 3), np.nan))
-
-
 
 def test_fit_plane_lsq_exact_and_oriented():
     rng = np.random.default_rng(0)
