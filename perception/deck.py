@@ -12,7 +12,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import heave_distance, prediction_sigma
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
-from boomtip.perception.plane import PlaneFit, RansacConfig, _moments_cols, _select_inliers, ransac_plane_cols
+from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane_cols
+from boomtip.perception.plane_moments import _moments_cols, _select_inliers, eigh3
 from boomtip.perception.plane_refine import refine_plane_biweight_cols
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes
@@ -152,7 +153,7 @@ def detect_deck(
         if not np.isfinite(D) or D <= 0:
             return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
         if x_in is None:
-            x_in = cols.take(np.flatnonzero(deck.inlier_mask), axis=1)
+            x_in = cols.take(deck.inlier_mask.nonzero()[0], axis=1)
         if deck.centroid is None:
             deck = replace(deck, **_inlier_moments(x_in))
         resid = deck.plane[:3] @ x_in
@@ -168,7 +169,7 @@ def detect_deck(
 def _inlier_moments(x_in: np.ndarray) -> dict:
     """A PlaneFit's moment fields for the inliers stored column-wise, (3, M)."""
     centroid, scatter = _moments_cols(x_in)
-    evals, evecs = np.linalg.eigh(scatter)
+    evals, evecs = eigh3(scatter)
     return {"centroid": centroid, "scatter_evals": evals, "scatter_evecs": evecs}
 
 
@@ -185,7 +186,7 @@ def _nearest_the_prior(cols, candidates, wire, p_tip, prior_D_m, tol_m, cfg, rng
         return best
     along = wire @ cols
     along -= wire @ p_tip + prior_D_m
-    band = np.flatnonzero(np.abs(along, out=along) <= tol_m + cfg.prior_band_m)
+    band = (np.abs(along, out=along) <= tol_m + cfg.prior_band_m).nonzero()[0]
     if len(band) < cfg.min_points:
         return None
     mp = cfg.multi_plane
@@ -222,7 +223,8 @@ def _deck_like(c, cov_evals, evecs, plane, wire_dir, min_extent_m) -> bool:
         return False
     p_d = wire_dir * (-plane[3] / denom)
     q = (p_d - c) @ evecs[:, 1:]
-    return bool(np.all(np.abs(q) <= extent))
+    (q0, q1), (e0, e1) = q.tolist(), extent.tolist()  # two numbers: np.all's wrapper costs more than the test
+    return abs(q0) <= e0 and abs(q1) <= e1
 
 
 def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> PlaneFit | None:
@@ -254,7 +256,7 @@ def _deck_like_planes_cols(cols: np.ndarray, up_sensor: np.ndarray, cfg: DeckCon
         # Normals point towards the sensor, so points below the plane have negative distance.
         r = current.plane[:3] @ cols
         r += current.plane[3]
-        below = np.flatnonzero(r < -cfg.below_margin_m)
+        below = (r < -cfg.below_margin_m).nonzero()[0]
         if len(below) < need:
             break
         cand = ransac_plane_cols(cols.take(below, axis=1), mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg,

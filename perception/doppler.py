@@ -176,7 +176,9 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
             band = cfg.inlier_threshold_mps
         new = res < band
         n_new = int(np.count_nonzero(new))
-        if mask is not None and n_new == n_in and not (new ^ mask).any():  # np.array_equal's checks cost more
+        # the same set as the last pass: its bytes compared (np.array_equal's checks, or an xor and
+        # any(), cost several times more, most of all in a cold cache)
+        if mask is not None and n_new == n_in and new.tobytes() == mask.tobytes():
             break
         mask, n_in = new, n_new
         if n_in < max(3, cfg.trimmed_min_fraction * n):
@@ -234,10 +236,10 @@ def doppler_velocity(
     # Every detection valid (the usual case) iff the sums are finite and no beam is zero: three
     # reductions instead of five full-length masks
     all_valid = math.isfinite(float(r_all.sum()) + float(n2.sum())) and float(n2.min(initial=math.inf)) > 0
-    valid = np.ones(n_all, dtype=bool) if all_valid else np.isfinite(r_all) & np.isfinite(n2) & (n2 > 0)
-    if all_valid:
-        valid_sel, b_sel, r, n2_sel = None, b_all, r_all, n2
+    if all_valid:  # the mask is only built when RANSAC needs it (below)
+        valid, valid_sel, b_sel, r, n2_sel = None, None, b_all, r_all, n2
     else:
+        valid = np.isfinite(r_all) & np.isfinite(n2) & (n2 > 0)
         valid_sel, b_sel, r, n2_sel = valid, b_all[valid], r_all[valid], n2[valid]
     n = len(r)
     if n < 3:
@@ -253,7 +255,7 @@ def doppler_velocity(
             return fit
     rng = rng if rng is not None else np.random.default_rng(0)  # only RANSAC draws: built here, not per call
     b = np.ascontiguousarray(bT.T)
-    vidx = np.flatnonzero(valid)
+    vidx = np.arange(n_all) if valid is None else np.flatnonzero(valid)
     best_count, best_u, drawn = -1, None, 0
     needed = float(cfg.max_iterations)
     while drawn < min(needed, cfg.max_iterations):

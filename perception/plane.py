@@ -41,6 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.perception.cloud import as_points
+from boomtip.perception.plane_moments import _fit_plane_cols, _moments_cols, _plane_and_eig, _select_inliers, eigh3
 
 __all__ = [
     "RansacConfig",
@@ -125,54 +126,6 @@ def orient_plane_towards(plane: np.ndarray, point: np.ndarray | None = None) -> 
     p = np.zeros(3) if point is None else np.asarray(point, dtype=np.float64)
     s = plane[:3] @ p + plane[3]
     return -plane if s < 0 else plane.copy()
-
-
-def _plane_and_eig(centroid: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Plane through ``centroid`` whose normal is the smallest-eigenvalue eigenvector of
-    ``scatter``, oriented towards the sensor origin (d >= 0); with the eigenvalues and vectors."""
-    evals, vecs = np.linalg.eigh(scatter)
-    n = vecs[:, 0]
-    n = n / np.sqrt(n.dot(n))  # np.linalg.norm's own arithmetic, without its wrapper
-    plane = np.empty(4)
-    plane[:3] = n
-    plane[3] = -float(n @ centroid)
-    if plane[3] < 0:  # orient_plane_towards the origin, inline: it runs for every fit
-        plane = -plane
-    return plane, evals, vecs
-
-
-def _moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Centroid and scatter about it of points stored COLUMN-wise, (3, M) C-contiguous float64.
-
-    The scatter is the raw second-moment matrix of the rows minus the centroid term.
-    Rounding: entries carry an absolute error of about M |p|^2 eps; relative to the eigen-gap
-    M * extent^2 that tilts the normal by |p|^2 eps / extent^2, i.e. 2e-11 rad for a 1 m patch at
-    300 m range: negligible.
-    """
-    m = cols.shape[1]
-    s = cols.sum(axis=1)
-    # numpy's own sum-of-products loop, not BLAS: on a loaded 2-core machine a multithreaded BLAS
-    # dot/GEMM here waited up to 100 ms for its helper thread (measured), einsum never does
-    raw = np.einsum("ij,kj->ik", cols, cols)
-    return s / m, raw - np.outer(s, s) / m
-
-
-def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
-    """Least-squares plane through points stored COLUMN-wise, (3, M) C-contiguous float64, M >= 3.
-
-    The normal is the right singular vector of the centred points with the smallest singular value,
-    computed as the smallest-eigenvalue eigenvector of the 3x3 scatter matrix of the centred points
-    (mathematically identical to the SVD, and 10-20x faster than an SVD of an (M, 3) matrix).
-    """
-    return _plane_and_eig(*_moments_cols(cols))[0]
-
-
-def _select_inliers(cols: np.ndarray, plane: np.ndarray, thr: float) -> np.ndarray:
-    """Indices of the points (columns of (3, N) ``cols``) with |n . p + d| < thr."""
-    r = plane[:3] @ cols
-    r += plane[3]
-    np.abs(r, out=r)
-    return np.flatnonzero(r < thr)
 
 
 def fit_plane_lsq(points: np.ndarray) -> np.ndarray:
@@ -316,6 +269,9 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     # and on a loaded 2-core machine one (128 x 4) @ (4 x 4000) product then took 30 ms instead of
     # 0.3 ms (measured). Scoring in row chunks below that size is as fast and never waits.
     chunk = max(1, 262143 // (4 * s))
+    dist_buf = np.empty((min(chunk, cfg.batch_size), s), dtype=np.float32)
+    # inlier counts accumulate in 16 bits while they fit: summing uint8 into int32 costs twice as much
+    count_dtype = np.uint16 if s < 65536 else np.int32
 
     cos_max = None
     if axis is not None and max_axis_angle_deg is not None:
@@ -348,17 +304,17 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
         # degenerate (repeated or collinear) triplets: normal undefined
         scale = np.maximum(x1 * x1 + y1 * y1 + z1 * z1, x2 * x2 + y2 * y2 + z2 * z2)
         ok = norms > 1e-9 * np.maximum(scale, 1e-12)
-        if not ok.any():
+        if not np.count_nonzero(ok):  # ndarray.any() goes through Python wrappers, ~10x the cost
             continue
-        keep = np.flatnonzero(ok)
+        keep = ok.nonzero()[0]
         nrm = nrm.take(keep, axis=1)
         nrm /= norms[keep]
         p0 = p0.take(keep, axis=1)
         if cos_max is not None:
             tilt_ok = np.abs(ax[0] * nrm[0] + ax[1] * nrm[1] + ax[2] * nrm[2]) >= cos_max
-            if not tilt_ok.any():
+            if not np.count_nonzero(tilt_ok):
                 continue
-            keep = np.flatnonzero(tilt_ok)
+            keep = tilt_ok.nonzero()[0]
             nrm, p0 = nrm.take(keep, axis=1), p0.take(keep, axis=1)
         d = -(nrm[0] * p0[0] + nrm[1] * p0[1] + nrm[2] * p0[2])
         # (B, S) signed distances with ONE GEMM, then |.| < thr counted per hypothesis
@@ -366,11 +322,15 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
         hyp = np.empty((len(d), 4), dtype=np.float32)
         hyp[:, :3] = nrm.T
         hyp[:, 3] = d
-        dist = np.empty((len(d), s), dtype=np.float32)
+        counts = np.empty(len(d), dtype=count_dtype)
         for c0 in range(0, len(d), chunk):  # a few GEMM calls, see `chunk` above
-            np.matmul(hyp[c0 : c0 + chunk], sub_h, out=dist[c0 : c0 + chunk])
-        np.abs(dist, out=dist)
-        counts = (dist < thr32).view(np.uint8).sum(axis=1, dtype=np.int32)
+            # each chunk scored while its distances are still in cache (a whole batch's are
+            # larger than the L2 cache)
+            rows = hyp[c0 : c0 + chunk]
+            dist = dist_buf[: len(rows)]
+            np.matmul(rows, sub_h, out=dist)
+            np.abs(dist, out=dist)
+            (dist < thr32).view(np.uint8).sum(axis=1, dtype=count_dtype, out=counts[c0 : c0 + len(rows)])
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best_count = int(counts[k])
@@ -412,7 +372,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     if x_in is None or moments is None:  # no full round ran (refit_iterations <= 1)
         x_in = cols.take(idx, axis=1)
         centroid, scatter = _moments_cols(x_in)
-        moments = (centroid, *np.linalg.eigh(scatter))
+        moments = (centroid, *eigh3(scatter))
     r_in = plane[:3] @ x_in + plane[3]
     rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
     return PlaneFit(plane=plane, inlier_mask=mask, inlier_ratio=n_in / n_pts, rms_m=rms, iterations=drawn,

@@ -4,18 +4,25 @@ surfaces that are not flat at the centimetre level. Sensor frame, metres; planes
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from boomtip.perception.cloud import as_points
-from boomtip.perception.plane import _plane_and_eig, orient_plane_towards
+from boomtip.perception.plane import orient_plane_towards
+from boomtip.perception.plane_moments import _plane_and_eig
 
 __all__ = ["refine_plane_biweight", "refine_plane_biweight_cols"]
 
 
 def _biweight_step(cols: np.ndarray, plane: np.ndarray, inv_scale2: float) -> tuple[np.ndarray, float]:
     """One weighted total-least-squares round over (3, M) points; (plane, how far it moved)."""
-    r = plane[:3] @ cols + plane[3]
-    w = 1.0 - r * r * inv_scale2  # 0 beyond the scale
+    # in one buffer: w = 1 - r^2 / scale^2, the same operations in the same order as the expression
+    w = plane[:3] @ cols
+    w += plane[3]
+    np.multiply(w, w, out=w)
+    w *= inv_scale2
+    np.subtract(1.0, w, out=w)  # 0 beyond the scale
     np.maximum(w, 0.0, out=w)
     w *= w
     wsum = float(w.sum())
@@ -23,11 +30,13 @@ def _biweight_step(cols: np.ndarray, plane: np.ndarray, inv_scale2: float) -> tu
         return plane, 0.0
     xw = cols * w
     centre = xw.sum(axis=1) / wsum
-    scatter = np.einsum("ij,kj->ik", xw, cols) - wsum * np.outer(centre, centre)
+    scatter = np.einsum("ij,kj->ik", xw, cols)
+    scatter -= wsum * (centre[:, None] * centre)  # np.outer's products, without its wrapper
     new = _plane_and_eig(centre, scatter)[0]
     if new[:3] @ plane[:3] < 0:  # keep the start's orientation while iterating
         new = -new
-    return new, abs(new[3] - plane[3]) + 10.0 * float(np.linalg.norm(new[:3] - plane[:3]))
+    step = new[:3] - plane[:3]
+    return new, abs(new[3] - plane[3]) + 10.0 * math.sqrt(step.dot(step))  # np.linalg.norm's arithmetic
 
 
 def refine_plane_biweight(points: np.ndarray, plane: np.ndarray, scale_m: float, iterations: int = 10,
@@ -55,7 +64,7 @@ def refine_plane_biweight_cols(cols: np.ndarray, plane: np.ndarray, scale_m: flo
     # start are all the iterations can ever weigh, so they are gathered once
     r = plane[:3] @ cols
     r += plane[3]
-    near = cols.take(np.flatnonzero(np.abs(r, out=r) < 2.0 * scale_m), axis=1)
+    near = cols.take((np.abs(r, out=r) < 2.0 * scale_m).nonzero()[0], axis=1)
     if near.shape[1] < 3:
         return plane
     origin = near.mean(axis=1)

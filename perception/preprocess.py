@@ -225,15 +225,25 @@ def preprocess(
         np.multiply(cols[0], cols[0], out=r2)
         r2 += np.multiply(cols[1], cols[1], out=tmp)
         r2 += np.multiply(cols[2], cols[2], out=tmp)
-    keep = np.isfinite(r2)
-    keep &= r2 > 0.0
-    # 2. range crop (same pass)
-    stats["finite"] = int(np.count_nonzero(keep))
-    keep &= r2 >= cfg.min_range_m**2
-    keep &= r2 <= cfg.max_range_m**2
+    # 2. range crop (same pass). With a minimum range, r2 >= min^2 > 0 already refuses NaN and
+    # zero range, and r2 <= max^2 refuses inf: two comparisons instead of four, and the finite
+    # count for the stats is only taken when a point was dropped.
+    lo2, hi2 = cfg.min_range_m**2, cfg.max_range_m**2
+    if lo2 > 0.0:
+        keep = r2 >= lo2
+        keep &= r2 <= hi2
+        n_keep = int(np.count_nonzero(keep))
+        stats["finite"] = n0 if n_keep == n0 else int(np.count_nonzero(np.isfinite(r2) & (r2 > 0.0)))
+    else:
+        keep = np.isfinite(r2)
+        keep &= r2 > 0.0
+        stats["finite"] = int(np.count_nonzero(keep))
+        keep &= r2 >= lo2
+        keep &= r2 <= hi2
+        n_keep = int(np.count_nonzero(keep))
     idx = None  # None: every input point, in order
-    if np.count_nonzero(keep) < n0:
-        idx = np.flatnonzero(keep)
+    if n_keep < n0:
+        idx = keep.nonzero()[0]
         cols = cols.take(idx, axis=1)  # take is 3x faster than boolean indexing
     pts = cols.T
     stats["range"] = len(pts)

@@ -177,11 +177,12 @@ def detect_reflectors(
             step = max(1, len(r2) // 2000)
             thr = intensity_threshold(intensity[::step] * (r2[::step] / INTENSITY_REFERENCE_RANGE_M**2), cfg)
             r2 *= intensity  # intensity x r^2, in place
-            idx = np.flatnonzero(r2 > thr * INTENSITY_REFERENCE_RANGE_M**2)  # NaN compares False
-            product_finite = np.isfinite(r2[idx]).all()
+            # nonzero() and count_nonzero, not np.flatnonzero and .all(): the same, without their wrappers
+            idx = (r2 > thr * INTENSITY_REFERENCE_RANGE_M**2).nonzero()[0]  # NaN compares False
+            product_finite = np.count_nonzero(np.isfinite(r2[idx])) == len(idx)
         else:
             thr = intensity_threshold(intensity, cfg)
-            idx = np.flatnonzero(intensity > thr)
+            idx = (intensity > thr).nonzero()[0]
             product_finite = False
         bright = p[idx]
         if not product_finite:  # a finite intensity x r^2 means a finite point and intensity

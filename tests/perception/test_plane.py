@@ -41,6 +41,7 @@ def plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------
 # LSQ and RANSAC
 # --------------------------------------------------------------------------------------
+
 def test_fit_plane_lsq_exact_and_oriented():
     rng = np.random.default_rng(0)
     n = tilted_normal(7.0, 30.0)
