@@ -27,6 +27,7 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
     from boomtip.data.scenario import load_scenario
     from boomtip.data.sources import simulation_for
     from boomtip.fusion.hook_run import run_hook_filter
+    from boomtip.tools.hook_store import EstimateStore
     from boomtip.tools.runner import build_chain, outage_windows, processing_for, run_labels
 
     s = load_scenario(program, [f"duration_s={duration_s}", *(overrides or [])])
@@ -71,10 +72,12 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
     for name in [k for k in result.runs if k.startswith("ukf_")]:
         model = name.split("_")[1]
         cfg = chain.filter_cfg.model_copy(update={"ukf_model": "core"})
+        store = EstimateStore(chain.params)  # its states' SHA-1 against the chain's run's
         run = run_hook_filter(result.measurements, "ukf", model,
-                              chain.params.model_copy(update={"flexible": model == "flexible"}), cfg)
+                              chain.params.model_copy(update={"flexible": model == "flexible"}), cfg, sink=store)
+        store.close()
         ukf_core[name] = {"cpu_s": run.cpu_s, "runtime_s": run.runtime_s,
-                          "same_estimate": bool(np.array_equal(run.x, result.runs[name].x)),
+                          "same_estimate": store.states_sha1 == result.stores[name].states_sha1,
                           "cpu_ratio": run.cpu_s / result.runs[name].cpu_s}
     total = wall_sim + wall_perc + wall_filters + wall_out
     cpu_total = cpu_sim + cpu_perc + cpu_filters + cpu_out
