@@ -82,13 +82,14 @@ def score_pose(p: np.ndarray, t: np.ndarray, yaw: float, model: BlockModel, cfg:
 def _hanging_rotations(T: np.ndarray) -> np.ndarray:
     """(S, 3, 3): :func:`rotation_hanging` of each row of T (S, 3), the same formula on arrays."""
     b = -T / np.sqrt(np.einsum("ij,ij->i", T, T))[:, None]
-    bx, by, bz = b[:, 0], b[:, 1], b[:, 2]
-    k = 1.0 + bz
-    xy = (bx * -by) / k
+    k = (1.0 + b[:, 2])[:, None, None]
     R = np.empty((len(T), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = 1.0 + (bx * -bx) / k, xy, bx
-    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = xy, 1.0 + (by * -by) / k, by
-    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -bx, -by, 1.0 + ((-bx * bx) + (-by * by)) / k
+    R[:, :2, :2] = (b[:, :2, None] * -b[:, None, :2]) / k  # (b_i * -b_j) / k
+    R[:, 0, 0] += 1.0
+    R[:, 1, 1] += 1.0
+    R[:, :2, 2] = b[:, :2]
+    R[:, 2, :2] = -b[:, :2]
+    R[:, 2, 2] = 1.0 + ((-b[:, 0] * b[:, 0]) + (-b[:, 1] * b[:, 1])) / k[:, 0, 0]
     return R
 
 
