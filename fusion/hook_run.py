@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Callable, Literal, Sequence
 
 import numpy as np
 
@@ -17,7 +17,7 @@ from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch
 
 _OUTPUT_CHUNK = 8192  # recorded samples per block of the vectorised hook outputs
 
-__all__ = ["HookMeasurements", "HookFilterRun", "merged_events", "run_hook_filter", "with_levelling_bias"]
+__all__ = ["HookMeasurements", "HookFilterRun", "HookRunChunk", "merged_events", "run_hook_filter", "with_levelling_bias"]
 
 
 def with_levelling_bias(p_rel: np.ndarray, cov_p: np.ndarray, sigma_rad: float) -> np.ndarray:
@@ -52,14 +52,29 @@ class HookMeasurements:
 
 
 @dataclass
+class HookRunChunk:
+    """Consecutive recorded samples of a run (what :class:`HookFilterRun` holds for the whole run)."""
+
+    t: np.ndarray  # (M,)
+    x: np.ndarray  # (M, n)
+    p_rel: np.ndarray  # (M, 3) hook position relative to the boom tip, world axes
+    v_rel: np.ndarray  # (M, 3)
+    cov_p: np.ndarray  # (M, 3, 3)
+    cov_v: np.ndarray  # (M, 3, 3) float32
+    P_diag: np.ndarray  # (M, n) float32
+
+
+@dataclass
 class HookFilterRun:
-    t: np.ndarray
-    p_rel: np.ndarray  # (N, 3) hook position relative to the boom tip, world axes
-    v_rel: np.ndarray
-    cov_p: np.ndarray  # (N, 3, 3)
-    cov_v: np.ndarray  # (N, 3, 3) float32
-    x: np.ndarray  # (N, n)
-    P_diag: np.ndarray  # (N, n) float32
+    """A run's recorded samples (None when they went to a ``sink`` instead) and its statistics."""
+
+    t: np.ndarray | None
+    p_rel: np.ndarray | None  # (N, 3) hook position relative to the boom tip, world axes
+    v_rel: np.ndarray | None
+    cov_p: np.ndarray | None  # (N, 3, 3)
+    cov_v: np.ndarray | None  # (N, 3, 3) float32
+    x: np.ndarray | None  # (N, n)
+    P_diag: np.ndarray | None  # (N, n) float32
     runtime_s: float
     realtime_fraction: float
     n_lidar_accepted: int
@@ -72,6 +87,7 @@ class HookFilterRun:
     n_rope_rejected: int = 0
     nis: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cpu_s: float = float("nan")  # the process's CPU time over the same loop as runtime_s
+    n_samples: int = 0  # recorded samples
 
 
 def merged_events(stamps: Sequence[np.ndarray], t_after: float, t_until: float) -> tuple[list, list, list]:
@@ -95,6 +111,7 @@ def run_hook_filter(
     *,
     t_end: float | None = None,
     output_rate_hz: float = 200.0,
+    sink: Callable[[HookRunChunk], None] | None = None,
 ) -> HookFilterRun:
     """Run the filter over time-stamped measurement streams.
 
@@ -106,7 +123,10 @@ def run_hook_filter(
     An MRU sample and an encoder sample with the same time stamp are applied as one
     linear update (the same result as one after the other: H selects states, R is diagonal).
     The hook outputs (p_rel, v_rel and their covariances) are computed from the recorded
-    states and covariance blocks after the loop, vectorised (inside the timed region).
+    states and covariance blocks in chunks of samples, vectorised (inside the timed region).
+    ``sink``: each chunk of samples goes to it as it is complete (:class:`HookRunChunk`) and the
+    run keeps none of them (memory flat in the run's length); the sink's own time is not counted
+    in ``runtime_s`` and ``cpu_s``. Without a sink the run returns every sample.
     """
     params = params or CraneParams()
     filt = HookFilter(kind, model, params, config)
@@ -134,10 +154,37 @@ def run_hook_filter(
     ev_t, ev_s, ev_i = merged_events((meas.t_mru, meas.t_encoders, meas.t_lidar), t0, t_end)
     n_out = int(math.floor((t_end - t0) * output_rate_hz + 1e-6)) + 1
     t_out = t0 + np.arange(n_out) / output_rate_hz
-    x_out = np.empty((n_out, n))
-    # per output sample: diag(P) (n) and P's hook block P[HOOK_IX] (36), from the flat P
+    # per output sample: diag(P) (n) and P's hook block P[HOOK_IX] (36), from the flat P; both,
+    # and the states, buffered for one chunk of samples at a time
     flat_idx = np.concatenate([np.arange(n) * (n + 1), np.ravel_multi_index(np.ix_(HOOK_COLS, HOOK_COLS), (n, n)).ravel()])
-    pb_out = np.empty((n_out, len(flat_idx)))
+    chunk = min(_OUTPUT_CHUNK, n_out)
+    x_buf = np.empty((chunk, n))
+    pb_buf = np.empty((chunk, len(flat_idx)))
+    if sink is None:
+        x_all, p_all, v_all = np.empty((n_out, n)), np.empty((n_out, 3)), np.empty((n_out, 3))
+        cp_all = np.empty((n_out, 3, 3))
+        cv_all = np.empty((n_out, 3, 3), np.float32)  # diagnostics: float32 is plenty
+        pd_all = np.empty((n_out, n), np.float32)
+    sink_s = sink_cpu_s = 0.0
+
+    def flush(a: int, b: int) -> None:
+        """Samples a..b-1 (in the buffers from row 0): the hook outputs, vectorised (the 3 x 6
+        Jacobians and their products are several times the outputs' size)."""
+        nonlocal sink_s, sink_cpu_s
+        m = b - a
+        p, v, Hp, Hv = hook_pos_vel_batch(x_buf[:m])
+        Ps = pb_buf[:m, n:].reshape(m, 6, 6)
+        cp = with_levelling_bias(p, Hp @ Ps @ Hp.transpose(0, 2, 1), filt.cfg.levelling_bias_sigma_rad)
+        cv = (Hv @ Ps @ Hv.transpose(0, 2, 1)).astype(np.float32)
+        pd = pb_buf[:m, :n].astype(np.float32)
+        if sink is None:
+            x_all[a:b], p_all[a:b], v_all[a:b], cp_all[a:b], cv_all[a:b], pd_all[a:b] = x_buf[:m], p, v, cp, cv, pd
+            return
+        s0, c0 = time.perf_counter(), time.process_time()
+        sink(HookRunChunk(t_out[a:b], x_buf[:m].copy(), p, v, cp, cv, pd))
+        sink_s += time.perf_counter() - s0
+        sink_cpu_s += time.process_time() - c0
+
     lidar_ok = np.zeros(len(meas.t_lidar), bool)
     lid, enc, mru = meas.lidar_p_rel_tip_world, meas.encoders, meas.mru
     lid_sigma = meas.lidar_sigma_m
@@ -178,28 +225,21 @@ def run_hook_filter(
                 lidar_frame(i, te)
             j += 1
         filt.advance_to(tk)
-        x_out[k] = filt.x
-        filt.P.take(flat_idx, out=pb_out[k])
-    # hook outputs, vectorised over the recorded samples in chunks (the 3 x 6 Jacobians and
-    # their products are several times the outputs' size: a 700 s run records 140,000 samples)
-    p_out, v_out = np.empty((n_out, 3)), np.empty((n_out, 3))
-    cp_out = np.empty((n_out, 3, 3))
-    cv_out = np.empty((n_out, 3, 3), np.float32)  # diagnostics: float32 is plenty
-    for a in range(0, n_out, _OUTPUT_CHUNK):
-        b = min(a + _OUTPUT_CHUNK, n_out)
-        p, v, Hp, Hv = hook_pos_vel_batch(x_out[a:b])
-        Ps = pb_out[a:b, n:].reshape(b - a, 6, 6)
-        p_out[a:b], v_out[a:b] = p, v
-        cp_out[a:b] = with_levelling_bias(p, Hp @ Ps @ Hp.transpose(0, 2, 1), filt.cfg.levelling_bias_sigma_rad)
-        cv_out[a:b] = Hv @ Ps @ Hv.transpose(0, 2, 1)
-    pd_out = pb_out[:, :n].astype(np.float32)
-    del pb_out
-    runtime, cpu_s = time.perf_counter() - tic, time.process_time() - cpu0
+        r = k % chunk
+        x_buf[r] = filt.x
+        filt.P.take(flat_idx, out=pb_buf[r])
+        if r == chunk - 1 or k == n_out - 1:
+            flush(k - r, k + 1)
+    runtime = time.perf_counter() - tic - sink_s
+    cpu_s = time.process_time() - cpu0 - sink_cpu_s
+    kept = sink is None
     return HookFilterRun(
-        t=t_out, p_rel=p_out, v_rel=v_out, cov_p=cp_out, cov_v=cv_out, x=x_out, P_diag=pd_out,
+        t=t_out if kept else None, p_rel=p_all if kept else None, v_rel=v_all if kept else None,
+        cov_p=cp_all if kept else None, cov_v=cv_all if kept else None, x=x_all if kept else None,
+        P_diag=pd_all if kept else None,
         runtime_s=runtime, realtime_fraction=runtime / max(t_end - t0, 1e-9),
         n_lidar_accepted=filt.n_lidar_accepted, n_lidar_rejected=filt.n_lidar_rejected,
         n_reacquired=filt.n_reacquired, lidar_accepted=lidar_ok, kind=kind, model=model,
         n_rope_accepted=filt.n_rope_accepted, n_rope_rejected=filt.n_rope_rejected,
-        nis=np.array(filt.nis_history), cpu_s=cpu_s,
+        nis=np.array(filt.nis_history), cpu_s=cpu_s, n_samples=n_out,
     )

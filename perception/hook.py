@@ -224,7 +224,8 @@ def _detect_by_model_fit(pts: np.ndarray, p_prior: np.ndarray, hoist_length_m: f
     # 1. Gate: a sphere around the prior (3 sigma of the prediction + the block's size), and below
     # the tip (nothing of the block can be above it; removes the boom and the sensor's own mount).
     with times.stage("hook.gate"):
-        d2 = np.einsum("ij,ij->i", pts - prior, pts - prior)
+        diff = pts - prior
+        d2 = np.einsum("ij,ij->i", diff, diff)
         gate = np.flatnonzero((d2 < cfg.prior_radius_m**2) & (pts[:, 2] < -cfg.below_tip_m))
         p = pts[gate]
     if len(p) < cfg.min_gate_points:

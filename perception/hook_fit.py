@@ -13,7 +13,7 @@ from boomtip.data.block_model import SHEAVE_CROWN_Z_M
 from boomtip.perception.hook_block import BlockModel, block_model, hanging_pose, rot_z, rotation_hanging
 from boomtip.perception.hook_types import HookConfig
 
-__all__ = ["BlockFit", "icp_4dof", "score_pose", "fit_block"]
+__all__ = ["BlockFit", "icp_4dof", "icp_4dof_starts", "score_pose", "score_poses", "fit_block"]
 
 
 @dataclass
@@ -79,6 +79,85 @@ def score_pose(p: np.ndarray, t: np.ndarray, yaw: float, model: BlockModel, cfg:
     return BlockFit(t, yaw, R, rms, inl)
 
 
+def _hanging_rotations(T: np.ndarray) -> np.ndarray:
+    """(S, 3, 3): :func:`rotation_hanging` of each row of T (S, 3), the same formula on arrays."""
+    b = -T / np.sqrt(np.einsum("ij,ij->i", T, T))[:, None]
+    k = (1.0 + b[:, 2])[:, None, None]
+    R = np.empty((len(T), 3, 3))
+    R[:, :2, :2] = (b[:, :2, None] * -b[:, None, :2]) / k  # (b_i * -b_j) / k
+    R[:, 0, 0] += 1.0
+    R[:, 1, 1] += 1.0
+    R[:, :2, 2] = b[:, :2]
+    R[:, 2, :2] = -b[:, :2]
+    R[:, 2, 2] = 1.0 + ((-b[:, 0] * b[:, 0]) + (-b[:, 1] * b[:, 1])) / k[:, 0, 0]
+    return R
+
+
+def _rotations_z(yaw: np.ndarray) -> np.ndarray:
+    """(S, 3, 3): :func:`rot_z` of each yaw."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros((len(yaw), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+def icp_4dof_starts(p: np.ndarray, T0: np.ndarray, yaw0: np.ndarray, model: BlockModel, cfg: HookConfig,
+                    coarse_iterations: int, max_iterations: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`icp_4dof` from S starts at once (T0 (S, 3), yaw0 (S,)), each start iterating and
+    stopping as it would alone; returns (T (S, 3), yaw (S,)). A far block gives the ICP a handful
+    of points, so the cost of one ICP is numpy's per-call overhead: one call per step for all
+    starts instead of one per start. The per-start sums run over all points with the rejected
+    correspondences weighted zero (numpy sums them in the same order as the kept ones alone)."""
+    T, yaw = np.array(T0, float).reshape(-1, 3), np.array(yaw0, float).reshape(-1)
+    pts = model.points
+    active = np.arange(len(T))
+    for it in range(cfg.icp_iterations if max_iterations is None else max_iterations):
+        if not len(active):
+            break
+        coarse = it < coarse_iterations
+        thr = cfg.icp_max_correspondence_m if coarse else cfg.icp_final_correspondence_m
+        t = T[active]
+        Ru = _hanging_rotations(t)
+        Rz = _rotations_z(yaw[active])
+        # model frame: Rz^T Ru^T (p - t), as in icp_4dof
+        q = p @ (Ru @ Rz) - ((t[:, None, :] @ Ru) @ Rz)
+        d, idx = model.nearest_grid(q.reshape(-1, 3))
+        ok = (d < thr).reshape(len(active), -1)
+        n_ok = np.count_nonzero(ok, axis=1)
+        live = n_ok >= 3  # fewer correspondences: that start stops where it is
+        if not live.all():
+            active, t, Ru, ok, n_ok = active[live], t[live], Ru[live], ok[live], n_ok[live]
+            idx = idx.reshape(len(live), -1)[live].ravel()
+            if not len(active):
+                break
+        w = ok[:, :, None]
+        m = np.where(w, pts[idx].reshape(len(active), -1, 3), 0.0)
+        x = np.where(w, p @ Ru, 0.0)  # the points in each start's rope frame
+        mc, xc = m.sum(axis=1) / n_ok[:, None], x.sum(axis=1) / n_ok[:, None]
+        # 2-D Procrustes per start: the cross-covariance of the centred xy coordinates
+        H = np.einsum("sni,snj->sij", np.where(w[:, :, :2], m[:, :, :2] - mc[:, None, :2], 0.0), x[:, :, :2] - xc[:, None, :2])
+        yaw_new = np.arctan2(H[:, 0, 1] - H[:, 1, 0], H[:, 0, 0] + H[:, 1, 1])
+        t_new = np.einsum("sij,sj->si", Ru, xc - np.einsum("sij,sj->si", _rotations_z(yaw_new), mc))
+        dt = t_new - t
+        T[active], yaw[active] = t_new, yaw_new
+        if not coarse:
+            active = active[np.sqrt(np.einsum("ij,ij->i", dt, dt)) >= cfg.icp_tolerance_m]
+    return T, yaw
+
+
+def score_poses(p: np.ndarray, T: np.ndarray, yaws: np.ndarray, model: BlockModel, cfg: HookConfig) -> list[BlockFit]:
+    """:func:`score_pose` of S poses (T (S, 3), yaws (S,)) with one KD-tree query."""
+    R = _hanging_rotations(T) @ _rotations_z(yaws)
+    d, _ = model.nearest(((p[None] - T[:, None, :]) @ R).reshape(-1, 3))
+    d = d.reshape(len(T), -1)
+    out = []
+    for k in range(len(T)):  # a few poses: the loop is over poses, not points
+        inl = d[k] < cfg.icp_final_correspondence_m
+        rms = float(np.sqrt(np.mean(d[k][inl] ** 2))) if inl.any() else float("inf")
+        out.append(BlockFit(T[k], float(yaws[k]), R[k], rms, inl))
+    return out
+
+
 def _initial_guesses(p: np.ndarray, cfg: HookConfig) -> list[tuple[np.ndarray, float]]:
     """Starting poses (t, yaw) from the cluster: its highest points and its long axis."""
     # Hanging direction: tip -> cluster centroid (off the rope by at most the block's size / range).
@@ -121,7 +200,8 @@ def fit_block(p: np.ndarray, cfg: HookConfig, rng: np.random.Generator, prior_t:
     occluded block, whose visible part is nearly square (poor principal axis) and whose top
     centroid is off-centre, retry from yaws every icp_retry_yaw_step_deg combined with shifts of
     +-icp_retry_shift_m along the block's long axis: each start runs the coarse ICP stage only, the
-    two best then run to convergence.
+    two best then run to convergence. The starts of each round run together
+    (:func:`icp_4dof_starts`, :func:`score_poses`).
     """
     model = block_model(cfg.block_height_m, cfg.model_points)
     ps = p if len(p) <= cfg.fit_max_points else p[rng.choice(len(p), cfg.fit_max_points, replace=False)]
@@ -129,34 +209,35 @@ def fit_block(p: np.ndarray, cfg: HookConfig, rng: np.random.Generator, prior_t:
     def better(a: BlockFit | None, b: BlockFit) -> bool:
         return a is None or (b.inliers.sum(), -b.rms) > (a.inliers.sum(), -a.rms)
 
-    best: BlockFit | None = None
+    def best_of(fits: list[BlockFit], best: BlockFit | None) -> BlockFit | None:
+        for cand in fits:  # in the starts' order: the first of equals wins
+            if better(best, cand):
+                best = cand
+        return best
+
     starts = _initial_guesses(ps, cfg)
     if prior_t is not None:
         starts += [(np.asarray(prior_t, float), starts[0][1] + dy) for dy in (0.0, math.pi / 2)]
-    for t0, y0 in starts:
-        t, yaw = icp_4dof(ps, t0, y0, model, cfg, cfg.icp_coarse_iterations)
-        cand = score_pose(p, t, yaw, model, cfg)
-        if better(best, cand):
-            best = cand
+    T, Y = icp_4dof_starts(ps, np.array([s[0] for s in starts]), np.array([s[1] for s in starts]), model, cfg,
+                           cfg.icp_coarse_iterations)
+    best = best_of(score_poses(p, T, Y, model, cfg), None)
     assert best is not None
     t_top = starts[0][0]
     if best.rms <= cfg.icp_good_rms_m + cfg.icp_good_rms_per_m * float(np.linalg.norm(t_top)):
         return best
     step = math.radians(cfg.icp_retry_yaw_step_deg)
     Ru = rotation_hanging(t_top)
-    coarse = []
+    retry_t, retry_yaw = [], []
     for k in range(int(round(math.pi / step))):
         y = starts[0][1] + k * step
         ax = Ru @ np.array([math.cos(y), math.sin(y), 0.0])  # the block's long axis
         for sh in (0.0, -cfg.icp_retry_shift_m, cfg.icp_retry_shift_m):
-            t, yaw = icp_4dof(ps, t_top + sh * ax, y, model, cfg, cfg.icp_coarse_iterations,
-                              max_iterations=cfg.icp_coarse_iterations)
-            coarse.append(score_pose(ps, t, yaw, model, cfg))
+            retry_t.append(t_top + sh * ax)
+            retry_yaw.append(y)
+    T, Y = icp_4dof_starts(ps, np.array(retry_t), np.array(retry_yaw), model, cfg, cfg.icp_coarse_iterations,
+                           max_iterations=cfg.icp_coarse_iterations)
+    coarse = score_poses(ps, T, Y, model, cfg)
     coarse.sort(key=lambda f: (-f.inliers.sum(), f.rms))
-    for c in coarse[:2]:
-        t, yaw = icp_4dof(ps, c.t, c.yaw, model, cfg, 0)
-        cand = score_pose(p, t, yaw, model, cfg)
-        if better(best, cand):
-            best = cand
-    return best
-
+    top = coarse[:2]
+    T, Y = icp_4dof_starts(ps, np.array([c.t for c in top]), np.array([c.yaw for c in top]), model, cfg, 0)
+    return best_of(score_poses(p, T, Y, model, cfg), best)

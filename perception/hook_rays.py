@@ -18,11 +18,13 @@ from boomtip.perception.hook_types import HookConfig
 __all__ = ["RayEvidence", "ray_evidence", "ray_sigma", "ray_pick", "ray_refine"]
 
 
-def _ray_costs(model: BlockModel, t_c: np.ndarray, yaw_c: float, offs: np.ndarray, dyaw: np.ndarray,
+def _ray_costs(model: BlockModel, t_c: np.ndarray, yaw_c: np.ndarray, offs: np.ndarray, dyaw: np.ndarray,
                s: np.ndarray, d: np.ndarray, r: np.ndarray, blk: np.ndarray, cfg: HookConfig):
-    """Ray-consistency cost of P x Y poses around (t_c, yaw_c): offsets (P, 2) across the rope,
-    yaw offsets (Y,). Rays: origin s, unit directions d (K, 3), measured ranges r (K,), blk (K,)
-    True for the block's points. One Open3D cast for all poses and rays.
+    """Ray-consistency cost of C x Y x P poses: around each of C centres (t_c (C, 3), yaw_c (C,)),
+    offsets (P, 2) across the rope and yaw offsets (Y,). Rays: origin s, unit directions d (K, 3),
+    measured ranges r (K,), blk (K,) True for the block's points. One Open3D cast for all poses
+    and rays (the centres of one search step together: their cost is numpy's per-call overhead
+    more than the cast).
 
     Per pose the offset along the rays (~ along the rope) is solved in closed form (mean range
     residual of the block rays that hit). Cost per ray, clipped at c = ray_clip_m:
@@ -30,19 +32,22 @@ def _ray_costs(model: BlockModel, t_c: np.ndarray, yaw_c: float, offs: np.ndarra
       other ray, model hit: min(e^2, c^2) unless the point is well in front (occlusion: 0), so a
       ray that went PAST where the model puts the block (a deck point beside it) is a contradiction
       other ray, model miss: 0.
-    Returns cost (Y*P,), reference points (Y*P, 3), yaws (Y*P,).
+    Returns cost (C*Y*P,), reference points (C*Y*P, 3), yaws (C*Y*P,), centre by centre.
     """
-    Ru = rotation_hanging(t_c)
-    T = t_c[None] + offs @ Ru[:, :2].T  # (P, 3)
-    yaws = yaw_c + dyaw
-    Rys = np.stack([Ru @ rot_z(y) for y in yaws])  # (Y, 3, 3)
-    o = np.einsum("yji,pj->ypi", Rys, s[None] - T)  # ray origins, block frame
-    db = np.einsum("yji,kj->yki", Rys, d)  # ray directions, block frame
-    Y, P, K = len(yaws), len(T), len(d)
-    rays = np.empty((Y, P, K, 6), dtype=np.float32)
-    rays[..., :3] = o[:, :, None, :]
-    rays[..., 3:] = db[:, None, :, :]
-    th = model.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))["t_hit"].numpy().reshape(Y * P, K)
+    t_c, yaw_c = np.asarray(t_c, float).reshape(-1, 3), np.asarray(yaw_c, float).reshape(-1)
+    C, Y, P, K = len(t_c), len(dyaw), len(offs), len(d)
+    rays = np.empty((C, Y, P, K, 6), dtype=np.float32)
+    Ts, yaws = [], []
+    for c in range(C):  # a few centres: each one's poses as the single-centre search had them
+        Ru = rotation_hanging(t_c[c])
+        T = t_c[c][None] + offs @ Ru[:, :2].T  # (P, 3)
+        yc = yaw_c[c] + dyaw
+        Rys = np.stack([Ru @ rot_z(y) for y in yc])  # (Y, 3, 3)
+        rays[c, ..., :3] = np.einsum("yji,pj->ypi", Rys, s[None] - T)[:, :, None, :]  # ray origins, block frame
+        rays[c, ..., 3:] = np.einsum("yji,kj->yki", Rys, d)[:, None, :, :]  # ray directions, block frame
+        Ts.append(T)
+        yaws.append(yc)
+    th = model.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))["t_hit"].numpy().reshape(C * Y * P, K)
     hit = np.isfinite(th)
     e = np.where(hit, r[None] - np.where(hit, th, 0.0), 0.0)
     use = hit & blk[None] & (np.abs(e) < 0.3)
@@ -54,8 +59,8 @@ def _ray_costs(model: BlockModel, t_c: np.ndarray, yaw_c: float, offs: np.ndarra
     occluded = ~blk[None] & (e < -cfg.ray_occlusion_m)
     cost = np.where(hit & ~occluded, sq, 0.0).sum(axis=1) + c2 * (~hit & blk[None]).sum(axis=1)
     dm = d.mean(axis=0)
-    refs = np.tile(T, (Y, 1)) + dz[:, None] * dm[None]
-    return cost, refs, np.repeat(yaws, P)
+    refs = np.concatenate([np.tile(T, (Y, 1)) for T in Ts]) + dz[:, None] * dm[None]
+    return cost, refs, np.concatenate([np.repeat(yc, P) for yc in yaws])
 
 
 @dataclass
@@ -122,11 +127,10 @@ def ray_pick(rays: RayEvidence, t: np.ndarray, yaw: float, model: BlockModel, cf
     the least ray cost / (2 ray_sigma^2) + Mahalanobis^2 / 2. The prior only picks the copy; the
     fix itself comes from the rays and points (no double counting in the filter)."""
     R = hanging_pose(t, yaw)
-    cands = [t] + [t + R @ np.asarray(sh) for sh in AMBIGUOUS_SHIFTS_M]
-    costs = [_ray_costs(model, c, yaw, np.zeros((1, 2)), np.zeros(1), rays.s, rays.d, rays.r, rays.blk, cfg)
-             for c in cands]
-    refs = np.array([c[1][0] for c in costs])
-    nats = np.array([c[0][0] for c in costs]) / (2 * ray_sigma(cfg, t) ** 2) + _prior_nats(refs, prior)
+    cands = np.array([t] + [t + R @ np.asarray(sh) for sh in AMBIGUOUS_SHIFTS_M])
+    cost, refs, _ = _ray_costs(model, cands, np.full(len(cands), yaw), np.zeros((1, 2)), np.zeros(1), rays.s, rays.d,
+                               rays.r, rays.blk, cfg)
+    nats = cost / (2 * ray_sigma(cfg, t) ** 2) + _prior_nats(refs, prior)
     k = int(np.argmin(nats))
     return (t, yaw) if k == 0 else (refs[k], yaw)
 
@@ -152,6 +156,7 @@ def ray_refine(rays: RayEvidence, t0: np.ndarray, yaw0: float, half1: float, mod
     inv2s2 = 1.0 / (2 * ray_sigma(cfg, t0) ** 2)
 
     def grid(t_c, yaw_c, half, n, yaw_half, n_yaw):
+        """The poses on a grid about each centre (t_c (C, 3) or (3,), yaw_c (C,) or scalar)."""
         g = np.linspace(-half, half, n)
         offs = np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
         dy = np.linspace(-yaw_half, yaw_half, n_yaw) if n_yaw > 1 else np.zeros(1)
@@ -163,9 +168,11 @@ def ray_refine(rays: RayEvidence, t0: np.ndarray, yaw0: float, half1: float, mod
     cost, refs, yaws = grid(t0, yaw0, half1, n1, yaw1, ny1)
     step1, ystep1 = 2 * half1 / (n1 - 1), 2 * yaw1 / max(ny1 - 1, 1)
     best = (np.inf, t0, yaw0)
-    for k in np.argsort(cost * inv2s2 + _prior_nats(refs, prior))[: cfg.ray_starts]:
-        c2, r2, y2 = grid(refs[k], float(yaws[k]), step1, n2, ystep1, ny2)
-        j = int(np.argmin(c2))
+    ks = np.argsort(cost * inv2s2 + _prior_nats(refs, prior))[: cfg.ray_starts]
+    c2, r2, y2 = grid(refs[ks], yaws[ks], step1, n2, ystep1, ny2)  # the local grids together
+    per = len(c2) // len(ks)
+    for a in range(0, len(c2), per):  # each local grid's best, in the coarse order
+        j = a + int(np.argmin(c2[a:a + per]))
         score = float(c2[j]) * inv2s2 + float(_prior_nats(r2[j:j + 1], prior)[0])
         if score < best[0]:
             best = (score, r2[j], float(y2[j]))

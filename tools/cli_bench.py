@@ -221,6 +221,10 @@ def bench_hook_cmd(
         print(f"  {name:28s} {e['runtime_s']:8.2f} {e['percent_of_real_time']:10.2f} % of real time")
     print(f"  block segmentation + fit: {r['block_ms_per_frame']['mean']:.1f} ms/frame (p95 {r['block_ms_per_frame']['p95']:.1f}); "
           f"rope fit {r['rope_ms_per_frame']['mean']:.1f} ms/frame; peak RSS {r['peak_rss_mb']:.0f} MB")
+    b = r["block_against_reference"]
+    print(f"  block segmentation + fit against its reference (tools/hook_reference.py), same frames, CPU: "
+          f"{b['current_cpu_ms_per_frame']:.1f} vs {b['reference_cpu_ms_per_frame']:.1f} ms/frame, ratio {b['cpu_ratio']:.2f}; "
+          f"the same fix in {b['same_fix']} of {b['frames']} frames")
     c = r["realtime_factor_cpu"]
     print(f"  by CPU time: simulation {c['simulation']:.2f}x, perception {c['perception']:.2f}x, estimators "
           f"{c['estimators']:.2f}x, end to end {c['end_to_end']:.2f}x; estimators "

@@ -10,7 +10,7 @@ radius, block model) and the processing settings: never from the simulated world
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,8 @@ from boomtip.perception.hook import HookDetection, detect_hook, segmentation_sco
 from boomtip.perception.rope import RopeFix, fit_rope
 from boomtip.perception.timing import StageTimes
 from boomtip.tools import hook_outputs as outputs
+from boomtip.tools.hook_rows import FrameRows
+from boomtip.tools.hook_store import P_REL, EstimateStore
 from boomtip.tools.runner import ChainError
 
 ROW_DEFAULTS = {"x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sigma_y_m": np.nan, "sigma_z_m": np.nan,
@@ -74,9 +76,10 @@ class HookFrameResult:
 
 @dataclass
 class HookResult:
-    rows: list[dict]
+    rows: FrameRows
     measurements: HookMeasurements
-    runs: dict[str, HookFilterRun]
+    runs: dict[str, HookFilterRun]  # statistics; the samples are in ``stores``
+    stores: dict[str, EstimateStore] = field(default_factory=dict)
 
 
 class HookChain:
@@ -112,7 +115,7 @@ class HookChain:
         self.mru = m
         self.tracker = HookTracker(enc["t"], self.enc_table, m.t_s, self.mru_table, params=self.params)
         self.T_ts = inst.lidar.mount.matrix()
-        self.frames: list[HookFrameResult] = []
+        self.rows = FrameRows()
         self.warnings: list[str] = []
         self.last: tuple[float, np.ndarray] | None = None
 
@@ -130,12 +133,9 @@ class HookChain:
             self._perceive(frame, res, times)
         res.row["time_ms"] = times.total()
         res.times = times
-        # What finish() needs, without the frame's cloud and masks: a 700 s run keeps 14,000
-        # of these, and the full results (the levelled cloud, the segmentation and rope masks)
-        # took about 0.4 MB each.
-        rope = res.rope
-        slim_rope = None if rope is None else replace(rope, mask=np.zeros(0, dtype=bool))
-        self.frames.append(HookFrameResult(res.row, rope=slim_rope, cov=res.cov))
+        # What finish() needs, without the frame's cloud and masks (a 700 s run has 14,000 frames)
+        ok = res.rope is not None and res.rope.ok
+        self.rows.append(res.row, res.cov, res.rope.direction if ok else None, res.rope.cov if ok else None)
         return res
 
     def _perceive(self, frame: Frame, res: HookFrameResult, times: StageTimes) -> None:
@@ -199,46 +199,45 @@ class HookChain:
         return rope
 
     def finish(self, duration_s: float, t_start_s: float = 0.0) -> HookResult:
-        fr = self.frames
-        if not fr:  # no LiDAR frame at all: the encoders alone do not make a hook estimate
+        rows = self.rows
+        if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
             empty = np.zeros((0, 3))
             meas = HookMeasurements(np.zeros(0), empty, self.enc["t"], self.enc_table, self.mru.t_s, self.mru_table,
                                     lidar_cov_m2=np.zeros((0, 3, 3)))
             self.warnings.append("no LiDAR frame in this run: no hook estimate")
-            return HookResult([], meas, {})
-        rope_ok = [r.rope is not None and r.rope.ok for r in fr]
+            return HookResult(rows, meas, {})
         meas = HookMeasurements(
-            t_lidar=np.array([r.row["t"] for r in fr]),
-            lidar_p_rel_tip_world=np.array([[r.row["x"], r.row["y"], r.row["z"]] for r in fr]).reshape(-1, 3),
+            t_lidar=rows["t"], lidar_p_rel_tip_world=rows.xyz(),
             t_encoders=self.enc["t"], encoders=self.enc_table, t_mru=self.mru.t_s, mru=self.mru_table,
-            lidar_cov_m2=np.array([r.cov for r in fr]).reshape(-1, 3, 3),
-            rope_direction=np.array([r.rope.direction if ok else np.full(3, np.nan) for r, ok in zip(fr, rope_ok)]).reshape(-1, 3),
-            rope_cov=np.array([r.rope.cov if ok else np.full((3, 3), np.nan) for r, ok in zip(fr, rope_ok)]).reshape(-1, 3, 3),
+            lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
         )
-        runs = {}
+        runs, stores = {}, {}
         for name in self.estimators:
             kind, model = name.split("_")
+            # each run's samples go to disk as they come: a run's memory stays flat in its length
+            stores[name] = EstimateStore(self.params)
             runs[name] = run_hook_filter(meas, kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
-                                         self.filter_cfg)
-        return HookResult([r.row for r in fr], meas, runs)
+                                         self.filter_cfg, sink=stores[name])
+        return HookResult(rows, meas, runs, stores)
 
     # -- outputs -------------------------------------------------------------------------
     def write(self, out: Path, result: HookResult) -> list[str]:
         outputs.write_rows(out / "hook_measurements.csv", result.rows)
-        outputs.write_estimates(out / "hook_estimates.csv", result.runs, self.params)
+        outputs.write_estimates(out / "hook_estimates.csv", result.stores)
         return ["hook_measurements.csv", "hook_estimates.csv"]
 
     def kpis(self, result: HookResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
         rows = result.rows
-        ok = [r for r in rows if r["status"] == "ok"]
-        sparse = [r for r in rows if r["status"] == "sparse"]
-        seg = {"found_fraction": len(ok) / max(len(rows), 1), "sparse_fraction": len(sparse) / max(len(rows), 1),
-               "frames": len(rows), "apt_ms": float(np.mean([r["time_ms"] for r in rows])) if rows else float("nan")}
+        status = rows["status"]
+        n = len(rows)
+        seg = {"found_fraction": int(np.count_nonzero(status == "ok")) / max(n, 1),
+               "sparse_fraction": int(np.count_nonzero(status == "sparse")) / max(n, 1),
+               "frames": n, "apt_ms": float(np.mean(rows["time_ms"])) if n else float("nan")}
         hook: dict = {"estimators_note": f"errors in the world frame, first {outputs.WARMUP_S:g} s excluded"}
         if truth is not None:
             for name, run in result.runs.items():
-                hook[name] = outputs.estimator_kpis(run, truth, self.params)
-            seg.update(outputs.segmentation_kpis(rows, ok, sparse, truth))
+                hook[name] = outputs.estimator_kpis(run, result.stores[name], truth)
+            seg.update(outputs.segmentation_kpis(rows, truth))
         hook["segmentation"] = seg
         hook["rope"] = outputs.rope_kpis(rows, truth)
         return {"hook": hook, **({"warnings": list(self.warnings)} if self.warnings else {})}
@@ -246,7 +245,7 @@ class HookChain:
     def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
         if not result.runs or truth is None:  # the CSVs and kpis.json say what was estimated
             return []
-        outputs.write_hook_report(out, kpis, kpis.get("program"), result.runs, truth, self.params, result.rows)
+        outputs.write_hook_report(out, kpis, kpis.get("program"), result.runs, result.stores, truth, result.rows)
         return ["hook_report.md", "plots"]
 
     def visualiser(self, path: Path, source: FrameSource):
@@ -258,8 +257,9 @@ class HookChain:
         if not result.runs:
             return
         name = "ekf_flexible" if "ekf_flexible" in result.runs else next(iter(result.runs))
-        run, t_l = result.runs[name], result.measurements.t_lidar
-        t_l = t_l[(t_l >= run.t[0]) & (t_l <= run.t[-1])]
-        p_est = np.column_stack([np.interp(t_l, run.t, run.p_rel[:, k]) for k in range(3)])
+        t_run, p_rel = result.stores[name].columns(P_REL)
+        t_l = result.measurements.t_lidar
+        t_l = t_l[(t_l >= t_run[0]) & (t_l <= t_run[-1])]
+        p_est = np.column_stack([np.interp(t_l, t_run, p_rel[:, k]) for k in range(3)])
         p_true = np.column_stack([truth.at(f"hook_rel_{a}", t_l) for a in "xyz"]) if truth is not None else None
         viz.log_hook_tracks(t_l, p_est, p_true, name)

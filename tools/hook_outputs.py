@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +10,10 @@ import numpy as np
 from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.hook_run import HookFilterRun
-from boomtip.tools.hook_eval import world_hook_from_states
+from boomtip.tools.hook_rows import COLUMNS, FrameRows
+from boomtip.tools.hook_store import P, EstimateStore, atomic_text_file
+
+PLOT_EVERY = 4  # the report's plots take every 4th estimator sample (50 Hz): a 700 s run is 140,000 samples
 
 WARMUP_S = 5.0
 CHI2_3_95 = 7.8147  # chi-square, 3 degrees of freedom, 95 %
@@ -25,33 +27,48 @@ DOC002 = {  # Table 6.1, flexible internal model, EKF
 DOC002_RUNTIME_PCT = "2.4-4.0 % (flexible EKF 3.3-3.8 %)"
 
 
-def estimator_kpis(run: HookFilterRun, truth: Truth, params) -> dict:
+def estimator_kpis(run: HookFilterRun, store: EstimateStore, truth: Truth) -> dict:
+    """The estimator's errors against the truth, read from its stored samples a chunk at a time.
+    The sums over the samples run in sample order, row after row, as numpy's mean over axis 0 of
+    the whole series does: the same figures to the last bit."""
     # Runs shorter than the warm-up are scored over all their samples (and say so).
-    t_from = WARMUP_S if np.any(run.t >= WARMUP_S) else float(run.t[0])
-    keep = (run.t >= t_from) & (run.t <= truth.end_s)  # scored only where the truth is
-    t = run.t[keep]
-    _, _, p_hook, v_hook = world_hook_from_states(params, run.x[keep])
-    ref_p = np.column_stack([truth.at(f"hook_{a}", t) for a in "xyz"])
-    ref_v = np.column_stack([truth.at(f"hook_v{a}", t) for a in "xyz"])
-    ep, ev = p_hook - ref_p, v_hook - ref_v
-    # Consistency on the ray-cast chain: NEES of the hook relative to the tip (the filter's own
-    # 3x3 covariance of p_rel); a consistent filter averages 3, 95 % of samples below 7.81.
-    ref_rel = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
-    e_rel = run.p_rel[keep] - ref_rel
-    ev_rel = run.v_rel[keep] - np.column_stack([truth.at(f"hook_rel_v{a}", t) for a in "xyz"])
-    nees = np.einsum("ni,ni->n", e_rel, np.linalg.solve(run.cov_p[keep], e_rel[..., None])[..., 0])
+    t_from = WARMUP_S if store.n and store.t_last >= WARMUP_S else store.t_first
+    n = 0
+    sums = np.zeros((4, 3))  # squared errors: position, velocity, relative position, relative velocity
+    peak = np.zeros((2, 3))  # largest |error|: position, velocity
+    nees_parts = [np.zeros(0)]
+    for c in store.chunks():
+        keep = (c.t >= t_from) & (c.t <= truth.end_s)  # scored only where the truth is
+        if not keep.any():
+            continue
+        t = c.t[keep]
+        ref_p = np.column_stack([truth.at(f"hook_{a}", t) for a in "xyz"])
+        ref_v = np.column_stack([truth.at(f"hook_v{a}", t) for a in "xyz"])
+        ep, ev = c.p_hook[keep] - ref_p, c.v_hook[keep] - ref_v
+        # Consistency on the ray-cast chain: NEES of the hook relative to the tip (the filter's own
+        # 3x3 covariance of p_rel); a consistent filter averages 3, 95 % of samples below 7.81.
+        ref_rel = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
+        e_rel = c.p_rel[keep] - ref_rel
+        ev_rel = c.v_rel[keep] - np.column_stack([truth.at(f"hook_rel_v{a}", t) for a in "xyz"])
+        nees_parts.append(np.einsum("ni,ni->n", e_rel, np.linalg.solve(c.cov_p[keep], e_rel[..., None])[..., 0]))
+        for k, e in enumerate((ep, ev, e_rel, ev_rel)):
+            sums[k] = np.concatenate([sums[k][None], e**2]).sum(axis=0)  # sequential: the running sum first
+        peak = np.maximum(peak, [np.abs(ep).max(axis=0), np.abs(ev).max(axis=0)])
+        n += len(t)
+    nees = np.concatenate(nees_parts)
+    rms = np.sqrt(sums / n) if n else np.full((4, 3), np.nan)
     return {
-        "rmse_pos_m": np.sqrt(np.mean(ep**2, axis=0)).tolist(),
-        "rmse_vel_mps": np.sqrt(np.mean(ev**2, axis=0)).tolist(),
-        "max_pos_m": np.abs(ep).max(axis=0).tolist(),
-        "max_vel_mps": np.abs(ev).max(axis=0).tolist(),
+        "rmse_pos_m": rms[0].tolist(),
+        "rmse_vel_mps": rms[1].tolist(),
+        "max_pos_m": (peak[0] if n else np.full(3, np.nan)).tolist(),
+        "max_vel_mps": (peak[1] if n else np.full(3, np.nan)).tolist(),
         # relative to the boom tip (what the LiDAR sees): the rest of the world-frame error is
         # the tip's own position, estimated from the encoders and the MRU
-        "rmse_rel_pos_m": np.sqrt(np.mean(e_rel**2, axis=0)).tolist(),
-        "rmse_rel_vel_mps": np.sqrt(np.mean(ev_rel**2, axis=0)).tolist(),
+        "rmse_rel_pos_m": rms[2].tolist(),
+        "rmse_rel_vel_mps": rms[3].tolist(),
         "evaluated_from_s": t_from,
-        "nees_pos_mean": float(np.mean(nees)),
-        "nees_pos_within_95": float(np.mean(nees < CHI2_3_95)),
+        "nees_pos_mean": float(np.mean(nees)) if n else float("nan"),
+        "nees_pos_within_95": float(np.mean(nees < CHI2_3_95)) if n else float("nan"),
         "runtime_fraction": run.realtime_fraction,
         "lidar_accepted": run.n_lidar_accepted,
         "lidar_rejected": run.n_lidar_rejected,
@@ -60,78 +77,73 @@ def estimator_kpis(run: HookFilterRun, truth: Truth, params) -> dict:
     }
 
 
-def segmentation_kpis(rows: list[dict], ok: list[dict], sparse: list[dict], truth: Truth) -> dict:
+def segmentation_kpis(rows: FrameRows, truth: Truth) -> dict:
     """Precision and recall of the block's points over the frames with the hook in view, and
     the fixes' reference-point RMSE (model fits and sparse fixes apart)."""
-    in_view = [r for r in rows if r["hook_points_true"] > 0]
-    prec = [r["precision"] for r in in_view if np.isfinite(r["precision"])]
-    rec = [r["recall"] for r in in_view if np.isfinite(r["recall"])]
-    seg = {"precision": float(np.mean(prec)) if prec else float("nan"),
-           "recall": float(np.mean(rec)) if rec else float("nan"), "frames_in_view": len(in_view)}
-    for key, fixes in (("rmse_m", ok), ("sparse_rmse_m", sparse)):
-        if fixes:
-            t = np.array([r["t"] for r in fixes])
-            det = np.array([[r["x"], r["y"], r["z"]] for r in fixes])
+    in_view = rows["hook_points_true"] > 0
+    prec, rec = rows["precision"][in_view], rows["recall"][in_view]
+    prec, rec = prec[np.isfinite(prec)], rec[np.isfinite(rec)]
+    seg = {"precision": float(np.mean(prec)) if len(prec) else float("nan"),
+           "recall": float(np.mean(rec)) if len(rec) else float("nan"), "frames_in_view": int(np.count_nonzero(in_view))}
+    status, t_all, det_all = rows["status"], rows["t"], rows.xyz()
+    for key, fixes in (("rmse_m", status == "ok"), ("sparse_rmse_m", status == "sparse")):
+        if fixes.any():
+            t, det = t_all[fixes], det_all[fixes]
             ref = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
             seg[key] = np.sqrt(np.nanmean((det - ref) ** 2, axis=0)).tolist()
     return seg
 
 
-def rope_kpis(rows: list[dict], truth) -> dict:
+def rope_kpis(rows: FrameRows, truth) -> dict:
     """How often the rope was fitted, and (with a truth) its error: the angle between the fitted
     and the true direction tip -> hook, and that angle times the rope length per axis (what it
     means at the hook, the number comparable with a block fix's error)."""
-    fits = [r for r in rows if r["rope_status"] == "ok"]
+    fits = rows["rope_status"] == "ok"
+    n_fits = int(np.count_nonzero(fits))
     out = {
-        "found_fraction": len(fits) / max(len(rows), 1),
-        "accepted_fraction": sum(bool(r["rope_accepted"]) for r in fits) / max(len(fits), 1),
-        "points_median": float(np.median([r["rope_points"] for r in fits])) if fits else 0.0,
+        "found_fraction": n_fits / max(len(rows), 1),
+        "accepted_fraction": int(np.count_nonzero(rows["rope_accepted"][fits])) / max(n_fits, 1),
+        "points_median": float(np.median(rows["rope_points"][fits])) if n_fits else 0.0,
         # what the points say the radius is, against the configured one the fit assumes
-        "radius_median_m": float(np.median([r["rope_radius_m"] for r in fits])) if fits else float("nan"),
+        "radius_median_m": float(np.median(rows["rope_radius_m"][fits])) if n_fits else float("nan"),
     }
-    if truth is not None and fits:
-        t = np.array([r["t"] for r in fits])
-        u = np.array([[r["rope_ux"], r["rope_uy"], r["rope_uz"]] for r in fits])
+    if truth is not None and n_fits:
+        t = rows["t"][fits]
+        u = rows.xyz("rope_u")[fits]
         ref = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
         length = np.linalg.norm(ref, axis=1, keepdims=True)
         e = u - ref / length
         out["rmse_angle_mrad"] = float(1e3 * np.sqrt(np.mean(np.einsum("ij,ij->i", e, e))))
         out["rmse_at_hook_m"] = np.sqrt(np.mean((length * e) ** 2, axis=0)).tolist()
-        prec = [r["rope_precision"] for r in fits if np.isfinite(r["rope_precision"])]
-        out["precision"] = float(np.mean(prec)) if prec else float("nan")
+        prec = rows["rope_precision"][fits]
+        prec = prec[np.isfinite(prec)]
+        out["precision"] = float(np.mean(prec)) if len(prec) else float("nan")
     return out
 
 
-def write_rows(path: Path, rows: list[dict]) -> None:
-    cols = ("t", "status", "x", "y", "z", "sigma_x_m", "sigma_y_m", "sigma_z_m", "n_points", "fit_rms_m", "precision",
-            "recall", "hook_points_true", "tracker_accepted", "pred_x", "pred_y", "pred_z", "pred_sigma_across_m",
-            "rope_status", "rope_points", "rope_ux", "rope_uy", "rope_uz", "rope_sigma_across_m", "rope_radius_m",
-            "rope_accepted", "rope_precision", "time_ms")
-    buf = io.StringIO()
-    buf.write(",".join(cols) + "\n")
-    for r in rows:
-        vals = []
-        for c in cols:
-            v = r[c]
-            if c in ("status", "rope_status"):
-                vals.append('"' + str(v).replace('"', "'") + '"')
-            elif isinstance(v, float):
-                vals.append("" if not np.isfinite(v) else f"{v:.6g}")
-            else:
-                vals.append(str(v))
-        buf.write(",".join(vals) + "\n")
-    atomic_write_bytes(path, buf.getvalue().encode())
+def write_rows(path: Path, rows: FrameRows) -> None:
+    """hook_measurements.csv: a row per LiDAR frame (empty for NaN)."""
+    cols = []
+    for c in COLUMNS:
+        v = rows[c]
+        if c in ("status", "rope_status"):
+            cols.append(['"' + s.replace('"', "'") + '"' for s in v])
+        elif v.dtype == np.float64:
+            cols.append([f"{x:.6g}" if np.isfinite(x) else "" for x in v.tolist()])
+        else:
+            cols.append([str(x) for x in v.tolist()])
+    lines = [",".join(COLUMNS)] + [",".join(r) for r in zip(*cols)]
+    atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())
 
 
-def write_estimates(path: Path, runs: dict[str, HookFilterRun], params) -> None:
-    buf = io.StringIO()
-    buf.write("t,estimator,x,y,z,vx,vy,vz,rel_x,rel_y,rel_z,rel_vx,rel_vy,rel_vz\n")
-    for name, run in runs.items():
-        _, _, p, v = world_hook_from_states(params, run.x)
-        table = np.column_stack([run.t, p, v, run.p_rel, run.v_rel])
-        for row in table:
-            buf.write(f"{row[0]:.4f},{name}," + ",".join(f"{x:.5f}" for x in row[1:]) + "\n")
-    atomic_write_bytes(path, buf.getvalue().encode())
+def write_estimates(path: Path, stores: dict[str, EstimateStore]) -> None:
+    """hook_estimates.csv, one estimator after the other, written a chunk of samples at a time."""
+    with atomic_text_file(path) as fh:
+        fh.write("t,estimator,x,y,z,vx,vy,vz,rel_x,rel_y,rel_z,rel_vx,rel_vy,rel_vz\n")
+        for name, store in stores.items():
+            for c in store.chunks():
+                fh.write("".join(f"{row[0]:.4f},{name}," + ",".join(f"{x:.5f}" for x in row[1:]) + "\n"
+                                 for row in c.block[:, :13]))
 
 
 def rope_summary(rope: dict) -> str:
@@ -146,7 +158,8 @@ def rope_summary(rope: dict) -> str:
     return text + "."
 
 
-def write_hook_report(out: Path, kpis: dict, program: str | None, runs, truth: Truth, params, rows) -> None:
+def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str, HookFilterRun],
+                      stores: dict[str, EstimateStore], truth: Truth, rows) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -197,21 +210,21 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs, truth: T
     fig, ax = plt.subplots(1, 2, figsize=(13, 5))
     tt = truth.t_s
     ax[0].plot(truth.columns["hook_x"], truth.columns["hook_y"], "k", lw=2, label="truth")
-    best = runs.get("ekf_flexible") or next(iter(runs.values()))
-    _, _, p, _ = world_hook_from_states(params, best.x)
-    ax[0].plot(p[:, 0], p[:, 1], "r", lw=1, label=best.kind + " " + best.model)
+    best = "ekf_flexible" if "ekf_flexible" in runs else next(iter(runs))
+    t_best, p = stores[best].columns(P, PLOT_EVERY)
+    ax[0].plot(p[:, 0], p[:, 1], "r", lw=1, label=runs[best].kind + " " + runs[best].model)
     ax[0].set_xlabel("x [m]")
     ax[0].set_ylabel("y [m]")
     ax[0].set_aspect("equal", adjustable="datalim")
     ax[0].legend()
     ax[0].set_title("hook path seen from above (world)")
     ax[1].plot(tt, truth.columns["hook_z"], "k", lw=2, label="truth z")
-    ax[1].plot(best.t, p[:, 2], "r", lw=1, label="estimate z")
-    ok = [r for r in rows if r["status"] == "ok"]
-    if ok:
-        t_ok = np.array([r["t"] for r in ok])
+    ax[1].plot(t_best, p[:, 2], "r", lw=1, label="estimate z")
+    ok = rows["status"] == "ok"
+    if ok.any():
+        t_ok = rows["t"][ok]
         tip_z = truth.at("tip_z", t_ok)
-        ax[1].plot(t_ok, tip_z + np.array([r["z"] for r in ok]), ".", ms=2, color="tab:blue", label="LiDAR detections")
+        ax[1].plot(t_ok, tip_z + rows["z"][ok], ".", ms=2, color="tab:blue", label="LiDAR detections")
     ax[1].set_xlabel("t [s]")
     ax[1].set_ylabel("z [m]")
     ax[1].legend()
@@ -221,14 +234,15 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs, truth: T
     plt.close(fig)
     fig, ax = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
     for name, run in runs.items():
-        _, _, p, v = world_hook_from_states(params, run.x)
-        ref = np.column_stack([truth.at(f"hook_{a}", run.t) for a in "xyz"])
-        refv = np.column_stack([truth.at(f"hook_v{a}", run.t) for a in "xyz"])
+        t, pv = stores[name].columns(slice(P.start, P.start + 6), PLOT_EVERY)
+        p, v = pv[:, :3], pv[:, 3:]
+        ref = np.column_stack([truth.at(f"hook_{a}", t) for a in "xyz"])
+        refv = np.column_stack([truth.at(f"hook_v{a}", t) for a in "xyz"])
         # Colour by internal model, line style by estimator: EKF and UKF nearly coincide.
         style = {"color": "tab:green" if run.model == "flexible" else "tab:red", "ls": "-" if run.kind == "ekf" else "--",
                  "lw": 0.9 if run.kind == "ekf" else 1.2}
-        ax[0].plot(run.t, 100 * np.linalg.norm(p - ref, axis=1), label=name, **style)
-        ax[1].plot(run.t, 100 * np.linalg.norm(v - refv, axis=1), label=name, **style)
+        ax[0].plot(t, 100 * np.linalg.norm(p - ref, axis=1), label=name, **style)
+        ax[1].plot(t, 100 * np.linalg.norm(v - refv, axis=1), label=name, **style)
     ax[0].set_ylabel("|position error| [cm]")
     ax[1].set_ylabel("|velocity error| [cm/s]")
     ax[1].set_xlabel("t [s]")

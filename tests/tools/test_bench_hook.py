@@ -1,0 +1,43 @@
+"""The hook bench's baseline: the block stage run again on the same inputs with the reference
+block fit and ray steps (tools.hook_reference), timed, and its fixes compared."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from boomtip.perception.hook import detect_hook
+from boomtip.perception.hook_block import block_model, hanging_pose
+from boomtip.perception.hook_types import HookConfig
+from boomtip.perception.timing import StageTimes
+from boomtip.tools import hook_reference
+from boomtip.tools.bench_hook import _with_reference
+
+
+def _cloud(t: np.ndarray, yaw: float, seed: int) -> np.ndarray:
+    cfg = HookConfig()
+    model = block_model(cfg.block_height_m, cfg.model_points)
+    rng = np.random.default_rng(seed)
+    q = model.points[rng.choice(len(model.points), 150, replace=False)]
+    return q @ hanging_pose(t, yaw).T + t + rng.normal(0, 0.01, (150, 3))
+
+
+def test_the_baseline_runs_on_the_same_inputs_and_its_fixes_are_compared():
+    cfg = HookConfig()
+    ref = {"current_cpu_s": 0.0, "reference_cpu_s": 0.0, "reference_wall_s": 0.0, "frames": 0, "same": 0}
+    timed = _with_reference(detect_hook, ref)
+    import boomtip.perception.hook as stage
+
+    fit_block = stage.fit_block
+    for k, t in enumerate((np.array([0.5, 0.3, -20.0]), np.array([-0.4, 0.2, -30.0]), np.array([0.1, 0.1, -25.0]))):
+        pts = _cloud(t, 0.3 * k, k)
+        times = StageTimes()
+        det = timed(pts, t + [0.2, -0.1, 0.2], float(np.linalg.norm(t)), cfg, np.random.default_rng(k), times)
+        alone = detect_hook(pts, t + [0.2, -0.1, 0.2], float(np.linalg.norm(t)), cfg, np.random.default_rng(k))
+        assert det.ok and np.array_equal(det.position_m, alone.position_m)  # the chain gets the current stage's fix
+        assert np.abs(det.position_m - t).max() < 0.05
+        assert "hook.fit" in times.ms
+    assert stage.fit_block is fit_block  # the reference steps are swapped back
+    assert ref["frames"] == 2 and ref["same"] == 2  # the first frame (the model's build) is not compared
+    assert ref["current_cpu_s"] > 0 and ref["reference_cpu_s"] > 0 and ref["reference_wall_s"] > 0
+    with hook_reference.reference_stage():
+        assert stage.fit_block is hook_reference.fit_block and stage.ray_refine is hook_reference.ray_refine
