@@ -62,10 +62,11 @@ class RegistrationConfig(BaseModel):
                                   "information of N points is that of N / this independent ones")
     min_points: int = Field(100, ge=10)
     keyframe_frames: int = Field(1, ge=1, description="frames merged into a keyframe (the first, then each registered one)")
-    model_merges: tuple[int, ...] = Field((20, 50, 100), description="when this many frames are registered, they are aligned "
+    model_merges: tuple[int, ...] = Field((20, 50, 100, 200), description="when this many frames are registered, they are aligned "
                                           "to each other and become the model; the last is final (empty: the first frame's "
                                           "keyframe stays the model)")
-    model_iterations: int = Field(2, ge=1, le=10, description="rounds of aligning the model's frames to each other")
+    model_iterations: int = Field(1, ge=1, le=10, description="rounds of aligning the model's frames to each other (a second "
+                                  "moved sts-irregular's y RMSE by 0.4 mm: each merge starts from the last one's poses)")
     model_voxel_m: float = Field(0.25, gt=0, description="the model's voxel")
     min_fitness: float = Field(0.3, gt=0, le=1, description="below this overlap with the keyframe a new keyframe is taken")
 
