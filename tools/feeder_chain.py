@@ -334,14 +334,15 @@ class FeederChain:
             Pr = J @ P[6:12, 6:12] @ J.T
             # The levelling's own uncertainty: the calibration's sigma once it has one, else the
             # survey's. Corrected about the LiDAR, a tilt moves the deck below it sideways by its
-            # lever; the MRU's bias share turns about the vessel's origin instead, which no deck
-            # normal tells apart: it stays, at the MRU's stated accuracy, in z (and x, y).
+            # lever. The MRU's bias tilts the same sensor-to-level rotation as a mount error and
+            # is calibrated with it; what it moves besides is the tip about the vessel's origin,
+            # which the estimate (relative to the tip) sees only in z, by the horizontal offset.
             s_lvl = tl.sigma_rad if tl is not None else sigma_level
             lever = float(np.linalg.norm(y[:3] - pivot))
             s_mru = self.perception.mru_bias_sigma_rad
             # about the vertical: the own hull's calibration, else the survey's mount accuracy
             s_rz = tl.rz_sigma_rad if tl is not None and tl.rz_sigma_rad is not None else sigma_level
-            extra = np.array([(lever * s_lvl) ** 2 + (y[2] * s_mru) ** 2] * 2
+            extra = np.array([(lever * s_lvl) ** 2] * 2
                              + [(float(np.hypot(y[0], y[1])) * s_mru) ** 2, s_lvl ** 2, s_lvl ** 2, line_sigma ** 2 + s_rz ** 2])
             pose.append(y)
             rates.append(J @ x[6:12])
