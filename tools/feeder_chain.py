@@ -63,12 +63,13 @@ class FeederResult:
     tilt: Tilt | None  # the final levelling calibration
     centre_line: tuple[float, int] | None  # yaw of the centre line in the map frame, frames it was found in
     counts: dict
-    frame_ms: list[float]  # whole-chain time per LiDAR frame (feeder stages, plus the deck stage it reuses)
+    frame_ms: list[float]  # whole-chain time per LiDAR frame (feeder stages, plus the deck stage it reuses), merges apart
     notes: list[str] = field(default_factory=list)
     missing: list[tuple[float, str, str]] = field(default_factory=list)  # (t, sensor, why)
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the model's (map) frame
     model_points_map: np.ndarray | None = None  # the keyframe, for the display
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
+    merges_s: list[tuple[int, float]] = field(default_factory=list)  # (frames, seconds) of each model merge
 
 
 class FeederChain:
@@ -96,6 +97,7 @@ class FeederChain:
         self.t_definition: float | None = None
         self.T_level_map0: np.ndarray | None = None
         self.frame_ms: list[float] = []
+        self.merges_s: list[tuple[int, float]] = []  # a merge is a one-off (a live chain runs it beside the frames): timed apart
         self.missing: list[tuple[float, str, str]] = []
         self.pivots: list[np.ndarray] = []  # the LiDAR's position (level, from the tip) at each recorded state
         self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
@@ -139,8 +141,10 @@ class FeederChain:
         for obs in self.queue:
             if isinstance(obs, LidarObservation):
                 t0 = time.perf_counter()
+                merged = len(self.merges_s)
                 self._lidar(obs, times)
-                self.frame_ms.append(obs.ms + (time.perf_counter() - t0) * 1e3)
+                ms = obs.ms + (time.perf_counter() - t0) * 1e3
+                self.frame_ms.append(ms - sum(s for _, s in self.merges_s[merged:]) * 1e3)
             else:
                 self._radar(obs, times)
         self.queue.clear()
@@ -201,8 +205,10 @@ class FeederChain:
                     s_lvl = abs(float(f.x[2])) * self.perception.angle_sigma_rad
                     f.update_registration(xy_yaw, info, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
                     if self.model.collect(structure, inverse(pose_matrix(*f.x[:6]))):
-                        with times.stage("feeder.model"):
-                            self.model.merge()
+                        t_merge = time.perf_counter()
+                        n = len(self.model.collected)
+                        self.model.merge()
+                        self.merges_s.append((n, time.perf_counter() - t_merge))
                     if self.model.keyframe_size < self.model.cfg.keyframe_frames:
                         self.model.extend_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
                         self.model.keyframe_size += 1
@@ -353,7 +359,7 @@ class FeederChain:
         return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
                             self.frame_ms, notes, self.missing, T_map_feeder,
                             np.asarray(self.model.keyframe.points) if not self.model.empty else None,
-                            self._feeder_mru_summary())
+                            self._feeder_mru_summary(), self.merges_s)
 
     def _feeder_mru_summary(self) -> dict | None:
         if self.feeder_mru is None or not self.filter.feeder_mru_started:

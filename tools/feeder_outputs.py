@@ -69,6 +69,7 @@ def _figures(err_pose: np.ndarray, err_rate: np.ndarray, var: np.ndarray) -> dic
 def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray, windows=(), heave_D: tuple | None = None) -> dict:
     apt = float(np.mean(res.frame_ms)) if res.frame_ms else float("nan")
     out: dict = {"apt_ms": round(apt, 3), "apt_ms_p95": round(float(np.percentile(res.frame_ms, 95)), 3) if res.frame_ms else None,
+                 "model_merges": [{"frames": n, "s": round(sec, 3)} for n, sec in res.merges_s],
                  "updates": res.counts, "missing": len(res.missing)}
     if res.tilt is not None:
         out["levelling_tilt_deg"] = {"about_x": round(math.degrees(res.tilt.rx_rad), 5), "about_y": round(math.degrees(res.tilt.ry_rad), 5),
@@ -149,6 +150,9 @@ def report_section(kpis: dict, windows=()) -> str:
     lines.append("")
     lines.append(f"APT {f['apt_ms']:.2f} ms per LiDAR frame (the whole chain: its deck stage, static-return mask, "
                  f"registration, filter). Velocity RMSE x/y/z {' / '.join(f'{1000 * v:.1f}' for v in f['rmse_vel_mps'])} mm/s.")
+    if f.get("model_merges"):
+        lines.append("The feeder's model merged at " + ", ".join(f"{m['frames']} frames ({m['s']:.2f} s)" for m in f["model_merges"])
+                     + ": one-off, not in the APT (a live chain runs them beside the frames).")
     if "levelling_tilt_deg" in f:
         t = f["levelling_tilt_deg"]
         lines.append(f"Levelling calibration (LiDAR mount and MRU bias together, from the deck normal over {t['span_s']:.0f} s; "
