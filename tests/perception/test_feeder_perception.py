@@ -144,6 +144,8 @@ def test_merged_model_frames_align_to_the_first_and_lose_their_shared_offset():
     shared 4 cm / 0.05 deg (what one frame's keyframe biases them by) and 1.5 cm of its own.
     Aligned to each other and to the first, which holds the map frame, they are back within
     a few millimetres (at most 1 cm), and the shared offset is gone."""
+    with pytest.raises(ValueError, match="ascending"):
+        RegistrationConfig(model_merges=(16, 8))
     cfg = RegistrationConfig(model_merges=(8, 16))
     model = FeederModel(cfg)
     rng = np.random.default_rng(8)
