@@ -49,6 +49,8 @@ class FeederProcessing(_Model):
     centre_line_every: int = Field(5, ge=1, description="the hull edge is looked for every this many LiDAR frames")
     hull_edge_min_points: int = Field(200, ge=10, description="the own hull's edge among the static returns counts with this "
                                       "many points on it (the calibration's rotation about the vertical)")
+    hull_edge_frames: int = Field(30, ge=3, description="the own hull's edge is looked for in this many frames (it is static: "
+                                  "their spread was 0.0001 deg)")
     calibration_min_s: float = Field(30.0, gt=0, description="deck planes needed before the levelling calibration applies")
 
 

@@ -217,7 +217,8 @@ class Footprint:
 
 
 def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tuple[float, float] = (0.2, 2.5),
-                    tol_m: float = 0.15, hypotheses: int = 300, max_angle_deg: float = 45.0) -> tuple[float, int] | None:
+                    tol_m: float = 0.15, hypotheses: int = 300, max_angle_deg: float = 45.0,
+                    max_scored: int = 2000) -> tuple[float, int] | None:
     """The direction of the feeder's centre line in the map frame (z = deck normal): the
     longest straight edge among the returns just above the deck (bulwarks, hull edges,
     coaming sides), within max_angle_deg of the map's x (the crane's heading when the feeder
@@ -227,8 +228,11 @@ def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tu
     xy = points_map[(z > band_m[0]) & (z < band_m[1]), :2]
     if len(xy) < 20:
         return None
-    i, j = rng.integers(0, len(xy), (2, hypotheses))
-    d = xy[j] - xy[i]
+    # hypotheses are scored on at most max_scored of the points (a 128-channel LiDAR's band holds
+    # ten times more, and scoring is hypotheses x points); the winner is refitted on all of them
+    scored = xy if len(xy) <= max_scored else xy[rng.choice(len(xy), max_scored, replace=False)]
+    i, j = rng.integers(0, len(scored), (2, hypotheses))
+    d = scored[j] - scored[i]
     length = np.linalg.norm(d, axis=1)
     ok = length > 2.0
     ang = np.arctan2(d[:, 1], d[:, 0])
@@ -241,12 +245,12 @@ def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tu
     # distances of every point to every hypothesis: (H, N), in blocks to bound the memory
     best, best_count = 0, -1
     for s in range(0, len(i), 64):
-        dist = np.abs((xy[None, :, :] - xy[i[s:s + 64], None, :]) @ nrm[s:s + 64, :, None])[..., 0]
+        dist = np.abs((scored[None, :, :] - scored[i[s:s + 64], None, :]) @ nrm[s:s + 64, :, None])[..., 0]
         counts = (dist < tol_m).sum(axis=1)
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best, best_count = s + k, int(counts[k])
-    point, normal = xy[i[best]], nrm[best]
+    point, normal = scored[i[best]], nrm[best]
     for _ in range(4):  # refit on the band about the last fit: RANSAC's line clips a thick edge unevenly
         inl = xy[np.abs((xy - point) @ normal) < tol_m]
         point = inl.mean(axis=0)

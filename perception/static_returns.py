@@ -126,21 +126,22 @@ class StaticRays(_Window):
     def _count(self, keys: tuple[np.ndarray, ...], sign: int) -> None:
         beams, ranges = keys
         self.beam_counts[voxel_hash(beams)] += sign
-        self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())] += sign
+        self.range_counts[voxel_hash(ranges)] += sign
 
     def add(self, t_s: float, points_sensor: np.ndarray) -> None:
         """Count one frame's returns (finite points, sensor frame, as measured: a voxel's
-        centroid is no beam's direction). A slot repeated in one fancy-indexed add counts once,
-        so a frame counts a beam once."""
-        beams, ranges = self._keys(points_sensor)
-        self._push(t_s, (np.unique(beams), np.unique(ranges)))
+        centroid is no beam's direction). A slot repeated in one fancy-indexed add counts once
+        (numpy's buffered add), and the frame is taken off the same way: no sort is needed."""
+        self._push(t_s, self._keys(points_sensor))
 
     def static_mask(self, points_sensor: np.ndarray) -> np.ndarray:
         """True where the return's beam held its range in ray_min_fraction of the frames it
-        returned, and returned in at least ray_min_presence of the window's frames."""
+        returned, and returned in at least ray_min_presence of the window's frames. The band of
+        range bins is summed here, not spread when counting: a beam has one range a frame, so
+        the sum counts each frame once, with a fifth of the hashing at every add."""
         beams, ranges = self._keys(points_sensor)
         held = self.beam_counts[voxel_hash(beams)]
-        at_range = self.range_counts[voxel_hash(ranges)]
+        at_range = self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())].reshape(len(ranges), -1).sum(axis=1)
         need = max(3, int(np.ceil(self.cfg.ray_min_presence * len(self.frames))))
         return (held >= need) & (at_range >= self.cfg.ray_min_fraction * held)
 

@@ -225,10 +225,11 @@ class FeederChain:
                     self.lines.append(line)
                 # the own hull's side among the static returns (a wall: a line in plan), for the
                 # calibration's rotation about the vertical
-                static_level = obs.sample_sensor[mask] @ obs.R_level_sensor.T + obs.t_level_sensor
-                hull = centre_line_yaw(static_level, self.rng, band_m=(-np.inf, np.inf))
-                if hull is not None and hull[1] >= self.cfg.hull_edge_min_points:
-                    self.hull_yaws.append(hull[0])
+                if len(self.hull_yaws) < self.cfg.hull_edge_frames:  # a constant: a few dozen frames pin it
+                    static_level = obs.sample_sensor[mask] @ obs.R_level_sensor.T + obs.t_level_sensor
+                    hull = centre_line_yaw(static_level, self.rng, band_m=(-np.inf, np.inf))
+                    if hull is not None and hull[1] >= self.cfg.hull_edge_min_points:
+                        self.hull_yaws.append(hull[0])
         self.lidar_frames += 1
         self._record(obs)
 
