@@ -41,3 +41,16 @@ def test_the_baseline_runs_on_the_same_inputs_and_its_fixes_are_compared():
     assert ref["current_cpu_s"] > 0 and ref["reference_cpu_s"] > 0 and ref["reference_wall_s"] > 0
     with hook_reference.reference_stage():
         assert stage.fit_block is hook_reference.fit_block and stage.ray_refine is hook_reference.ray_refine
+
+
+def test_the_whole_bench_runs_and_the_integrators_agree():
+    """One simulated second end to end: every part timed, and RK4 against the chain's midpoint
+    rule on two runs that keep their samples (the chain's own streams them to its store)."""
+    from boomtip.tools.bench_hook import bench_hook
+
+    r = bench_hook("hook-2", 1.0, [])
+    assert r["lidar_frames"] == 20 and r["realtime_factor"]["end_to_end"] > 0
+    for name in ("ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"):
+        rk4 = r["estimators_against_rk4"][name]
+        assert rk4["max_pos_difference_m"] < 1e-5 and rk4["cpu_s"] > 0
+    assert r["block_against_reference"]["same_fix"] == r["block_against_reference"]["frames"] > 0
