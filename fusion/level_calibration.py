@@ -35,14 +35,19 @@ class Tilt:
     rz_sigma_rad: float | None = None  # None: not calibrated, the survey's accuracy stands
 
 
+def median_and_sigma(values: np.ndarray) -> tuple[float, float]:
+    """The median of per-frame measurements of a constant and its 1-sigma: 1.25 sigma / sqrt(n),
+    sigma from the median absolute deviation (robust to a frame that took the wrong edge)."""
+    m = float(np.median(values))
+    return m, 1.2533 * 1.4826 * float(np.median(np.abs(values - m))) / float(np.sqrt(len(values)))
+
+
 def with_heading(tilt: Tilt | None, hull_yaws_rad: np.ndarray) -> Tilt | None:
     """The calibration with its rotation about the vertical: minus the median direction of the
-    own hull's edge in the level frame over frames, 1-sigma from their spread (a median's, 1.25
-    sigma / sqrt(n)). Needs three frames' edges."""
+    own hull's edge in the level frame over frames (median_and_sigma). Needs three frames' edges."""
     if tilt is None or len(hull_yaws_rad) < 3:
         return tilt
-    m = float(np.median(hull_yaws_rad))
-    sigma = 1.2533 * 1.4826 * float(np.median(np.abs(hull_yaws_rad - m))) / np.sqrt(len(hull_yaws_rad))
+    m, sigma = median_and_sigma(hull_yaws_rad)
     return Tilt(tilt.rx_rad, tilt.ry_rad, tilt.sigma_rad, tilt.span_s, -m, sigma)
 
 

@@ -29,7 +29,7 @@ from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.processing import Processing
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
-from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals, with_heading
+from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading
 from boomtip.fusion.models.relative_motion import deck_plane, rotation
 from boomtip.perception.feeder import (
     FeederPerception,
@@ -318,14 +318,15 @@ class FeederChain:
         origin_map = transform(inverse(self.T_level_map0), s * down)
         line = None
         # The centre line's own error is a constant error of every yaw: its 1-sigma, from the
-        # frames' spread (a median's, 1.25 sigma / sqrt(n)), or the prior of the feeder lying
+        # frames' spread (median_and_sigma), or the prior of the feeder lying
         # along the crane's heading when no edge was found.
         line_sigma = math.radians(self.cfg.filter.body_yaw_prior_deg)
         if self.lines:  # the frames' edges: a median, so a frame that took a cargo edge does not count
             yaws = np.array([y for y, _ in self.lines])
-            line = (float(np.median(yaws)), len(yaws))
+            median, sigma = median_and_sigma(yaws)
+            line = (median, len(yaws))
             if len(yaws) >= 3:
-                line_sigma = 1.2533 * 1.4826 * float(np.median(np.abs(yaws - line[0]))) / math.sqrt(len(yaws))
+                line_sigma = sigma
         if line is None:
             notes.append("feeder: no straight hull edge in the keyframe: x is along the crane's heading")
         psi0 = line[0] if line is not None else 0.0
