@@ -112,6 +112,17 @@ def ancestors(roots) -> set[int]:
             stack.extend(a for a in nd.args if isinstance(a, _TraceNode))
     return seen
 
+
+def node_expression(op: str, refs: list[str]) -> str:
+    """A traced node as Python source, from its arguments' source (the generated models' one
+    rule for every operation)."""
+    if op == "neg":
+        return f"(-{refs[0]})"
+    if op in ("sin", "cos"):
+        return f"{op}({refs[0]})"
+    return f"({refs[0]} {op} {refs[1]})"
+
+
 def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
     """Python source for ``jac(x) -> [d outs[r] / d x_k for r for k < n_in]``, compiled:
     the forward sweep (values used once are inlined into their consumer's expression) and
@@ -150,12 +161,7 @@ def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
         if nd.id not in live:
             continue
         a = nd.args
-        if nd.op == "neg":
-            e = f"(-{ref(a[0])})"
-        elif nd.op in ("sin", "cos"):
-            e = f"{nd.op}({ref(a[0])})"
-        else:
-            e = f"({ref(a[0])} {nd.op} {ref(a[1])})"
+        e = node_expression(nd.op, [ref(x) for x in a])
         d = 1 + max((depth[x.id] for x in a if isinstance(x, _TraceNode)), default=0)
         if uses[nd.id] > 1 or d > 40:
             lines.append(f"    v{nd.id} = {e}")

@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from boomtip.data.crane_model import pendulum_accelerations_core
-from boomtip.fusion.models.autodiff import _Tape, _TraceNode, ancestors
+from boomtip.fusion.models.autodiff import _Tape, _TraceNode, ancestors, node_expression
 from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD
 
 __all__ = ["split_accelerations", "rk4_sigma_points", "midpoint_sigma_points"]
@@ -76,13 +76,7 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
 
     def emit(lines, expr, depth, nd, keep):
         a = nd.args
-        ref = [expr[x.id] if isinstance(x, _TraceNode) else const(x) for x in a]
-        if nd.op == "neg":
-            e = f"(-{ref[0]})"
-        elif nd.op in ("sin", "cos"):
-            e = f"{nd.op}({ref[0]})"
-        else:
-            e = f"({ref[0]} {nd.op} {ref[1]})"
+        e = node_expression(nd.op, [expr[x.id] if isinstance(x, _TraceNode) else const(x) for x in a])
         d = 1 + max((depth[x.id] for x in a if isinstance(x, _TraceNode)), default=0)
         if keep or uses[nd.id] > 1 or d > 40:
             lines.append(f"    v{nd.id} = {e}")
