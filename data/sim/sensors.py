@@ -102,6 +102,27 @@ class FaceLookup:
         return self.offset[hits.body[mask]] + hits.face[mask]
 
 
+def standard_normal32(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n standard normal draws (float32) by Box-Muller from n float32 uniforms. Written out
+    because it takes about half the time of `Generator.standard_normal` (float32 or 64) on
+    the LiDAR's tens of thousands of draws per frame; float32 limits the tails to 5.7 sigma,
+    plenty for per-cent intensity and centimetre range noise."""
+    half = (n + 1) // 2
+    u = rng.random(2 * half, dtype=np.float32)
+    radius, angle = u[:half], u[half:]
+    np.subtract(np.float32(1), radius, out=radius)  # in (0, 1]: a finite log
+    np.log(radius, out=radius)
+    radius *= np.float32(-2)
+    np.sqrt(radius, out=radius)
+    angle *= np.float32(2 * np.pi)
+    out = np.empty(2 * half, dtype=np.float32)
+    np.cos(angle, out=out[:half])
+    np.sin(angle, out=out[half:])
+    out[:half] *= radius
+    out[half:] *= radius
+    return out[:n]
+
+
 def lidar_measure(
     cfg: Lidar,
     hits: Hits,
@@ -122,12 +143,14 @@ def lidar_measure(
     r_all = hits.range_m
     keep = r_all >= cfg.min_range_m
     keep &= r_all <= cfg.max_range_m  # a miss (inf) fails the max
-    if sea_body is not None:  # sea clutter: only a fraction of sea hits return
-        sea = keep & (hits.body == sea_body)
-        keep &= ~sea | (rng.random(len(keep)) < sea_probability)
-    if cfg.dropout_probability > 0:
-        keep &= rng.random(len(keep)) >= cfg.dropout_probability
     idx = np.flatnonzero(keep)
+    # The clutter and dropout draws are made for the returns in range only (most of a
+    # spinning LiDAR's rays miss), in float32: a probability needs no more.
+    if sea_body is not None:  # sea clutter: only a fraction of sea hits return
+        not_sea = np.take(hits.body, idx) != sea_body
+        idx = idx[not_sea | (rng.random(len(idx), dtype=np.float32) < sea_probability)]
+    if cfg.dropout_probability > 0:
+        idx = idx[rng.random(len(idx), dtype=np.float32) >= cfg.dropout_probability]
     f = np.take(faces.offset, np.take(hits.body, idx))
     f += np.take(hits.face, idx)
     r = np.take(r_all, idx)
@@ -163,7 +186,7 @@ def lidar_measure(
         seen = intensity >= cfg.detection_threshold
         idx, r, intensity, label = idx[seen], r[seen], intensity[seen], label[seen]
     n = len(idx)
-    noise = rng.standard_normal(2 * n) if (cfg.intensity_noise > 0 or cfg.range_noise_m > 0) else None
+    noise = standard_normal32(rng, 2 * n) if (cfg.intensity_noise > 0 or cfg.range_noise_m > 0) else None
     if cfg.intensity_noise > 0:
         factor = noise[:n] * cfg.intensity_noise
         factor += 1
