@@ -27,7 +27,7 @@ from boomtip.data.sim.fans import Fans, transpose_times
 
 @dataclass
 class Hits:
-    range_m: np.ndarray  # (K,) inf on a miss
+    range_m: np.ndarray  # (K,) inf on a miss; float32 from `cast_fans` (Embree's t), float64 from `cast`
     body: np.ndarray  # (K,) int, -1 on a miss
     face: np.ndarray  # (K,) int, -1 on a miss
     cos_incidence: np.ndarray  # (K,) |cos| of the angle between ray and face normal (0 on a miss)
@@ -245,7 +245,7 @@ class RayCaster:
             cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
         if best_t is None:  # no body cast: the fixed hits alone
             best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
-        return Hits(best_t.astype(np.float64), best_body, best_face, cos_inc)
+        return Hits(best_t, best_body, best_face, cos_inc)
 
     def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
                    scale: np.ndarray | None) -> np.ndarray:

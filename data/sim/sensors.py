@@ -140,9 +140,9 @@ def lidar_measure(
     the rays' directions `dirs_world` and origin heights `origin_z_world` (needed only then).
     The arithmetic runs in place on the returns kept, in the dtypes of the expressions it
     stands for (intensity float32, range float64), so frames do not depend on how it is laid out."""
-    r_all = hits.range_m
-    keep = r_all >= cfg.min_range_m
-    keep &= r_all <= cfg.max_range_m  # a miss (inf) fails the max
+    r_all = hits.range_m  # float32 or 64; compared and used in float64
+    keep = r_all >= np.float64(cfg.min_range_m)
+    keep &= r_all <= np.float64(cfg.max_range_m)  # a miss (inf) fails the max
     idx = np.flatnonzero(keep)
     # The clutter and dropout draws are made for the returns in range only (most of a
     # spinning LiDAR's rays miss), in float32: a probability needs no more.
@@ -153,7 +153,7 @@ def lidar_measure(
         idx = idx[rng.random(len(idx), dtype=np.float32) >= cfg.dropout_probability]
     f = np.take(faces.offset, np.take(hits.body, idx))
     f += np.take(hits.face, idx)
-    r = np.take(r_all, idx)
+    r = np.take(r_all, idx).astype(np.float64, copy=False)
     cos_inc = np.take(hits.cos_incidence, idx)
     np.clip(cos_inc, 1e-3, 1.0, out=cos_inc)
     intensity = np.take(faces.reflectivity, f)
