@@ -15,12 +15,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.world import DOFS
 from boomtip.data.sim.scene import Label, build_bodies
-from boomtip.data.sim.sensors import lidar_pattern, radar_pattern
+from boomtip.data.sim.sensors import lidar_pattern, radar_pattern, standard_normal32
 from boomtip.data.sim.simulator import SimScene, Simulation
 
 ALL_ZERO = [f"{ship}.motion.{dof}.amplitude=0" for ship in ("crane", "feeder") for dof in DOFS]
@@ -660,6 +661,21 @@ def test_lidar_dropout_fraction(bodies_empty, sim_empty, p):
         kept += len(kd)
         total += len(kf)
     assert 1 - kept / total == pytest.approx(p, abs=0.015)
+
+
+@pytest.mark.parametrize("n", [1, 7, 400_000])
+def test_standard_normal32_is_standard_normal_and_seeded(n):
+    x = standard_normal32(np.random.default_rng(5), n)
+    assert x.dtype == np.float32 and x.shape == (n,)
+    np.testing.assert_array_equal(x, standard_normal32(np.random.default_rng(5), n))  # seeded: the same draws
+    assert np.all(np.isfinite(x)) and np.max(np.abs(x)) <= np.sqrt(-2 * np.log(2.0 ** -24)) + 1e-5  # float32's tail
+    if n > 1000:
+        x = x.astype(float)
+        assert abs(np.mean(x)) < 5 / np.sqrt(n)
+        assert np.std(x) == pytest.approx(1.0, abs=5 / np.sqrt(2 * n))
+        assert stats.kstest(x, "norm").pvalue > 1e-3
+        assert np.mean(np.abs(x) > 3) == pytest.approx(2 * stats.norm.sf(3), rel=0.1)
+        assert abs(np.corrcoef(x[: n // 2], x[n // 2:])[0, 1]) < 5 / np.sqrt(n / 2)  # the cos and sin halves
 
 
 def test_intensity_noise_is_relative(bodies_empty, sim_empty):
