@@ -57,7 +57,9 @@ def test_rope_direction_from_a_frame(length_m, sway_deg, cargo):
         assert np.abs(lateral).max() < 0.06, lateral
         assert np.mean(lab[fix.mask] == Label.ROPE) >= 0.99
         assert fix.n_points >= 100 and fix.depth_span_m[1] - fix.depth_span_m[0] > 5.0
-        assert abs(fix.radius_m - 0.04) < 1.5e-3, fix.radius_m  # the points' own radius (24-gon: 39.9 mm)
+        # the points' own radius (24-gon: 39.9 mm); at 20 m it scatters by 0.5-0.6 mm from one
+        # noise draw to the next (seeds 1-48), so 2 mm is about 3.5 sigma
+        assert abs(fix.radius_m - 0.04) < 2e-3, fix.radius_m
         assert {"rope.gate", "rope.ransac", "rope.fit"} <= set(times.ms)
         nees.append(z2)
     assert np.mean(nees) < 2 * 9.2  # within the 99 % bound of chi2(2), averaged over 3 frames
