@@ -17,7 +17,7 @@ E_Z = np.array([0.0, 0.0, 1.0])
 def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll) for one attitude. Written out because building a scipy
     Rotation costs ~50x more than the nine products, once per frame."""
-    r, p, y = (float(v) for v in rpy_rad)
+    r, p, y = rpy_rad.tolist() if isinstance(rpy_rad, np.ndarray) else (float(v) for v in rpy_rad)
     cr, cp, cy, sr, sp, sy = math.cos(r), math.cos(p), math.cos(y), math.sin(r), math.sin(p), math.sin(y)
     return np.array([
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
