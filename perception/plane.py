@@ -260,10 +260,11 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     # --- score set: subsample, centred, float32, homogeneous (4, S) -----------------------------
     s = min(n_pts, cfg.subsample_size)
     sub = cols.take(rng.integers(0, n_pts, size=s), axis=1) if s < n_pts else cols
-    centre = sub.mean(axis=1)
+    centre = np.add.reduce(sub, axis=1) / s  # ndarray.mean's arithmetic, without its wrapper
     sub_c = sub - centre[:, None]  # (3, S) float64, used for hypotheses and the first refit
-    sub_h = np.ones((4, s), dtype=np.float32)
+    sub_h = np.empty((4, s), dtype=np.float32)
     sub_h[:3] = sub_c
+    sub_h[3] = 1.0
     thr32 = np.float32(thr)
     # OpenBLAS runs a GEMM single-threaded when m*n*k < 65536 * 4; bigger ones wake helper threads,
     # and on a loaded 2-core machine one (128 x 4) @ (4 x 4000) product then took 30 ms instead of
@@ -276,7 +277,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     cos_max = None
     if axis is not None and max_axis_angle_deg is not None:
         ax = np.asarray(axis, dtype=np.float64)
-        ax = ax / np.linalg.norm(ax)
+        ax = ax / np.sqrt(ax.dot(ax))  # np.linalg.norm's arithmetic, without its wrapper
         cos_max = math.cos(math.radians(max_axis_angle_deg))
 
     best_count, best_n, best_d, drawn = -1, None, 0.0, 0
@@ -331,7 +332,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
             np.matmul(rows, sub_h, out=dist)
             np.abs(dist, out=dist)
             (dist < thr32).view(np.uint8).sum(axis=1, dtype=count_dtype, out=counts[c0 : c0 + len(rows)])
-        k = int(np.argmax(counts))
+        k = int(counts.argmax())
         if counts[k] > best_count:
             best_count = int(counts[k])
             best_n = nrm[:, k].copy()
