@@ -11,6 +11,8 @@ import math
 
 import numpy as np
 
+from boomtip.perception.plane_moments import eigh3
+
 E_Z = np.array([0.0, 0.0, 1.0])
 
 
@@ -248,16 +250,16 @@ def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray,
     1-sigma, all from one eigendecomposition of the scatter: the smallest eigenvector is the
     normal, the other two are the in-plane axes the prediction variance needs. `offset_m`
     moves the plane that far away from the sensor (points lying on top of the surface wanted)."""
-    c = points.mean(axis=0)
+    c = np.add.reduce(points, axis=0) / len(points)  # ndarray.mean's arithmetic, without its wrapper
     X = points - c
-    evals, evecs = np.linalg.eigh(X.T @ X)
+    evals, evecs = eigh3(X.T @ X)  # np.linalg.eigh bit for bit, without its wrapper
     n = evecs[:, 0]
     d = -float(n @ c)
     plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
     fitted = plane.copy()
     plane[3] += offset_m  # normal towards the sensor: a larger d is farther away
     D = heave_distance(plane, wire_dir, p_tip)
-    if not np.isfinite(D) or len(points) < 4:
+    if not math.isfinite(D) or len(points) < 4:
         return plane, D, float("nan")
     return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
 

@@ -13,7 +13,7 @@ import numpy as np
 from boomtip.perception.cloud import as_points
 from boomtip.perception.doppler import DopplerConfig, DopplerFit
 from boomtip.perception.doppler import doppler_velocity as current_doppler_velocity
-from boomtip.perception.geometry import NormalRate, fit_plane_heave, inv3, sym3_eigvals
+from boomtip.perception.geometry import NormalRate, _prediction_sigma, heave_distance, inv3, sym3_eigvals
 from boomtip.perception.reflectors import (
     INTENSITY_REFERENCE_RANGE_M,
     ReflectorConfig,
@@ -37,6 +37,21 @@ class ReferenceNormalRate(NormalRate):
             coef = (inv @ (V.T @ np.asarray(self.n))).tolist()
             self._coef = coef if deg == 2 else coef + [[0.0, 0.0, 0.0]]
         return self._coef
+
+
+def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray, offset_m: float = 0.0) -> tuple[np.ndarray, float, float]:
+    c = points.mean(axis=0)
+    X = points - c
+    evals, evecs = np.linalg.eigh(X.T @ X)
+    n = evecs[:, 0]
+    d = -float(n @ c)
+    plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
+    fitted = plane.copy()
+    plane[3] += offset_m
+    D = heave_distance(plane, wire_dir, p_tip)
+    if not np.isfinite(D) or len(points) < 4:
+        return plane, D, float("nan")
+    return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
 
 
 def group_markers(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
