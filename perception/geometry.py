@@ -117,6 +117,7 @@ class NormalRate:
         self.max_jump_rad = np.deg2rad(max_jump_deg)
         self.t: list[float] = []
         self.n: list[np.ndarray] = []
+        self._n_floats: list[list[float]] = []  # the same normals as Python floats, for the fit's table
         self._coef: np.ndarray | None = None  # fit about self.t[-1], invalidated by add()
         self._refused = 0
 
@@ -134,15 +135,19 @@ class NormalRate:
                 # Three in a row: it is the history that is wrong (a bad start); begin again.
                 self.t.clear()
                 self.n.clear()
+                self._n_floats.clear()
         elif self.t and t_s - self.t[-1] > self.window_s:
             self.t.clear()  # a long gap: the old normals say nothing about now
             self.n.clear()
+            self._n_floats.clear()
         self._refused = 0
         self.t.append(t_s)
         self.n.append(n)
+        self._n_floats.append(n.tolist())
         while self.t and self.t[0] < t_s - self.window_s:
             self.t.pop(0)
             self.n.pop(0)
+            self._n_floats.pop(0)
         self._coef = None
         return True
 
@@ -156,11 +161,10 @@ class NormalRate:
             # the system is at most 3x3 and well conditioned (times within one window about the
             # newest sample), solved by its adjugate in Python floats: np.vander, np.linalg.inv
             # and the separate products cost several times the arithmetic (once per LiDAR deck).
-            W = np.empty((k, 6))
-            W[:, 0] = 1.0
-            np.subtract(self.t, self.t[-1], out=W[:, 1])
-            np.multiply(W[:, 1], W[:, 1], out=W[:, 2])
-            W[:, 3:] = self.n
+            # The table's rows from Python floats in one conversion (a list of arrays converts
+            # element by element); the same roundings as numpy's.
+            t_last = self.t[-1]
+            W = np.array([[1.0, t - t_last, (t - t_last) * (t - t_last), *n] for t, n in zip(self.t, self._n_floats)])
             G = (W[:, :m].T @ W).tolist()  # rows i: [V^T V (m columns) ..., V^T n (3)]
             if deg == 2:
                 (a0, a1, a2), (_, b1, b2), (_, _, c2) = (row[:3] for row in G)
@@ -205,8 +209,8 @@ class NormalRate:
 def omega_from_euler_rates(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:
     """Angular velocity (world axes) of R = Rz(yaw) Ry(pitch) Rx(roll) from Euler rates;
     one-sample form of data.motion.euler_rates_to_omega_world."""
-    _, p, y = rpy
-    rd, pd, yd = rpy_dot
+    _, p, y = rpy.tolist() if isinstance(rpy, np.ndarray) else rpy
+    rd, pd, yd = rpy_dot.tolist() if isinstance(rpy_dot, np.ndarray) else rpy_dot
     cy, sy, cp, sp = math.cos(y), math.sin(y), math.cos(p), math.sin(p)
     return np.array([-sy * pd + cy * cp * rd, cy * pd + sy * cp * rd, yd - sp * rd])
 
