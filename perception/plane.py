@@ -370,12 +370,17 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     plane = orient_plane_towards(plane)
     mask = np.zeros(n_pts, dtype=bool)
     mask[idx] = True
-    if x_in is None or moments is None:  # no full round ran (refit_iterations <= 1)
+    if x_in is not None and moments is not None:
+        # The plane was fitted to these inliers: it passes through their centroid along the
+        # scatter's least eigenvector, so their squared distances sum to that eigenvalue (to
+        # rounding), with no further pass over them.
+        rms = math.sqrt(max(float(moments[1][0]), 0.0) / n_in)
+    else:  # no full round ran (refit_iterations <= 1): the plane was fitted to others
         x_in = cols.take(idx, axis=1)
         centroid, scatter = _moments_cols(x_in)
         moments = (centroid, *eigh3(scatter))
-    r_in = plane[:3] @ x_in + plane[3]
-    rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
+        r_in = plane[:3] @ x_in + plane[3]
+        rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
     return PlaneFit(plane=plane, inlier_mask=mask, inlier_ratio=n_in / n_pts, rms_m=rms, iterations=drawn,
                     needed=needed, capped=timed_out or drawn < needed, centroid=moments[0],
                     scatter_evals=moments[1], scatter_evecs=moments[2])
