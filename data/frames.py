@@ -82,15 +82,15 @@ class MruLog:
             return None
         if len(t) == 1:
             return self.rpy_rad[0], self.rpy_rate_radps[0]
-        j = min(max(int(np.searchsorted(t, t_s)), 1), len(t) - 1)
-        t0, t1 = float(t[j - 1]), float(t[j])
+        j = min(max(int(t.searchsorted(t_s)), 1), len(t) - 1)  # the method: np.searchsorted's wrapper costs more
+        t0, t1 = t[j - 1 : j + 1].tolist()
         if t1 - t0 > self.max_gap_s:
             return None
         w = 0.0 if t1 == t0 else (t_s - t0) / (t1 - t0)
         # Six numbers in Python floats: numpy's per-operation overhead on 3-vectors costs more
         # than the arithmetic, and this runs once per frame of every sensor.
-        a0, a1 = self.rpy_rad[j - 1].tolist(), self.rpy_rad[j].tolist()
-        r0, r1 = self.rpy_rate_radps[j - 1].tolist(), self.rpy_rate_radps[j].tolist()
+        a0, a1 = self.rpy_rad[j - 1 : j + 1].tolist()
+        r0, r1 = self.rpy_rate_radps[j - 1 : j + 1].tolist()
         rpy = [x0 + w * ((x1 - x0 + math.pi) % (2 * math.pi) - math.pi) for x0, x1 in zip(a0, a1)]
         rate = [x0 + w * (x1 - x0) for x0, x1 in zip(r0, r1)]
         return np.array(rpy), np.array(rate)

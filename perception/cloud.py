@@ -20,6 +20,8 @@ def as_points(cloud) -> np.ndarray:
     copied. Empty input gives shape (0, 3). Raises ValueError for anything else, so a stage
     reports a wrong input in its own words instead of failing deep inside numpy.
     """
+    if type(cloud) is np.ndarray and cloud.dtype == np.float64 and cloud.ndim == 2 and cloud.shape[1] == 3:
+        return cloud  # the usual input, as is: no conversion call (every stage calls this once per frame)
     if type(cloud).__module__.startswith("open3d"):
         cloud = _open3d_points(cloud)
     try:

@@ -3,6 +3,7 @@ by intersecting the wire (straight down from the boom tip) with it (eq. 4.8)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -150,7 +151,7 @@ def detect_deck(
                 deck = replace(deck, plane=plane, inlier_mask=mask, **_inlier_moments(x_in))
     with times.stage(f"{prefix}.intersect"):
         D = heave_distance(deck.plane, wire_dir_sensor, p_tip_sensor)
-        if not np.isfinite(D) or D <= 0:
+        if not math.isfinite(D) or D <= 0:  # D is a Python float
             return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
         if x_in is None:
             x_in = cols.take(deck.inlier_mask.nonzero()[0], axis=1)
@@ -215,15 +216,18 @@ def deck_like_fit(fit: PlaneFit, wire_dir: np.ndarray, min_extent_m: float) -> b
 
 
 def _deck_like(c, cov_evals, evecs, plane, wire_dir, min_extent_m) -> bool:
-    extent = 4 * np.sqrt(np.maximum(cov_evals[1:], 0))  # +-2 sigma along the two in-plane axes
-    if extent[0] < min_extent_m:
+    # the extents in Python floats (the same roundings as numpy's): four numbers, where numpy's
+    # per-call overhead costs more than the arithmetic, for every candidate plane of every frame
+    _, v1, v2 = cov_evals.tolist()
+    e0 = 4 * math.sqrt(max(v1, 0.0))  # +-2 sigma along the two in-plane axes
+    if e0 < min_extent_m:
         return False
+    e1 = 4 * math.sqrt(max(v2, 0.0))
     denom = float(plane[:3] @ wire_dir)
     if abs(denom) < 1e-6:
         return False
     p_d = wire_dir * (-plane[3] / denom)
-    q = (p_d - c) @ evecs[:, 1:]
-    (q0, q1), (e0, e1) = q.tolist(), extent.tolist()  # two numbers: np.all's wrapper costs more than the test
+    q0, q1 = ((p_d - c) @ evecs[:, 1:]).tolist()
     return abs(q0) <= e0 and abs(q1) <= e1
 
 

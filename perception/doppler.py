@@ -122,23 +122,25 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
     RANSAC) when too few detections stay in the band or the geometry is degenerate.
     ``bT`` is the (3, N) unit beams, one contiguous row per axis: ``u @ bT`` then runs ~3x
     faster than ``b @ u`` on (N, 3) rows. Each pass needs the normal equations of a different
-    subset; one product ``Z @ w`` with the 10 x N table of the per-detection terms (b b^T, b r,
-    r^2) gives them all at once, instead of gathering the subset and multiplying it out.
+    subset; one product ``Z @ w`` with the 11 x N table of the per-detection terms (b b^T, b r,
+    r^2, 1) gives them all at once, the subset's size included, instead of gathering the subset
+    and multiplying it out.
     """
     n = len(r)
     bx, by, bz = bT
-    Z = np.empty((10, n))
+    Z = np.empty((11, n))
     np.multiply(bx, bT, out=Z[0:3])  # xx xy xz
     np.multiply(by, bT[1:], out=Z[3:5])  # yy yz
     np.multiply(bz, bz, out=Z[5])  # zz
     np.multiply(bT, r, out=Z[6:9])  # x r, y r, z r
     np.multiply(r, r, out=Z[9])
+    Z[10] = 1.0  # the count: a 0/1 weight's sum is exact
 
-    def solve(w: np.ndarray) -> tuple[np.ndarray, tuple, float, float] | None:
+    def solve(w: np.ndarray) -> tuple[np.ndarray, tuple, float, float, int] | None:
         # The symmetric 3x3 solve in Python floats: numpy's per-call overhead on a 3x3 is
         # several times the arithmetic, and this runs up to six times per radar frame. The
         # inverse stays six Python floats (its upper triangle) until the last pass needs it.
-        xx, xy, xz, yy, yz, zz, yx_, yy_, yz_, rr = (Z @ w).tolist()
+        xx, xy, xz, yy, yz, zz, yx_, yy_, yz_, rr, count = (Z @ w).tolist()
         c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
         det = xx * c00 + xy * c01 + xz * c02
         if abs(det) < 1e-300:
@@ -151,7 +153,7 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
         # Sum of squared residuals over the subset from the same sums: r.r - u.(B^T r).
         sse = max(rr - (u0 * yx_ + u1 * yy_ + u2 * yz_), 0.0)
         frob_a2 = xx * xx + yy * yy + zz * zz + 2.0 * (xy * xy + xz * xz + yz * yz)
-        return np.array([u0, u1, u2]), (i00, i01, i02, i11, i12, i22), sse, frob_a2
+        return np.array([u0, u1, u2]), (i00, i01, i02, i11, i12, i22), sse, frob_a2, int(count)
 
     if u_prior is not None:
         # Tracking: last frame's velocity is within the band of this one's (the deck's
@@ -175,21 +177,20 @@ def _trimmed_fit(bT: np.ndarray, r: np.ndarray, cfg: DopplerConfig, valid: np.nd
         else:
             band = cfg.inlier_threshold_mps
         new = res < band
-        n_new = int(np.count_nonzero(new))
         # the same set as the last pass: its bytes compared (np.array_equal's checks, or an xor and
         # any(), cost several times more, most of all in a cold cache)
-        if mask is not None and n_new == n_in and new.tobytes() == mask.tobytes():
+        if mask is not None and new.tobytes() == mask.tobytes():
             break
-        mask, n_in = new, n_new
-        if n_in < max(3, cfg.trimmed_min_fraction * n):
-            return None
+        mask = new
+        # the set's size comes with its sums (no count_nonzero pass); too small a set is refused
+        # whether or not its system could be solved
         sol = solve(mask.astype(np.float64))
-        if sol is None:
+        if sol is None or sol[4] < max(3, cfg.trimmed_min_fraction * n):
             return None
-        u = sol[0]
+        u, n_in = sol[0], sol[4]
     if sol is None or n_in < max(3, cfg.min_inliers):
         return None
-    u, (i00, i01, i02, i11, i12, i22), sse, frob_a2 = sol
+    u, (i00, i01, i02, i11, i12, i22), sse, frob_a2, _ = sol
     # cond(B) = sqrt(cond(B^T B)); the Frobenius-norm bound ||A|| ||A^-1|| is enough to refuse
     # degenerate beam geometry without an eigendecomposition.
     frob_inv2 = i00 * i00 + i11 * i11 + i22 * i22 + 2.0 * (i01 * i01 + i02 * i02 + i12 * i12)

@@ -11,13 +11,15 @@ import math
 
 import numpy as np
 
+from boomtip.perception.plane_moments import eigh3
+
 E_Z = np.array([0.0, 0.0, 1.0])
 
 
 def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll) for one attitude. Written out because building a scipy
     Rotation costs ~50x more than the nine products, once per frame."""
-    r, p, y = (float(v) for v in rpy_rad)
+    r, p, y = rpy_rad.tolist() if isinstance(rpy_rad, np.ndarray) else (float(v) for v in rpy_rad)
     cr, cp, cy, sr, sp, sy = math.cos(r), math.cos(p), math.cos(y), math.sin(r), math.sin(p), math.sin(y)
     return np.array([
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
@@ -115,6 +117,7 @@ class NormalRate:
         self.max_jump_rad = np.deg2rad(max_jump_deg)
         self.t: list[float] = []
         self.n: list[np.ndarray] = []
+        self._n_floats: list[list[float]] = []  # the same normals as Python floats, for the fit's table
         self._coef: np.ndarray | None = None  # fit about self.t[-1], invalidated by add()
         self._refused = 0
 
@@ -132,15 +135,19 @@ class NormalRate:
                 # Three in a row: it is the history that is wrong (a bad start); begin again.
                 self.t.clear()
                 self.n.clear()
+                self._n_floats.clear()
         elif self.t and t_s - self.t[-1] > self.window_s:
             self.t.clear()  # a long gap: the old normals say nothing about now
             self.n.clear()
+            self._n_floats.clear()
         self._refused = 0
         self.t.append(t_s)
         self.n.append(n)
+        self._n_floats.append(n.tolist())
         while self.t and self.t[0] < t_s - self.window_s:
             self.t.pop(0)
             self.n.pop(0)
+            self._n_floats.pop(0)
         self._coef = None
         return True
 
@@ -154,11 +161,10 @@ class NormalRate:
             # the system is at most 3x3 and well conditioned (times within one window about the
             # newest sample), solved by its adjugate in Python floats: np.vander, np.linalg.inv
             # and the separate products cost several times the arithmetic (once per LiDAR deck).
-            W = np.empty((k, 6))
-            W[:, 0] = 1.0
-            np.subtract(self.t, self.t[-1], out=W[:, 1])
-            np.multiply(W[:, 1], W[:, 1], out=W[:, 2])
-            W[:, 3:] = self.n
+            # The table's rows from Python floats in one conversion (a list of arrays converts
+            # element by element); the same roundings as numpy's.
+            t_last = self.t[-1]
+            W = np.array([[1.0, t - t_last, (t - t_last) * (t - t_last), *n] for t, n in zip(self.t, self._n_floats)])
             G = (W[:, :m].T @ W).tolist()  # rows i: [V^T V (m columns) ..., V^T n (3)]
             if deg == 2:
                 (a0, a1, a2), (_, b1, b2), (_, _, c2) = (row[:3] for row in G)
@@ -203,8 +209,8 @@ class NormalRate:
 def omega_from_euler_rates(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:
     """Angular velocity (world axes) of R = Rz(yaw) Ry(pitch) Rx(roll) from Euler rates;
     one-sample form of data.motion.euler_rates_to_omega_world."""
-    _, p, y = rpy
-    rd, pd, yd = rpy_dot
+    _, p, y = rpy.tolist() if isinstance(rpy, np.ndarray) else rpy
+    rd, pd, yd = rpy_dot.tolist() if isinstance(rpy_dot, np.ndarray) else rpy_dot
     cy, sy, cp, sp = math.cos(y), math.sin(y), math.cos(p), math.sin(p)
     return np.array([-sy * pd + cy * cp * rd, cy * pd + sy * cp * rd, yd - sp * rd])
 
@@ -248,16 +254,16 @@ def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray,
     1-sigma, all from one eigendecomposition of the scatter: the smallest eigenvector is the
     normal, the other two are the in-plane axes the prediction variance needs. `offset_m`
     moves the plane that far away from the sensor (points lying on top of the surface wanted)."""
-    c = points.mean(axis=0)
+    c = np.add.reduce(points, axis=0) / len(points)  # ndarray.mean's arithmetic, without its wrapper
     X = points - c
-    evals, evecs = np.linalg.eigh(X.T @ X)
+    evals, evecs = eigh3(X.T @ X)  # np.linalg.eigh bit for bit, without its wrapper
     n = evecs[:, 0]
     d = -float(n @ c)
     plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
     fitted = plane.copy()
     plane[3] += offset_m  # normal towards the sensor: a larger d is farther away
     D = heave_distance(plane, wire_dir, p_tip)
-    if not np.isfinite(D) or len(points) < 4:
+    if not math.isfinite(D) or len(points) < 4:
         return plane, D, float("nan")
     return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
 

@@ -260,10 +260,11 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     # --- score set: subsample, centred, float32, homogeneous (4, S) -----------------------------
     s = min(n_pts, cfg.subsample_size)
     sub = cols.take(rng.integers(0, n_pts, size=s), axis=1) if s < n_pts else cols
-    centre = sub.mean(axis=1)
+    centre = np.add.reduce(sub, axis=1) / s  # ndarray.mean's arithmetic, without its wrapper
     sub_c = sub - centre[:, None]  # (3, S) float64, used for hypotheses and the first refit
-    sub_h = np.ones((4, s), dtype=np.float32)
+    sub_h = np.empty((4, s), dtype=np.float32)
     sub_h[:3] = sub_c
+    sub_h[3] = 1.0
     thr32 = np.float32(thr)
     # OpenBLAS runs a GEMM single-threaded when m*n*k < 65536 * 4; bigger ones wake helper threads,
     # and on a loaded 2-core machine one (128 x 4) @ (4 x 4000) product then took 30 ms instead of
@@ -276,7 +277,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     cos_max = None
     if axis is not None and max_axis_angle_deg is not None:
         ax = np.asarray(axis, dtype=np.float64)
-        ax = ax / np.linalg.norm(ax)
+        ax = ax / np.sqrt(ax.dot(ax))  # np.linalg.norm's arithmetic, without its wrapper
         cos_max = math.cos(math.radians(max_axis_angle_deg))
 
     best_count, best_n, best_d, drawn = -1, None, 0.0, 0
@@ -331,7 +332,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
             np.matmul(rows, sub_h, out=dist)
             np.abs(dist, out=dist)
             (dist < thr32).view(np.uint8).sum(axis=1, dtype=count_dtype, out=counts[c0 : c0 + len(rows)])
-        k = int(np.argmax(counts))
+        k = int(counts.argmax())
         if counts[k] > best_count:
             best_count = int(counts[k])
             best_n = nrm[:, k].copy()
@@ -369,12 +370,17 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     plane = orient_plane_towards(plane)
     mask = np.zeros(n_pts, dtype=bool)
     mask[idx] = True
-    if x_in is None or moments is None:  # no full round ran (refit_iterations <= 1)
+    if x_in is not None and moments is not None:
+        # The plane was fitted to these inliers: it passes through their centroid along the
+        # scatter's least eigenvector, so their squared distances sum to that eigenvalue (to
+        # rounding), with no further pass over them.
+        rms = math.sqrt(max(float(moments[1][0]), 0.0) / n_in)
+    else:  # no full round ran (refit_iterations <= 1): the plane was fitted to others
         x_in = cols.take(idx, axis=1)
         centroid, scatter = _moments_cols(x_in)
         moments = (centroid, *eigh3(scatter))
-    r_in = plane[:3] @ x_in + plane[3]
-    rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
+        r_in = plane[:3] @ x_in + plane[3]
+        rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))
     return PlaneFit(plane=plane, inlier_mask=mask, inlier_ratio=n_in / n_pts, rms_m=rms, iterations=drawn,
                     needed=needed, capped=timed_out or drawn < needed, centroid=moments[0],
                     scatter_evals=moments[1], scatter_evecs=moments[2])

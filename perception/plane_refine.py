@@ -67,7 +67,7 @@ def refine_plane_biweight_cols(cols: np.ndarray, plane: np.ndarray, scale_m: flo
     near = cols.take((np.abs(r, out=r) < 2.0 * scale_m).nonzero()[0], axis=1)
     if near.shape[1] < 3:
         return plane
-    origin = near.mean(axis=1)
+    origin = np.add.reduce(near, axis=1) / near.shape[1]  # ndarray.mean's arithmetic, without its wrapper
     near -= origin[:, None]  # raw moments about a point on the plane: no cancellation at 100 m
     plane[3] += plane[:3] @ origin
     inv_scale2 = 1.0 / (scale_m * scale_m)

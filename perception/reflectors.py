@@ -24,6 +24,9 @@ from boomtip.perception.geometry import fit_plane_heave, sym3_eigvals
 from boomtip.perception.timing import StageTimes
 
 INTENSITY_REFERENCE_RANGE_M = 50.0  # the simulator's (and a calibrated sensor's) 1.0 = white diffuse here
+_CELL_OFFSET = 1 << 20  # marker grid cells are keyed from -2^20 to 2^20 per axis
+_CELL_RADIX = 1 << 21
+_ROLL1, _ROLL2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # axes rolled by one and by two
 
 
 class ReflectorConfig(BaseModel):
@@ -87,17 +90,19 @@ def group_markers(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.nda
     if n == 0:
         return np.zeros(0, dtype=np.intp), np.zeros((0, 3)), np.zeros(0, dtype=np.intp)
     cells = np.floor(points / cell_m).astype(np.int64)
-    cells -= cells.min(axis=0)
-    span = cells.max(axis=0) + 1
-    key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
-    order = np.argsort(key, kind="stable")
+    # One key per cell in a fixed mixed radix (cells within +-2^20 of the sensor, 2000 km at 2 m):
+    # the same lexicographic order of (x, y, z) cells as a radix from the cloud's own span, without
+    # the min and max passes that would find that span.
+    cells += _CELL_OFFSET
+    key = (cells[:, 0] * _CELL_RADIX + cells[:, 1]) * _CELL_RADIX + cells[:, 2]
+    order = key.argsort(kind="stable")
     key_sorted = key[order]
     first = np.empty(n, dtype=bool)
     first[0] = True
     np.not_equal(key_sorted[1:], key_sorted[:-1], out=first[1:])
-    starts = np.flatnonzero(first)
+    starts = first.nonzero()[0]  # methods, not np.flatnonzero / np.cumsum: the same, without their wrappers
     labels = np.empty(n, dtype=np.intp)
-    labels[order] = np.cumsum(first) - 1
+    labels[order] = first.cumsum() - 1
     counts = np.empty_like(starts)
     counts[:-1] = starts[1:] - starts[:-1]
     counts[-1] = n - starts[-1]
@@ -122,20 +127,30 @@ def _triplets(m: int, at_most: int = 128) -> np.ndarray:
 def plane_through_markers(centroids: np.ndarray, threshold_m: float) -> np.ndarray:
     """RANSAC over marker centroids, the triplets scored at once: the inlier mask of the best plane."""
     tri = _triplets(len(centroids))
-    a = centroids[tri[:, 0]]
-    e1 = centroids[tri[:, 1]] - a
-    e2 = centroids[tri[:, 2]] - a
-    # The cross product by columns: np.cross costs ~10x more on a few hundred rows.
-    n = np.empty_like(e1)
-    n[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
-    n[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
-    n[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2 + n[:, 2] ** 2)[:, None]  # a degenerate triplet gives NaN: no inliers
-    d = -(n[:, 0] * a[:, 0] + n[:, 1] * a[:, 1] + n[:, 2] * a[:, 2])
-    inl = np.abs(centroids @ n.T + d) < threshold_m  # (m, T)
-    return inl[:, int(np.argmax(inl.sum(axis=0)))]
-
+    corners = centroids[tri]  # (T, 3 corners, 3 axes): one gather
+    a = corners[:, 0]
+    edges = corners[:, 1:] - a[:, None]  # (T, 2, 3): e1, e2
+    # The cross product from the edges' axes rolled by one and by two (two gathers), the same
+    # products and differences as written out per axis: np.cross costs ~10x more on a few hundred rows.
+    r1, r2 = edges[:, :, _ROLL1], edges[:, :, _ROLL2]
+    n = r1[:, 0] * r2[:, 1]
+    n -= r2[:, 0] * r1[:, 1]
+    sq = n * n
+    norm = sq[:, 0] + sq[:, 1]
+    norm += sq[:, 2]
+    np.sqrt(norm, out=norm)
+    # a degenerate triplet (zero normal) gets NaN: no inliers; NaN instead of a 0/0 so no
+    # floating-point warning needs silencing
+    norm[norm == 0.0] = np.nan
+    n /= norm[:, None]
+    na = n * a
+    d = na[:, 0] + na[:, 1]
+    d += na[:, 2]
+    inl = centroids @ n.T  # (m, T)
+    inl -= d  # n.x + d with d = -(n.a)
+    np.abs(inl, out=inl)
+    inl = inl < threshold_m
+    return inl[:, int(inl.sum(axis=0).argmax())]
 
 def detect_reflectors(
     points_sensor: np.ndarray,
@@ -197,14 +212,14 @@ def detect_reflectors(
         n_markers = len(counts)
         if n_markers < cfg.min_markers:
             return ReflectorResult(float("nan"), None, centroids, bright, thr, f"too few markers ({n_markers} < {cfg.min_markers})")
-        order = np.argsort(-counts)[: cfg.max_markers_ransac]
+        order = (-counts).argsort()[: cfg.max_markers_ransac]
         on_plane = np.zeros(n_markers, dtype=bool)
         on_plane[order[plane_through_markers(centroids[order], cfg.plane_threshold_m)]] = True
         good = centroids[on_plane]
         if len(good) < cfg.min_markers:
             return ReflectorResult(float("nan"), None, good, bright, thr, f"too few markers on one plane ({len(good)} < {cfg.min_markers})")
         # Markers on one line (one deck edge only) do not fix the plane's roll about that line.
-        c = good - good.mean(axis=0)
+        c = good - np.add.reduce(good, axis=0) / len(good)  # ndarray.mean's arithmetic, without its wrapper
         spread = 2 * math.sqrt(max(sym3_eigvals(c.T @ c)[1], 0.0) / len(c))
     if spread < cfg.min_spread_m:
         return ReflectorResult(float("nan"), None, good, bright, thr, f"markers collinear (spread {spread:.2f} m)")

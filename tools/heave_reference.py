@@ -13,14 +13,13 @@ import numpy as np
 from boomtip.perception.cloud import as_points
 from boomtip.perception.doppler import DopplerConfig, DopplerFit
 from boomtip.perception.doppler import doppler_velocity as current_doppler_velocity
-from boomtip.perception.geometry import NormalRate, fit_plane_heave, inv3, sym3_eigvals
+from boomtip.perception.geometry import NormalRate, _prediction_sigma, heave_distance, inv3, sym3_eigvals
 from boomtip.perception.reflectors import (
     INTENSITY_REFERENCE_RANGE_M,
     ReflectorConfig,
     ReflectorResult,
-    group_markers,
+    _triplets,
     intensity_threshold,
-    plane_through_markers,
 )
 from boomtip.perception.timing import StageTimes
 
@@ -38,6 +37,60 @@ class ReferenceNormalRate(NormalRate):
             coef = (inv @ (V.T @ np.asarray(self.n))).tolist()
             self._coef = coef if deg == 2 else coef + [[0.0, 0.0, 0.0]]
         return self._coef
+
+
+def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray, offset_m: float = 0.0) -> tuple[np.ndarray, float, float]:
+    c = points.mean(axis=0)
+    X = points - c
+    evals, evecs = np.linalg.eigh(X.T @ X)
+    n = evecs[:, 0]
+    d = -float(n @ c)
+    plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
+    fitted = plane.copy()
+    plane[3] += offset_m
+    D = heave_distance(plane, wire_dir, p_tip)
+    if not np.isfinite(D) or len(points) < 4:
+        return plane, D, float("nan")
+    return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
+
+
+def group_markers(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, dtype=np.intp), np.zeros((0, 3)), np.zeros(0, dtype=np.intp)
+    cells = np.floor(points / cell_m).astype(np.int64)
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    order = np.argsort(key, kind="stable")
+    key_sorted = key[order]
+    first = np.empty(n, dtype=bool)
+    first[0] = True
+    np.not_equal(key_sorted[1:], key_sorted[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    labels = np.empty(n, dtype=np.intp)
+    labels[order] = np.cumsum(first) - 1
+    counts = np.empty_like(starts)
+    counts[:-1] = starts[1:] - starts[:-1]
+    counts[-1] = n - starts[-1]
+    centroids = np.add.reduceat(points[order], starts, axis=0) / counts[:, None]
+    return labels, centroids, counts
+
+
+def plane_through_markers(centroids: np.ndarray, threshold_m: float) -> np.ndarray:
+    tri = _triplets(len(centroids))
+    a = centroids[tri[:, 0]]
+    e1 = centroids[tri[:, 1]] - a
+    e2 = centroids[tri[:, 2]] - a
+    n = np.empty_like(e1)
+    n[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    n[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    n[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n /= np.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2 + n[:, 2] ** 2)[:, None]
+    d = -(n[:, 0] * a[:, 0] + n[:, 1] * a[:, 1] + n[:, 2] * a[:, 2])
+    inl = np.abs(centroids @ n.T + d) < threshold_m
+    return inl[:, int(np.argmax(inl.sum(axis=0)))]
 
 
 def detect_reflectors(

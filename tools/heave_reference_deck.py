@@ -12,11 +12,27 @@ from dataclasses import replace
 import numpy as np
 
 from boomtip.perception.cloud import as_points
-from boomtip.perception.deck import DeckConfig, DeckResult, deck_like
+from boomtip.perception.deck import DeckConfig, DeckResult
 from boomtip.perception.geometry import heave_distance, plane_sigma_at
 from boomtip.perception.plane import PlaneFit, RansacConfig, _needed_iterations, _select_inliers, orient_plane_towards
 from boomtip.perception.preprocess import PreprocessConfig
 from boomtip.perception.timing import StageTimes
+
+
+def deck_like(inliers: np.ndarray, plane: np.ndarray, wire_dir: np.ndarray, min_extent_m: float) -> bool:
+    c = inliers.mean(axis=0)
+    X = inliers - c
+    evals, evecs = np.linalg.eigh(X.T @ X / len(inliers))
+    extent = 4 * np.sqrt(np.maximum(evals[1:], 0))
+    if extent[0] < min_extent_m:
+        return False
+    denom = float(plane[:3] @ wire_dir)
+    if abs(denom) < 1e-6:
+        return False
+    p_d = wire_dir * (-plane[3] / denom)
+    q = (p_d - c) @ evecs[:, 1:]
+    (q0, q1), (e0, e1) = q.tolist(), extent.tolist()
+    return abs(q0) <= e0 and abs(q1) <= e1
 
 
 def _plane_from_scatter(centroid: np.ndarray, scatter: np.ndarray) -> np.ndarray:
