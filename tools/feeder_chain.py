@@ -124,7 +124,7 @@ class FeederChain:
             if frame.sensor == "lidar":
                 obs = self.perception.lidar(frame.t_s, frame.points_sensor, rpy, rpy_rate,
                                             heave.deck_lidar if heave is not None else None)
-                self.static.add(frame.t_s, obs.sample_returns_sensor)
+                obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
             else:
                 obs = self.perception.radar(frame.t_s, rpy, rpy_rate, heave.doppler if heave is not None else None,
                                             heave.deck_radar if heave is not None else None)
@@ -181,7 +181,8 @@ class FeederChain:
             self._record(obs)  # a frame without a deck: its structure has nothing to stand on
             return
         with times.stage("feeder.static"):
-            mask = self.static.static_mask(obs.sample_returns_sensor)
+            mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
+            obs.static_keys = None
         with times.stage("feeder.structure"):
             T_map_level = inverse(pose_matrix(*f.x[:6]))
             if self.footprint is None and obs.plane is not None and obs.plane.points_level is not None:
