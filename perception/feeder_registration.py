@@ -138,6 +138,14 @@ def condition_on(pose_reg: np.ndarray, info6: np.ndarray, z_roll_pitch: np.ndarr
     return pose_reg[a] - np.linalg.pinv(L11) @ (L12 @ d), L11
 
 
+def yaw_only(info_xy_yaw: np.ndarray) -> np.ndarray:
+    """The information of (x, y, yaw) kept for the yaw alone, x and y left free: the yaw's
+    Schur complement, as a 3x3 with zero information in x and y."""
+    L = info_xy_yaw[:2, :2]
+    s = info_xy_yaw[2, 2] - info_xy_yaw[2, :2] @ np.linalg.pinv(L) @ info_xy_yaw[:2, 2]
+    return np.diag([0.0, 0.0, max(float(s), 0.0)])
+
+
 def merged_cloud(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], voxel_m: float, normal_neighbours: int):
     """Frames placed in the map frame, voxel-averaged, with normals: a surface sampled by many
     frames, each on its own part of it."""
@@ -212,6 +220,7 @@ class FeederModel:
         self.keyframes = 0
         self.collected: list[tuple[np.ndarray, np.ndarray]] = []  # (frame, level frame; its pose) for the model
         self.merged = False
+        self.model_frames = 1  # frames the model was merged from (the first keyframe: one)
 
     def _use(self, cloud) -> None:
         """The model becomes this cloud (with normals): it and its search index are kept until it changes."""
@@ -253,6 +262,7 @@ class FeederModel:
         self.kiss_map.clear()
         self.kiss_map.add_points(np.asarray(self.keyframe.points))
         self.collected = list(zip(frames, poses))  # the next merge starts from these poses
+        self.model_frames = len(frames)
         if len(frames) >= max(self.cfg.model_merges):
             self.collected.clear()
             self.merged = True
