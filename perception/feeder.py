@@ -68,6 +68,7 @@ class LidarObservation:
     tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ms: float = 0.0  # time spent on it so far (the chain adds its own)
     sample_returns_sensor: np.ndarray | None = None  # the measured return each sample stands for (its voxel's first): beams for the static test
+    static_keys: tuple | None = None  # those returns' keys in the static test, computed once when counted
 
 
 @dataclass
@@ -176,14 +177,15 @@ class FeederPerception:
         themselves look static in the sensor frame, and the own vessel's hull side, beyond the
         gap between the ships, does not)."""
         pts = obs.sample_sensor[~static_mask] @ obs.R_level_sensor.T + obs.t_level_sensor
-        if footprint is not None and T_map_level is not None:
-            xy = pts[:, :2] @ T_map_level[:2, :2].T + pts[:, 2:3] * T_map_level[:2, 2] + T_map_level[:2, 3]
-            pts = pts[footprint.contains(xy)]
         a, b, c = plane_abc
         h = (pts[:, 2] - a * pts[:, 0] - b * pts[:, 1] - c) / math.sqrt(a * a + b * b + 1.0)
         keep = ((h > self.cfg.deck_band_m) & (h < self.cfg.structure_above_m)) | \
                ((h < -self.cfg.deck_band_m) & (h > -self.cfg.structure_below_m))
-        return pts[keep]
+        pts = pts[keep]  # before the footprint: its test costs a dot product per hull face and point
+        if footprint is not None and T_map_level is not None:
+            xy = pts[:, :2] @ T_map_level[:2, :2].T + pts[:, 2:3] * T_map_level[:2, 2] + T_map_level[:2, 3]
+            pts = pts[footprint.contains(xy)]
+        return pts
 
     def radar(self, t_s: float, rpy: np.ndarray, rpy_rate: np.ndarray, doppler, deck) -> RadarObservation:
         R_ls, t_ls = self.sensor_in_level("radar", rpy)
@@ -242,14 +244,11 @@ def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tu
         return None
     i, d, length = i[ok], d[ok], length[ok]
     nrm = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
-    # distances of every point to every hypothesis: (H, N), in blocks to bound the memory
-    best, best_count = 0, -1
-    for s in range(0, len(i), 64):
-        dist = np.abs((scored[None, :, :] - scored[i[s:s + 64], None, :]) @ nrm[s:s + 64, :, None])[..., 0]
-        counts = (dist < tol_m).sum(axis=1)
-        k = int(np.argmax(counts))
-        if counts[k] > best_count:
-            best, best_count = s + k, int(counts[k])
+    # distances of every point to every hypothesis, (N, H): one product (scoring is capped at
+    # max_scored points, so this is at most a few MB)
+    dist = np.abs(scored @ nrm.T - np.einsum("hj,hj->h", scored[i], nrm))
+    counts = np.count_nonzero(dist < tol_m, axis=0)
+    best = int(np.argmax(counts))
     point, normal = scored[i[best]], nrm[best]
     for _ in range(4):  # refit on the band about the last fit: RANSAC's line clips a thick edge unevenly
         inl = xy[np.abs((xy - point) @ normal) < tol_m]

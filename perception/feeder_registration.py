@@ -6,7 +6,8 @@ The model is a keyframe: the feeder's returns above its deck (bulwarks, coamings
 edges, cargo) in one frame, kept in the map frame with their normals. Two registrations:
 - kiss-icp (its voxel map and point-to-point ICP, C++ through its Python API) when the
   prior is poor (the first frames, after an outage): it pulls in from metres;
-- Open3D's point-to-plane ICP with a Tukey kernel, always, from there. On a deck seen from
+- a point-to-plane ICP with a Tukey kernel (perception/point_to_plane.py: Open3D's iteration on
+  a search index kept while the model is unchanged), always, from there. On a deck seen from
   above kiss-icp's point-to-point ICP slides along the structure: against one keyframe it
   was 4-9 cm off in x and y on sts-loaded, point-to-plane 0.3 / 1.3 cm
   (BENCHMARKS.md, bench feeder). A model grown frame by frame from registered poses drifts
@@ -32,6 +33,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from boomtip.perception.geometry import rpy_matrix
+from boomtip.perception.point_to_plane import Surface, icp_point_to_plane
 
 
 def _o3d():
@@ -46,7 +48,7 @@ class RegistrationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     sample_m: float = Field(0.25, gt=0, description="frames are voxel-sampled at this size (the keyframe keeps it)")
-    keyframe_m: float = Field(0.25, gt=0, description="the keyframe's voxel (Open3D rebuilds its k-d tree on every registration)")
+    keyframe_m: float = Field(0.25, gt=0, description="the keyframe's voxel")
     icp_sample_m: float = Field(0.5, gt=0, description="and the frame registered to it at this size: ICP's time goes with the source")
     kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel (re-acquisition only)")
     kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this")
@@ -136,6 +138,14 @@ def condition_on(pose_reg: np.ndarray, info6: np.ndarray, z_roll_pitch: np.ndarr
     return pose_reg[a] - np.linalg.pinv(L11) @ (L12 @ d), L11
 
 
+def yaw_only(info_xy_yaw: np.ndarray) -> np.ndarray:
+    """The information of (x, y, yaw) kept for the yaw alone, x and y left free: the yaw's
+    Schur complement, as a 3x3 with zero information in x and y."""
+    L = info_xy_yaw[:2, :2]
+    s = info_xy_yaw[2, 2] - info_xy_yaw[2, :2] @ np.linalg.pinv(L) @ info_xy_yaw[:2, 2]
+    return np.diag([0.0, 0.0, max(float(s), 0.0)])
+
+
 def merged_cloud(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], voxel_m: float, normal_neighbours: int):
     """Frames placed in the map frame, voxel-averaged, with normals: a surface sampled by many
     frames, each on its own part of it."""
@@ -146,8 +156,20 @@ def merged_cloud(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], 
     return cloud
 
 
-def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig,
-                 estimation, criteria) -> list[np.ndarray]:
+def surface_of(cloud) -> Surface:
+    """An Open3D cloud with normals as a surface to register to (its search index built once)."""
+    return Surface(np.asarray(cloud.points), np.asarray(cloud.normals))
+
+
+def icp_source(source_level: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """A frame's points as registered: sampled coarser than the model (ICP's time goes with the source)."""
+    if cfg.icp_sample_m <= cfg.sample_m or len(source_level) == 0:
+        return source_level
+    o3d = _o3d()
+    return np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source_level)).voxel_down_sample(cfg.icp_sample_m).points)
+
+
+def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig) -> list[np.ndarray]:
     """The frames' poses made consistent with each other: each frame registered to the merged
     cloud of the other half (even frames to the odd ones' and back: a frame in its own model
     matches itself and would not move); the first frame holds the map frame and does not move.
@@ -158,28 +180,24 @@ def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], 
     off by a function of the viewpoint (sts-loaded seed 7: 2.1 cm in y on average, correlated
     0.8 with the feeder's height, starting from the true pose with the keyframe at the true
     pose); to 50 frames merged at their true poses, 8 mm RMS (mean -2 mm)."""
-    icp = _o3d().pipelines.registration
-
-    def register(i: int, model) -> np.ndarray:
-        src = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(frames_level[i]))
-        if cfg.icp_sample_m > cfg.sample_m:
-            src = src.voxel_down_sample(cfg.icp_sample_m)
-        res = icp.registration_icp(src, model, cfg.max_correspondence_m, poses[i], estimation, criteria)
-        T = np.asarray(res.transformation)
-        ok = np.all(np.isfinite(T)) and len(res.correspondence_set) >= cfg.min_points
-        return T.copy() if ok else poses[i]
+    def register(i: int, model: Surface) -> np.ndarray:
+        res = icp_point_to_plane(model, icp_source(frames_level[i], cfg), poses[i], cfg.max_correspondence_m,
+                                 cfg.tukey_m, cfg.relative_change, cfg.max_iterations)
+        ok = np.all(np.isfinite(res.T)) and len(res.source_index) >= cfg.min_points
+        return res.T.copy() if ok else poses[i]
 
     poses = [T.copy() for T in T_map_level]
     halves = (list(range(0, len(poses), 2)), list(range(1, len(poses), 2)))
     for _ in range(cfg.model_iterations):
         for target, moving in ((halves[0], halves[1]), (halves[1], halves[0])):
-            model = merged_cloud([frames_level[i] for i in target], [poses[i] for i in target], cfg.model_voxel_m, cfg.normal_neighbours)
+            model = surface_of(merged_cloud([frames_level[i] for i in target], [poses[i] for i in target],
+                                            cfg.model_voxel_m, cfg.normal_neighbours))
             for i in moving:
                 poses[i] = register(i, model)
     # The frames were placed by the filter while it tracked one frame's keyframe, biased alike:
     # aligned to each other they keep that shared offset. The first frame defines the map frame:
     # where it registers to the others is where the others must be moved to.
-    others = merged_cloud(frames_level[1:], poses[1:], cfg.model_voxel_m, cfg.normal_neighbours)
+    others = surface_of(merged_cloud(frames_level[1:], poses[1:], cfg.model_voxel_m, cfg.normal_neighbours))
     T0 = T_map_level[0]
     fit0 = register(0, others)
     M = T0 @ inverse(fit0)
@@ -196,14 +214,18 @@ class FeederModel:
 
         self.cfg = cfg or RegistrationConfig()
         self.keyframe = None  # an Open3D cloud with normals, in the map frame
+        self.surface: Surface | None = None  # the keyframe with its search index
         self.kiss_map = VoxelHashMap(self.cfg.kiss_voxel_m, 1e4, 20)
         self.kiss = Registration(max_num_iterations=100, convergence_criterion=1e-4, max_num_threads=0)
         self.keyframes = 0
         self.collected: list[tuple[np.ndarray, np.ndarray]] = []  # (frame, level frame; its pose) for the model
         self.merged = False
-        icp = _o3d().pipelines.registration
-        self._estimation = icp.TransformationEstimationPointToPlane(icp.TukeyLoss(k=self.cfg.tukey_m))
-        self._criteria = icp.ICPConvergenceCriteria(self.cfg.relative_change, self.cfg.relative_change, self.cfg.max_iterations)
+        self.model_frames = 1  # frames the model was merged from (the first keyframe: one)
+
+    def _use(self, cloud) -> None:
+        """The model becomes this cloud (with normals): it and its search index are kept until it changes."""
+        self.keyframe = cloud
+        self.surface = surface_of(cloud)
 
     @property
     def empty(self) -> bool:
@@ -217,7 +239,7 @@ class FeederModel:
             kf = kf.voxel_down_sample(self.cfg.keyframe_m)
             pts_map = np.asarray(kf.points)
         kf.estimate_normals(_o3d().geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
-        self.keyframe = kf
+        self._use(kf)
         self.kiss_map.clear()
         self.kiss_map.add_points(pts_map)
         self.keyframes += 1
@@ -235,11 +257,12 @@ class FeederModel:
         """The collected frames aligned to each other (the first is the keyframe's and holds
         the map frame) become the model. Returns their poses as aligned."""
         frames = [f for f, _ in self.collected]
-        poses = align_frames(frames, [T for _, T in self.collected], self.cfg, self._estimation, self._criteria)
-        self.keyframe = merged_cloud(frames, poses, self.cfg.model_voxel_m, self.cfg.normal_neighbours)
+        poses = align_frames(frames, [T for _, T in self.collected], self.cfg)
+        self._use(merged_cloud(frames, poses, self.cfg.model_voxel_m, self.cfg.normal_neighbours))
         self.kiss_map.clear()
         self.kiss_map.add_points(np.asarray(self.keyframe.points))
         self.collected = list(zip(frames, poses))  # the next merge starts from these poses
+        self.model_frames = len(frames)
         if len(frames) >= max(self.cfg.model_merges):
             self.collected.clear()
             self.merged = True
@@ -251,7 +274,7 @@ class FeederModel:
         pts = np.vstack([np.asarray(self.keyframe.points), transform(T_map_level, source_level)])
         kf = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(pts)).voxel_down_sample(self.cfg.sample_m * 0.5)
         kf.estimate_normals(_o3d().geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
-        self.keyframe = kf
+        self._use(kf)
         self.kiss_map.add_points(transform(T_map_level, source_level))
 
     def register(self, source_level: np.ndarray, T_map_level_guess: np.ndarray, prior_sigma_m: float) -> Registration6:
@@ -267,17 +290,13 @@ class FeederModel:
             dist = float(min(3.0 * prior_sigma_m, 5.0))
             guess = self.kiss.align_points_to_map(source_level, self.kiss_map, T_map_level_guess, dist, dist / 3.0)
             kiss = True
-        src = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(source_level))
-        if cfg.icp_sample_m > cfg.sample_m:
-            src = src.voxel_down_sample(cfg.icp_sample_m)
-            source_level = np.asarray(src.points)
-        res = _o3d().pipelines.registration.registration_icp(src, self.keyframe, cfg.max_correspondence_m, guess,
-                                                           self._estimation, self._criteria)
-        T = np.asarray(res.transformation)
-        corr = np.asarray(res.correspondence_set)
-        if not np.all(np.isfinite(T)) or len(corr) < cfg.min_points:
-            return Registration6(T_map_level_guess, np.zeros((6, 6)), n, float(res.fitness), "registration found no overlap", kiss)
+        source_level = icp_source(source_level, cfg)
+        res = icp_point_to_plane(self.surface, source_level, guess, cfg.max_correspondence_m, cfg.tukey_m,
+                                 cfg.relative_change, cfg.max_iterations)
+        T = res.T
+        if not np.all(np.isfinite(T)) or len(res.source_index) < cfg.min_points:
+            return Registration6(T_map_level_guess, np.zeros((6, 6)), n, res.fitness, "registration found no overlap", kiss)
         T_level_map = inverse(T)
-        normals_level = np.asarray(self.keyframe.normals)[corr[:, 1]] @ T_level_map[:3, :3].T
-        info = pose_information(source_level[corr[:, 0]], normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
-        return Registration6(T.copy(), info / cfg.info_inflation, n, float(res.fitness), "ok", kiss)
+        normals_level = self.surface.normals[res.surface_index] @ T_level_map[:3, :3].T
+        info = pose_information(source_level[res.source_index], normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
+        return Registration6(T.copy(), info / cfg.info_inflation, n, res.fitness, "ok", kiss)

@@ -86,6 +86,8 @@ class _Window:
         self.t_first: float | None = None
 
     def _push(self, t_s: float, keys: tuple[np.ndarray, ...]) -> None:
+        if len(self.frames) >= np.iinfo(np.int16).max:
+            raise ValueError(f"static returns: more than {np.iinfo(np.int16).max} frames in a {self.cfg.window_s} s window")
         self._count(keys, 1)
         self.frames.append((t_s, keys))
         self.t_first = t_s if self.t_first is None else self.t_first
@@ -108,40 +110,52 @@ class StaticRays(_Window):
 
     def __init__(self, cfg: StaticReturnsConfig | None = None) -> None:
         super().__init__(cfg or StaticReturnsConfig())
-        self.beam_counts = np.zeros(1 << _TABLE_BITS, dtype=np.int32)
-        self.range_counts = np.zeros(1 << _TABLE_BITS, dtype=np.int32)
+        # 16-bit counts (a window holds fewer than 32 767 frames): half the table, and the
+        # gathers at random slots are what the mask costs
+        self.beam_counts = np.zeros(1 << _TABLE_BITS, dtype=np.int16)
+        self.range_counts = np.zeros(1 << _TABLE_BITS, dtype=np.int16)
         self._bin_rad = math.radians(self.cfg.ray_bin_deg)
-        self._dilation = np.arange(-self.cfg.range_dilation, self.cfg.range_dilation + 1, dtype=np.int64)
+        d = np.arange(-self.cfg.range_dilation, self.cfg.range_dilation + 1, dtype=np.int64)
+        self._dilation = d[d != 0]  # the bin itself is counted from the frame's own slots
 
-    def _keys(self, points_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Packed (azimuth, elevation) bins of each return's beam, and the same with its range bin."""
+    def keys(self, points_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each return's beam slot, packed (beam, range bin), and its slot: computed once a
+        frame for both counting it and testing it."""
         x, y, z = points_sensor[:, 0], points_sensor[:, 1], points_sensor[:, 2]
         horiz = np.hypot(x, y)
         az = np.floor(np.arctan2(y, x) / self._bin_rad).astype(np.int64) + _OFF
         el = np.floor(np.arctan2(z, horiz) / self._bin_rad).astype(np.int64) + _OFF
         rb = np.floor(np.hypot(horiz, z) / self.cfg.range_bin_m).astype(np.int64) + _OFF
         beam = (az << 21) | el
-        return beam, (beam << 21) | rb  # 63 bits: az and el within +-2^20 bins, range within 2^20 bins
+        ranges = (beam << 21) | rb  # 63 bits: az and el within +-2^20 bins, range within 2^20 bins
+        return voxel_hash(beam), ranges, voxel_hash(ranges)
 
     def _count(self, keys: tuple[np.ndarray, ...], sign: int) -> None:
-        beams, ranges = keys
-        self.beam_counts[voxel_hash(beams)] += sign
-        self.range_counts[voxel_hash(ranges)] += sign
+        beam_slots, range_slots = keys
+        self.beam_counts[beam_slots] += sign
+        self.range_counts[range_slots] += sign
 
-    def add(self, t_s: float, points_sensor: np.ndarray) -> None:
+    def add(self, t_s: float, points_sensor: np.ndarray) -> tuple[np.ndarray, ...]:
         """Count one frame's returns (finite points, sensor frame, as measured: a voxel's
         centroid is no beam's direction). A slot repeated in one fancy-indexed add counts once
-        (numpy's buffered add), and the frame is taken off the same way: no sort is needed."""
-        self._push(t_s, self._keys(points_sensor))
+        (numpy's buffered add), and the frame is taken off the same way: no sort is needed.
+        Returns the frame's keys, for `static_mask`."""
+        keys = self.keys(points_sensor)
+        self._push(t_s, (keys[0], keys[2]))
+        return keys
 
-    def static_mask(self, points_sensor: np.ndarray) -> np.ndarray:
+    def static_mask(self, points_sensor: np.ndarray, keys: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
         """True where the return's beam held its range in ray_min_fraction of the frames it
         returned, and returned in at least ray_min_presence of the window's frames. The band of
         range bins is summed here, not spread when counting: a beam has one range a frame, so
-        the sum counts each frame once, with a fifth of the hashing at every add."""
-        beams, ranges = self._keys(points_sensor)
-        held = self.beam_counts[voxel_hash(beams)]
-        at_range = self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())].reshape(len(ranges), -1).sum(axis=1)
+        the sum counts each frame once, with a fifth of the hashing at every add. `keys`: what
+        `add` returned for these points."""
+        beam_slots, ranges, range_slots = keys if keys is not None else self.keys(points_sensor)
+        held = self.beam_counts[beam_slots]
+        at_range = self.range_counts[range_slots].astype(np.int32)
+        if len(self._dilation):
+            near = self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())]
+            at_range += near.reshape(len(ranges), -1).sum(axis=1, dtype=np.int32)
         need = max(3, int(np.ceil(self.cfg.ray_min_presence * len(self.frames))))
         return (held >= need) & (at_range >= self.cfg.ray_min_fraction * held)
 
@@ -151,10 +165,7 @@ class StaticVoxels(_Window):
 
     def __init__(self, cfg: StaticReturnsConfig | None = None) -> None:
         super().__init__(cfg or StaticReturnsConfig())
-        self.counts = np.zeros(1 << _TABLE_BITS, dtype=np.int32)
-
-    def _slots(self, points_sensor: np.ndarray) -> np.ndarray:
-        return voxel_hash(packed_voxels(points_sensor, self.cfg.voxel_m))
+        self.counts = np.zeros(1 << _TABLE_BITS, dtype=np.int16)
 
     def _dilated_slots(self, keys: np.ndarray) -> np.ndarray:
         return voxel_hash((keys[:, None] + _NEIGHBOURS[None]).ravel())
@@ -162,14 +173,18 @@ class StaticVoxels(_Window):
     def _count(self, keys: tuple[np.ndarray, ...], sign: int) -> None:
         self.counts[self._dilated_slots(keys[0])] += sign
 
-    def add(self, t_s: float, points_sensor: np.ndarray) -> None:
+    def add(self, t_s: float, points_sensor: np.ndarray) -> tuple[np.ndarray, ...]:
         """Count one frame's returns (finite points, sensor frame). `counts[slots] += 1` adds one
         per distinct slot however often it repeats (numpy's buffered fancy add): a frame counts
         a voxel once, with no sort of the dilated slots; the frame keeps its voxels, not its
         slots, to take them off again when it leaves the window."""
-        self._push(t_s, (np.unique(packed_voxels(points_sensor, self.cfg.voxel_m)),))  # 1-D: a sort, not a lexsort
+        packed = packed_voxels(points_sensor, self.cfg.voxel_m)
+        self._push(t_s, (np.unique(packed),))  # 1-D: a sort, not a lexsort
+        return (packed,)
 
-    def static_mask(self, points_sensor: np.ndarray) -> np.ndarray:
-        """True where a point falls in a voxel held in min_fraction of the window's frames."""
+    def static_mask(self, points_sensor: np.ndarray, keys: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+        """True where a point falls in a voxel held in min_fraction of the window's frames.
+        `keys`: what `add` returned for these points."""
         need = max(2, int(np.ceil(self.cfg.min_fraction * len(self.frames))))
-        return self.counts[self._slots(points_sensor)] >= need
+        packed = keys[0] if keys is not None else packed_voxels(points_sensor, self.cfg.voxel_m)
+        return self.counts[voxel_hash(packed)] >= need

@@ -45,6 +45,7 @@ from boomtip.perception.feeder_registration import (
     pose_matrix,
     pose_vector,
     transform,
+    yaw_only,
 )
 from boomtip.perception.pipeline import FrameResult
 from boomtip.perception.static_returns import StaticReturns
@@ -85,6 +86,9 @@ class FeederChain:
         self.perception = FeederPerception(inst, cfg.perception, rates_averaged_over=n_rates)
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
+        # frames the model must be merged from before a registration's x and y update the filter
+        # (a model that merges fewer never will: then from the start)
+        self.xy_after_frames = min(cfg.register_xy_after_frames, max(cfg.perception.registration.model_merges, default=1))
         self.filter = FeederFilter(cfg.filter)
         # An MRU on the feeder, when the source has its stream (document 004's second MRU)
         fm = getattr(source, "feeder_mru", None)
@@ -124,7 +128,7 @@ class FeederChain:
             if frame.sensor == "lidar":
                 obs = self.perception.lidar(frame.t_s, frame.points_sensor, rpy, rpy_rate,
                                             heave.deck_lidar if heave is not None else None)
-                self.static.add(frame.t_s, obs.sample_returns_sensor)
+                obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
             else:
                 obs = self.perception.radar(frame.t_s, rpy, rpy_rate, heave.doppler if heave is not None else None,
                                             heave.deck_radar if heave is not None else None)
@@ -181,7 +185,8 @@ class FeederChain:
             self._record(obs)  # a frame without a deck: its structure has nothing to stand on
             return
         with times.stage("feeder.static"):
-            mask = self.static.static_mask(obs.sample_returns_sensor)
+            mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
+            obs.static_keys = None
         with times.stage("feeder.structure"):
             T_map_level = inverse(pose_matrix(*f.x[:6]))
             if self.footprint is None and obs.plane is not None and obs.plane.points_level is not None:
@@ -203,6 +208,8 @@ class FeederChain:
                     xy_yaw, info = condition_on(v, reg.info6, f.x[2:5])
                     # the MRU's angle noise turns this frame about the tip: the deck below moves sideways
                     s_lvl = abs(float(f.x[2])) * self.perception.angle_sigma_rad
+                    if self.model.model_frames < self.xy_after_frames:
+                        info = yaw_only(info)  # a young model is biased by its few viewpoints: x, y wait
                     f.update_registration(xy_yaw, info, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
                     if self.model.collect(structure, inverse(pose_matrix(*f.x[:6]))):
                         t_merge = time.perf_counter()

@@ -17,6 +17,7 @@ from boomtip.perception.feeder_registration import (
     pose_matrix,
     pose_vector,
     transform,
+    yaw_only,
 )
 from boomtip.perception.static_returns import StaticReturns, StaticReturnsConfig
 
@@ -217,6 +218,22 @@ def test_conditioning_is_the_gaussian_conditional():
     ref = pose_reg[a] + S[np.ix_(a, b)] @ np.linalg.solve(S[np.ix_(b, b)], known - pose_reg[b])
     assert np.allclose(got, ref, atol=1e-9)
     assert abs(got[1] - pose_reg[1]) > 1e-3  # the 0.2 deg tilt did leak into y, and was taken out
+
+
+def test_yaw_only_keeps_the_yaws_marginal_information():
+    """x and y left free: the yaw's information is 1 / its marginal variance, and the filter's
+    update then sees the yaw alone."""
+    rng = np.random.default_rng(2)
+    J = rng.normal(size=(50, 3)) @ np.array([[1.0, 0.3, 20.0], [0.0, 1.0, -15.0], [0.0, 0.0, 30.0]])
+    info = J.T @ J
+    got = yaw_only(info)
+    assert got[2, 2] == pytest.approx(1.0 / np.linalg.inv(info)[2, 2], rel=1e-9)
+    assert np.count_nonzero(got) == 1
+    assert got[2, 2] < info[2, 2] * 0.999  # the correlation with x and y did cost information
+    from boomtip.fusion.models.relative_motion import well_observed
+
+    A, _ = well_observed(got, 0.05)
+    assert A.shape[0] == 1 and np.all(A[0, :2] == 0.0) and A[0, 2] != 0.0
 
 
 def test_a_flat_deck_is_degenerate_in_x_y_and_yaw():
