@@ -80,7 +80,7 @@ class HookFilterConfig(BaseModel):
     jacobian: Literal["autodiff", "complex_step", "numeric"] = "autodiff"
     # EKF: re-evaluate the continuous Jacobian A at most this often (F is rebuilt from the
     # cached A with the actual dt at every step); 0 = at every prediction.
-    jacobian_interval_s: float = 0.02
+    jacobian_interval_s: float = 0.025
     # UKF sigma-point propagation: "generated" (fusion/models/batched_model.py, the tip's
     # kinematics once per step) or "core" (the crane model's core on arrays, once per stage:
     # benchmark variant); the same operations per element, the same result

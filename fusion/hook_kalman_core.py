@@ -6,7 +6,7 @@ rope direction).
 EKF (the equations of filterpy's ``ExtendedKalmanFilter``, written out: its per-call
 overhead dominated the 200 Hz loop): ``P = F P F^T + Q`` with ``F = I + A dt + (A dt)^2 / 2``
 and the continuous Jacobian ``A`` of the equations of motion (fusion/models/jacobian.py),
-refreshed every ``jacobian_interval_s`` (50 Hz; ``0`` = every step; ``F`` is rebuilt only when
+refreshed every ``jacobian_interval_s`` (40 Hz; ``0`` = every step; ``F`` is rebuilt only when
 ``A`` or ``dt`` changes); the mean ``x' = F x + c`` about the model's derivative at A's state
 (``ekf_mean="jacobian"``: one model evaluation per A instead of two per step; the hook within
 micrometres) or by the integrator on the model (``"model"``).
