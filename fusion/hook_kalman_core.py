@@ -180,8 +180,8 @@ class HookKalmanCore:
         self._lin_x: np.ndarray | None = None
         self._lin_steps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         # the outputs inside a window: the samples so far applied one by one to the estimate at
-        # the window's start carried by the model's linear part (x, P, time; the start's x)
-        self._int: tuple[np.ndarray, np.ndarray, float] | None = None
+        # the window's start carried by the model linearised there (and the start's x)
+        self._int: tuple[np.ndarray, np.ndarray, float, int] | None = None  # (x, P, t, samples in it)
         self._int_base: np.ndarray | None = None
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
@@ -386,10 +386,32 @@ class HookKalmanCore:
         while t - self.t >= self._window - 1e-9:
             self.predict(self._window)
         kf = self._kf
-        x, P, t0 = self._int if self._int_base is kf.x else (kf.x, kf.P, self.t)
+        x, P, t0, applied = self._int if self._int_base is kf.x else (kf.x, kf.P, self.t, 0)
+        if applied < len(self._pend_t):
+            # the window's samples not yet in the outputs' estimate, one by one (the window's end
+            # applies them again, with the crane model's step, to the estimate at its start)
+            for tj, kind, z in zip(self._pend_t[applied:], self._pend_kind[applied:], self._pend_z[applied:]):
+                x, P = self._linear_prediction(x, P, tj - t0)
+                ii, R = self._selection(kind)
+                if not math.isfinite(z.sum()):
+                    keep = np.isfinite(z)
+                    ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
+                if len(z):
+                    W = P.take(ii, 1)
+                    x, P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
+                t0 = tj
+            self._int, self._int_base = (x, P, t0, len(self._pend_t)), kf.x
         if t - t0 <= 1e-9:
             return x, P
         return self._linear_prediction(x, P, t - t0)
+
+    def _selection(self, kind: int) -> tuple[np.ndarray, np.ndarray]:
+        """(measured state indices, R) of a sample kind (an entry of ``self._kinds``)."""
+        c = self._lin_cache.get((kind,))
+        if c is None:
+            idx, r = self._kinds[kind]
+            c = self._lin_cache[(kind,)] = (np.array(idx, np.intp), np.diag(r))
+        return c
 
     def _linear_step(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
         """(F, c) of the step x' = F x + c over tau of the model linearised at the window's start
@@ -474,25 +496,7 @@ class HookKalmanCore:
                 self.predict(self._window)
         self._pend_t.append(t)
         self._pend_kind.append(kind)
-        z = np.asarray(z, float)
-        self._pend_z.append(z)
-        # the outputs' estimate: this sample applied now (the window's end applies it again,
-        # with the crane model's step, to the estimate at the window's start)
-        kf = self._kf
-        x, P, t0 = self._int if self._int_base is kf.x else (kf.x, kf.P, self.t)
-        x, P = self._linear_prediction(x, P, t - t0)
-        idx, r = self._kinds[kind]
-        c = self._lin_cache.get((kind,))
-        if c is None:
-            c = self._lin_cache[(kind,)] = (np.array(idx, np.intp), np.diag(r))
-        ii, R = c
-        if not math.isfinite(z.sum()):
-            keep = np.isfinite(z)
-            ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
-        if len(z):
-            W = P.take(ii, 1)
-            x, P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
-        self._int, self._int_base = (x, P, t), kf.x
+        self._pend_z.append(np.asarray(z, float))
 
     def _flush(self) -> None:
         """Close the window: predict to its last sample's time and apply its samples as one
