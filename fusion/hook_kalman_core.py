@@ -42,11 +42,11 @@ import math
 from typing import Literal, Sequence
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints
-from scipy.linalg.lapack import dpotrf, dtrtri
 
-from boomtip.data.crane_model import CraneParams, pendulum_accelerations_core
+from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
+from boomtip.fusion.hook_kalman_steps import FastMerweSigmaPoints, KalmanState, kalman_correction
+from boomtip.fusion.hook_window import PredictionWindow
 from boomtip.fusion.models.autodiff import accel_jacobian
 from boomtip.fusion.models.batched_model import midpoint_sigma_points, rk4_sigma_points, split_accelerations
 from boomtip.fusion.models.crane_pendulum import (
@@ -71,63 +71,11 @@ from boomtip.fusion.models.crane_pendulum import (
     rk4_float,
 )
 from boomtip.fusion.models.jacobian import continuous_jacobian
-from boomtip.fusion.models.linear_chains import accumulated_noise, sample_rows
 
 __all__ = ["HookKalmanCore", "kalman_correction"]
 
 
-class _State:
-    """The estimate (x, P).  The EKF and UKF equations are written out in :class:`HookKalmanCore`
-    (same equations as filterpy's ExtendedKalmanFilter / UnscentedKalmanFilter; their
-    per-call overhead dominated the 200 Hz loop)."""
-
-    __slots__ = ("x", "P")
-
-    def __init__(self, n: int) -> None:
-        self.x = np.zeros(n)
-        self.P = np.eye(n)
-
-
-class _FastMerweSigmaPoints(MerweScaledSigmaPoints):
-    """filterpy's Merwe points with a vectorised ``sigma_points`` (same result)."""
-
-    def sigma_points(self, x, P):
-        n = self.n
-        lambda_ = self.alpha**2 * (n + self.kappa) - n
-        M = (lambda_ + n) * np.asarray(P)
-        # the upper Cholesky factor U^T U = M (filterpy's default scipy.linalg.cholesky),
-        # straight from LAPACK
-        U, info = dpotrf(M)
-        if info != 0:  # lost positive definiteness: clip the eigenvalues
-            w, V = np.linalg.eigh(0.5 * (M + M.T))
-            U = (V * np.sqrt(np.clip(w, 1e-300, None))).T
-        x = np.asarray(x, float)
-        return np.concatenate([x[None, :], x + U, x - U], axis=0)
-
-
-def kalman_correction(x, P, PHT, S, y, nis=False):
-    """(x + K y, P - K S K^T[, y^T S^-1 y]) for the gain K = PHT S^-1.
-
-    With the Cholesky factor S = U^T U and G = PHT U^-1: K S K^T = G G^T (exactly
-    symmetric) and K y = G (U^-T y).  Two small LAPACK calls instead of numpy.linalg.inv
-    (whose Python overhead dominated the 200 Hz linear updates).
-    """
-    U, info = dpotrf(S)
-    if info == 0:
-        Ui, info = dtrtri(U)
-    if info != 0:  # S not positive definite (a broken P): the plain formulas
-        K = PHT @ np.linalg.inv(S)
-        if nis:
-            return x + K @ y, P - K @ PHT.T, float(y @ np.linalg.solve(S, y))
-        return x + K @ y, P - K @ PHT.T
-    G = PHT @ Ui
-    w = y @ Ui
-    if nis:
-        return x + G @ w, P - G @ G.T, float(w @ w)
-    return x + G @ w, P - G @ G.T
-
-
-class HookKalmanCore:
+class HookKalmanCore(PredictionWindow):
     """Multi-rate estimate of the crane and hook state (document 002 chapter 4): prediction by
     the crane model, updates by the encoders and the MRU, hook outputs from the state."""
 
@@ -166,23 +114,8 @@ class HookKalmanCore:
                        (self._me_idx[4:].copy(), self._R_enc), (self._me_idx[4:6].copy(), self._R_enc[:2])]
         self._q_cache: dict[float, np.ndarray] = {}
         self._q_step_cache: dict[float, np.ndarray] = {}
-        # the UKF's prediction window (HookFilterConfig.ukf_window_s): samples (time, kind, values) waiting
-        # for the window's end, and each kind's measured states and noise variances
-        self._window = float(self.cfg.ukf_window_s) if kind == "ukf" else 0.0
-        self.windowed = self._window > self.dt_s + 1e-12
-        self._step = self._window if self.windowed else self.dt_s
-        self._pend_t: list[float] = []
-        self._pend_kind: list[int] = []
-        self._pend_z: list[np.ndarray] = []
-        self._batch_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-        # the window's linearisation (UKF): the state it was taken at, A there, and per step
-        # length tau (F, the affine term) of x' = F x + c
-        self._lin_x: np.ndarray | None = None
-        self._lin_steps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
-        # the outputs inside a window: the samples so far applied one by one to the estimate at
-        # the window's start carried by the model linearised there (and the start's x)
-        self._int: tuple[np.ndarray, np.ndarray, float, int] | None = None  # (x, P, t, samples in it)
-        self._int_base: np.ndarray | None = None
+        # the UKF's prediction window (HookFilterConfig.ukf_window_s; fusion/hook_window.py)
+        self._init_window(self.cfg.ukf_window_s if kind == "ukf" else 0.0)
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
         self._jac_interval = float(self.cfg.jacobian_interval_s)
@@ -191,20 +124,16 @@ class HookKalmanCore:
         self._F_key: float | None = None
         self._lin_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.n_jacobians = 0
-        # EKF mean by the Jacobian (HookFilterConfig.ekf_mean): the model's derivative at A's
-        # state less A times that state (non-zero in the acceleration rows only), and the step's
-        # affine term for (A, dt)
+        # EKF mean by the Jacobian (HookFilterConfig.ekf_mean): the step's affine term for (A,
+        # dt) from the model's derivative at A's state (self._f_offset, as the window's)
         self._ekf_affine = kind == "ekf" and self.cfg.ekf_mean == "jacobian"
-        self._acc_rows = np.array([IAD, IBD, IFD] if self.flex else [IAD, IBD], np.intp)
-        self._f_offset = np.zeros(n)
         self._c_step = np.zeros(n)
-        self._A_win: np.ndarray | None = None
         if kind == "ekf" and self.cfg.jacobian == "autodiff":
             accel_jacobian(self._prm, self.flex)  # generate the code now (once per params)
-        self._kf = _State(n)
+        self._kf = KalmanState(n)
         if kind == "ukf":
-            self._pts = _FastMerweSigmaPoints(n, alpha=self.cfg.ukf_alpha, beta=self.cfg.ukf_beta,
-                                              kappa=self.cfg.ukf_kappa)
+            self._pts = FastMerweSigmaPoints(n, alpha=self.cfg.ukf_alpha, beta=self.cfg.ukf_beta,
+                                             kappa=self.cfg.ukf_kappa)
             self._Wm, self._Wc = self._pts.Wm, self._pts.Wc
             self._Wc_half = 0.5 * self._Wc
             # the generated model (tip kinematics once per step); the core itself if untraceable
@@ -302,18 +231,6 @@ class HookKalmanCore:
             self._q_step_cache[key] = Q
         return Q
 
-    def _window_noise(self, dt: float) -> np.ndarray:
-        """Q of a window dt: the noise its steps of at most 1 / predict_rate add, each carried
-        to the window's end by the model linearised at its start (the discrete models' variance
-        per second depends on their step; and the vessel's and the joints' noise moves the sway
-        within the window: the relative sway rate follows the roll rate at once)."""
-        m = max(1, math.ceil(dt / self.dt_s - 1e-9))
-        h = dt / m
-        Qh = self._q_step_cache.get(round(h, 12))
-        if Qh is None:
-            Qh = self._step_noise(h)
-        return Qh if m == 1 else accumulated_noise(Qh, self._linear_step(h)[0], m)
-
     # ------------------------------------------------------------------ predict
     def predict(self, dt: float | None = None) -> None:
         """Propagate the estimate by dt seconds (one step of the configured integrator)."""
@@ -375,84 +292,12 @@ class HookKalmanCore:
 
     def estimate_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """(x, P) at time t, for the outputs (do not modify them). Without a window: the
-        estimate advanced to t. With one: a complete window is closed first; inside a window the
-        estimate at its start with the window's samples so far applied one by one, carried by
-        the model linearised at the window's start."""
+        estimate advanced to t; with one: fusion/hook_window.py."""
         if not self.windowed:
             self.advance_to(t)
             return self._kf.x, self._kf.P
-        if self._pend_t and t - self.t >= self._window - 1e-9:
-            self._flush()
-        while t - self.t >= self._window - 1e-9:
-            self.predict(self._window)
-        kf = self._kf
-        x, P, t0, applied = self._int if self._int_base is kf.x else (kf.x, kf.P, self.t, 0)
-        if applied < len(self._pend_t):
-            # the window's samples not yet in the outputs' estimate, one by one (the window's end
-            # applies them again, with the crane model's step, to the estimate at its start)
-            for tj, kind, z in zip(self._pend_t[applied:], self._pend_kind[applied:], self._pend_z[applied:]):
-                x, P = self._linear_prediction(x, P, tj - t0)
-                ii, R = self._selection(kind)
-                if not math.isfinite(z.sum()):
-                    keep = np.isfinite(z)
-                    ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
-                if len(z):
-                    W = P.take(ii, 1)
-                    x, P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
-                t0 = tj
-            self._int, self._int_base = (x, P, t0, len(self._pend_t)), kf.x
-        if t - t0 <= 1e-9:
-            return x, P
-        return self._linear_prediction(x, P, t - t0)
+        return self._windowed_estimate(t)
 
-    def _selection(self, kind: int) -> tuple[np.ndarray, np.ndarray]:
-        """(measured state indices, R) of a sample kind (an entry of ``self._kinds``)."""
-        c = self._lin_cache.get((kind,))
-        if c is None:
-            idx, r = self._kinds[kind]
-            c = self._lin_cache[(kind,)] = (np.array(idx, np.intp), np.diag(r))
-        return c
-
-    def _linear_step(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
-        """(F, c) of the step x' = F x + c over tau of the model linearised at the window's start
-        x0 (the estimate at self.t): A = df/dx there, F = I + A tau + (A tau)^2 / 2 and
-        f(x) ~ A x + (f(x0) - A x0), as the EKF's mean (HookFilterConfig.ekf_mean)."""
-        kf = self._kf
-        if self._lin_x is not kf.x:
-            A = self.continuous_jacobian(kf.x)
-            self.n_jacobians += 1
-            rows = self._acc_rows
-            self._f_offset = np.zeros(self.n)
-            self._f_offset[rows] = self._sway_accelerations(kf.x) - A[rows] @ kf.x
-            self._A_win, self._lin_x, self._lin_steps = A, kf.x, {}
-        key = round(tau, 12)
-        st = self._lin_steps.get(key)
-        if st is None:
-            Ad = self._A_win * tau
-            st = self._lin_steps[key] = (self._I + Ad + 0.5 * (Ad @ Ad),
-                                         tau * self._f_offset + (0.5 * tau) * (Ad @ self._f_offset))
-        return st
-
-    def _linear_prediction(self, x: np.ndarray, P: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
-        """(x, P) carried over tau inside a window by the model linearised at its start."""
-        F, c = self._linear_step(tau)
-        Q = self._q_step_cache.get(round(tau, 12))
-        if Q is None:
-            Q = self._step_noise(tau)
-        P = (F @ P) @ F.T
-        P += Q
-        x = F @ x
-        x += c
-        return x, P
-
-    def _sway_accelerations(self, x: np.ndarray) -> np.ndarray:
-        """(a'', b''[, nu_f'']) of the crane model at the state x."""
-        xl = x.tolist()
-        f, fd = (xl[IF], xl[IFD]) if self.flex else (0.0, 0.0)
-        acc = pendulum_accelerations_core(math.sin, math.cos, self._prm, self.flex, *xl[:19], f, fd)
-        return np.array(acc[:3] if self.flex else acc[:2])
-
-    # ------------------------------------------------------------------ updates
     def _linear_update(self, idx: Sequence[int], z: np.ndarray, r_diag: np.ndarray) -> None:
         """Exact Kalman update for z = x[idx] + noise with diagonal R (H selects states):
         K = P H^T S^-1 with S = P[idx, idx] + R.  For a linear h the unscented transform
@@ -480,8 +325,7 @@ class HookKalmanCore:
 
     def _sample(self, kind: int, z: np.ndarray, t: float | None) -> None:
         """A sample of the crane's sensors (kind: an entry of ``self._kinds``) at time t (None:
-        now): without a window applied at once; with one kept for the window's end (a sample
-        beyond the window closes it first)."""
+        now): without a window applied at once; with one kept for the window's end."""
         if not self.windowed or t is None or t - self.t <= 1e-9:
             if t is not None:
                 self.advance_to(t)
@@ -490,42 +334,7 @@ class HookKalmanCore:
             idx, r = self._kinds[kind]
             self._linear_update(idx, z, r)
             return
-        if t - self.t > self._window + 1e-9:
-            self._flush()
-            while t - self.t > self._window + 1e-9:
-                self.predict(self._window)
-        self._pend_t.append(t)
-        self._pend_kind.append(kind)
-        self._pend_z.append(np.asarray(z, float))
-
-    def _flush(self) -> None:
-        """Close the window: predict to its last sample's time and apply its samples as one
-        linear update, each row its state extrapolated back to the sample's time
-        (fusion/models/linear_chains.py)."""
-        if not self._pend_t:
-            return
-        T = self._pend_t[-1]
-        if T - self.t > 1e-12:
-            self.predict(T - self.t)
-        pattern = (tuple(self._pend_kind), tuple(round(T - tj, 9) for tj in self._pend_t))
-        z = np.concatenate(self._pend_z)
-        self._pend_t, self._pend_kind, self._pend_z = [], [], []
-        c = self._batch_cache.get(pattern)
-        if c is None:
-            kinds = [self._kinds[k] for k in pattern[0]]
-            c = (np.vstack([sample_rows(idx, tau, self.n) for (idx, _), tau in zip(kinds, pattern[1])]),
-                 np.diag(np.concatenate([r for _, r in kinds])))
-            if len(self._batch_cache) < 256:
-                self._batch_cache[pattern] = c
-        H, R = c
-        if not math.isfinite(z.sum()):  # a NaN sample updates nothing
-            keep = np.isfinite(z)
-            if not keep.any():
-                return
-            H, R, z = H[keep], R[np.ix_(keep, keep)], z[keep]
-        kf = self._kf
-        PHT = kf.P @ H.T
-        kf.x, kf.P = kalman_correction(kf.x, kf.P, PHT, H @ PHT + R, z - H @ kf.x)
+        self._enqueue(kind, z, t)
 
     def update_encoders(self, slew_rad: float, luff_rad: float, hoist_m: float | None = None,
                         t: float | None = None) -> None:
