@@ -14,17 +14,10 @@ UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points w
 Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
 batched (vectorised) step (fusion/models/batched_model.py: the tip's kinematics once per
 step for the step's input times) and recomputed from (x, P) before every LiDAR update.
-The sigma points step once per ``ukf_window_s`` (25 ms, five MRU samples): the MRU and encoder
-samples of a window wait for its end and are applied there as one linear update (each row its
-chain's state extrapolated back to the sample's time, fusion/models/linear_chains.py); the
-window's Q is the noise of its 5 ms steps carried to its end by the model linearised at its
-start (the roll rate's noise moves the relative sway rate at once); the outputs inside a window
-apply each sample as it comes to the window's start carried by that linearisation. The same
-estimates as a sigma-point step per sample to 0.1 mm of the hook (tests/fusion), at a fifth of
-the model's cost.
+The sigma points step once per ``ukf_window_s`` (25 ms, five MRU samples; fusion/hook_window.py).
 The integrator (``HookFilterConfig.integrator``): the explicit midpoint rule by default, two
-evaluations of the crane model per 5 ms step instead of RK4's four (document 002 4.4); at this
-step the estimates agree to micrometres (the pendulum's and the deflection's periods are
+evaluations of the crane model per step (the UKF's window, the EKF's model mean) instead of
+RK4's four (document 002 4.4); at 5 ms the estimates agree to micrometres (the pendulum's and the deflection's periods are
 seconds; BENCHMARKS.md, tests/fusion).  The
 linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
 linear h the unscented transform gives the same result).  Every correction is
