@@ -80,7 +80,7 @@ class HookFilterConfig(BaseModel):
     jacobian: Literal["autodiff", "complex_step", "numeric"] = "autodiff"
     # EKF: re-evaluate the continuous Jacobian A at most this often (F is rebuilt from the
     # cached A with the actual dt at every step); 0 = at every prediction.
-    jacobian_interval_s: float = 0.02
+    jacobian_interval_s: float = 0.025
     # UKF sigma-point propagation: "generated" (fusion/models/batched_model.py, the tip's
     # kinematics once per step) or "core" (the crane model's core on arrays, once per stage:
     # benchmark variant); the same operations per element, the same result
@@ -88,6 +88,18 @@ class HookFilterConfig(BaseModel):
     # the prediction's integrator (both filters): "rk4" (document 002 4.4) or "midpoint" (the
     # explicit midpoint rule, two evaluations of the crane model per step instead of four).
     integrator: Literal["rk4", "midpoint"] = "midpoint"
+    # EKF mean: "jacobian": carried by the F of the covariance (A, refreshed every
+    # jacobian_interval_s) about the model's own derivative at A's state, an affine step (the
+    # model's curvature over 20 ms is micrometres of the hook); "model": the integrator on the
+    # crane model every step (the filter before)
+    ekf_mean: Literal["jacobian", "model"] = "jacobian"
+    # UKF prediction window: the sigma points step once per window and the MRU and encoder
+    # samples inside it are applied together at its end (each as its chain's state extrapolated
+    # back to the sample's time: fusion/models/linear_chains.py); a LiDAR frame closes the window
+    # at its time; the outputs inside a window apply each sample to the window's start carried
+    # by the model's linear part. 1 / predict_rate_hz (or less): a sigma-point step and an
+    # update per sample (the filter before).
+    ukf_window_s: float = Field(0.025, ge=0.0)
     ukf_alpha: float = 1e-3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0

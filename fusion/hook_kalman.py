@@ -98,6 +98,7 @@ class HookFilter(HookKalmanCore):
 
     def lidar_innovation(self, z, R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(innovation y, its covariance S) of a LiDAR fix before any update."""
+        self._flush()
         y, S, _ = self._lidar_terms(np.asarray(z, float), self._R_lidar if R is None else R)
         return y, S
 
@@ -111,8 +112,7 @@ class HookFilter(HookKalmanCore):
         ``reacquire_after_rejections`` consecutive gated fixes the sway states are
         re-initialised from the fix (lost-and-found hook) and it is applied.
         """
-        if t is not None:
-            self.advance_to(t)
+        self.advance_to(self.t if t is None else t)  # (closes a pending window)
         z = np.asarray(p_rel_tip_world, float)
         if not np.all(np.isfinite(z)):
             return False
@@ -155,8 +155,7 @@ class HookFilter(HookKalmanCore):
         ``reacquire_after_rejections`` consecutive gated directions the sway is re-initialised
         from one. Returns False when gated out (or NaN).
         """
-        if t is not None:
-            self.advance_to(t)
+        self.advance_to(self.t if t is None else t)  # (closes a pending window)
         zr = sway_angles_from_direction(direction, cov)
         if zr is None:
             return False

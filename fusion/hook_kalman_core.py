@@ -4,17 +4,20 @@ model (EKF or UKF) and the updates by the crane's own sensors (encoders, MRU).
 rope direction).
 
 EKF (the equations of filterpy's ``ExtendedKalmanFilter``, written out: its per-call
-overhead dominated the 200 Hz loop): mean by the integrator, ``P = F P F^T + Q`` with
-``F = I + A dt + (A dt)^2 / 2`` and the continuous Jacobian ``A`` of the equations of
-motion (fusion/models/jacobian.py), refreshed every ``jacobian_interval_s`` (50 Hz; ``0`` =
-every step; ``F`` is rebuilt only when ``A`` or ``dt`` changes).
+overhead dominated the 200 Hz loop): ``P = F P F^T + Q`` with ``F = I + A dt + (A dt)^2 / 2``
+and the continuous Jacobian ``A`` of the equations of motion (fusion/models/jacobian.py),
+refreshed every ``jacobian_interval_s`` (40 Hz; ``0`` = every step; ``F`` is rebuilt only when
+``A`` or ``dt`` changes); the mean ``x' = F x + c`` about the model's derivative at A's state
+(``ekf_mean="jacobian"``: one model evaluation per A instead of two per step; the hook within
+micrometres) or by the integrator on the model (``"model"``).
 UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points with
 Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
 batched (vectorised) step (fusion/models/batched_model.py: the tip's kinematics once per
 step for the step's input times) and recomputed from (x, P) before every LiDAR update.
+The sigma points step once per ``ukf_window_s`` (25 ms, five MRU samples; fusion/hook_window.py).
 The integrator (``HookFilterConfig.integrator``): the explicit midpoint rule by default, two
-evaluations of the crane model per 5 ms step instead of RK4's four (document 002 4.4); at this
-step the estimates agree to micrometres (the pendulum's and the deflection's periods are
+evaluations of the crane model per step (the UKF's window, the EKF's model mean) instead of
+RK4's four (document 002 4.4); at 5 ms the estimates agree to micrometres (the pendulum's and the deflection's periods are
 seconds; BENCHMARKS.md, tests/fusion).  The
 linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
 linear h the unscented transform gives the same result).  Every correction is
@@ -32,11 +35,11 @@ import math
 from typing import Literal, Sequence
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints
-from scipy.linalg.lapack import dpotrf, dtrtri
 
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
+from boomtip.fusion.hook_kalman_steps import FastMerweSigmaPoints, KalmanState, kalman_correction
+from boomtip.fusion.hook_window import PredictionWindow
 from boomtip.fusion.models.autodiff import accel_jacobian
 from boomtip.fusion.models.batched_model import midpoint_sigma_points, rk4_sigma_points, split_accelerations
 from boomtip.fusion.models.crane_pendulum import (
@@ -65,58 +68,7 @@ from boomtip.fusion.models.jacobian import continuous_jacobian
 __all__ = ["HookKalmanCore", "kalman_correction"]
 
 
-class _State:
-    """The estimate (x, P).  The EKF and UKF equations are written out in :class:`HookKalmanCore`
-    (same equations as filterpy's ExtendedKalmanFilter / UnscentedKalmanFilter; their
-    per-call overhead dominated the 200 Hz loop)."""
-
-    __slots__ = ("x", "P")
-
-    def __init__(self, n: int) -> None:
-        self.x = np.zeros(n)
-        self.P = np.eye(n)
-
-
-class _FastMerweSigmaPoints(MerweScaledSigmaPoints):
-    """filterpy's Merwe points with a vectorised ``sigma_points`` (same result)."""
-
-    def sigma_points(self, x, P):
-        n = self.n
-        lambda_ = self.alpha**2 * (n + self.kappa) - n
-        M = (lambda_ + n) * np.asarray(P)
-        # the upper Cholesky factor U^T U = M (filterpy's default scipy.linalg.cholesky),
-        # straight from LAPACK
-        U, info = dpotrf(M)
-        if info != 0:  # lost positive definiteness: clip the eigenvalues
-            w, V = np.linalg.eigh(0.5 * (M + M.T))
-            U = (V * np.sqrt(np.clip(w, 1e-300, None))).T
-        x = np.asarray(x, float)
-        return np.concatenate([x[None, :], x + U, x - U], axis=0)
-
-
-def kalman_correction(x, P, PHT, S, y, nis=False):
-    """(x + K y, P - K S K^T[, y^T S^-1 y]) for the gain K = PHT S^-1.
-
-    With the Cholesky factor S = U^T U and G = PHT U^-1: K S K^T = G G^T (exactly
-    symmetric) and K y = G (U^-T y).  Two small LAPACK calls instead of numpy.linalg.inv
-    (whose Python overhead dominated the 200 Hz linear updates).
-    """
-    U, info = dpotrf(S)
-    if info == 0:
-        Ui, info = dtrtri(U)
-    if info != 0:  # S not positive definite (a broken P): the plain formulas
-        K = PHT @ np.linalg.inv(S)
-        if nis:
-            return x + K @ y, P - K @ PHT.T, float(y @ np.linalg.solve(S, y))
-        return x + K @ y, P - K @ PHT.T
-    G = PHT @ Ui
-    w = y @ Ui
-    if nis:
-        return x + G @ w, P - G @ G.T, float(w @ w)
-    return x + G @ w, P - G @ G.T
-
-
-class HookKalmanCore:
+class HookKalmanCore(PredictionWindow):
     """Multi-rate estimate of the crane and hook state (document 002 chapter 4): prediction by
     the crane model, updates by the encoders and the MRU, hook outputs from the state."""
 
@@ -150,7 +102,13 @@ class HookKalmanCore:
         self._me_R = np.diag(np.concatenate([self._R_mru, self._R_enc]))
         self._mru_idx = self._me_idx[:4].copy()
         self._mru_R = np.diag(self._R_mru)
+        # the sample kinds of the window's batch: MRU, MRU + encoders, encoders, slew and luff
+        self._kinds = [(self._mru_idx, self._R_mru), (self._me_idx, np.diag(self._me_R).copy()),
+                       (self._me_idx[4:].copy(), self._R_enc), (self._me_idx[4:6].copy(), self._R_enc[:2])]
         self._q_cache: dict[float, np.ndarray] = {}
+        self._q_step_cache: dict[float, np.ndarray] = {}
+        # the UKF's prediction window (HookFilterConfig.ukf_window_s; fusion/hook_window.py)
+        self._init_window(self.cfg.ukf_window_s if kind == "ukf" else 0.0)
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
         self._jac_interval = float(self.cfg.jacobian_interval_s)
@@ -159,12 +117,16 @@ class HookKalmanCore:
         self._F_key: float | None = None
         self._lin_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.n_jacobians = 0
+        # EKF mean by the Jacobian (HookFilterConfig.ekf_mean): the step's affine term for (A,
+        # dt) from the model's derivative at A's state (self._f_offset, as the window's)
+        self._ekf_affine = kind == "ekf" and self.cfg.ekf_mean == "jacobian"
+        self._c_step = np.zeros(n)
         if kind == "ekf" and self.cfg.jacobian == "autodiff":
             accel_jacobian(self._prm, self.flex)  # generate the code now (once per params)
-        self._kf = _State(n)
+        self._kf = KalmanState(n)
         if kind == "ukf":
-            self._pts = _FastMerweSigmaPoints(n, alpha=self.cfg.ukf_alpha, beta=self.cfg.ukf_beta,
-                                              kappa=self.cfg.ukf_kappa)
+            self._pts = FastMerweSigmaPoints(n, alpha=self.cfg.ukf_alpha, beta=self.cfg.ukf_beta,
+                                             kappa=self.cfg.ukf_kappa)
             self._Wm, self._Wc = self._pts.Wm, self._pts.Wc
             self._Wc_half = 0.5 * self._Wc
             # the generated model (tip kinematics once per step); the core itself if untraceable
@@ -178,14 +140,17 @@ class HookKalmanCore:
     # ------------------------------------------------------------------ state access
     @property
     def x(self) -> np.ndarray:
+        """The estimate at the latest sample (a pending window is closed first)."""
+        self._flush()
         return self._kf.x
 
     @property
     def P(self) -> np.ndarray:
+        self._flush()
         return self._kf.P
 
     def state_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in zip(STATE_NAMES, self._kf.x)}
+        return {k: float(v) for k, v in zip(STATE_NAMES, self.x)}
 
     # ------------------------------------------------------------------ initialisation
     def initialize(self, x0: Sequence[float], P0: np.ndarray | None = None, t0: float = 0.0) -> None:
@@ -195,6 +160,7 @@ class HookKalmanCore:
         self._kf.x = x0
         self._kf.P = self._default_P0() if P0 is None else np.array(P0, float)
         self._A = None
+        self._pend_t, self._pend_kind, self._pend_z = [], [], []
         self.t = float(t0)
         self.initialized = True
 
@@ -250,6 +216,14 @@ class HookKalmanCore:
             self._q_cache[key] = Q
         return Q
 
+    def _step_noise(self, dt: float) -> np.ndarray:
+        """Q of one prediction step dt (:meth:`process_noise`, cached)."""
+        key = round(dt, 12)
+        Q = self.process_noise(dt)
+        if len(self._q_step_cache) < 64:
+            self._q_step_cache[key] = Q
+        return Q
+
     # ------------------------------------------------------------------ predict
     def predict(self, dt: float | None = None) -> None:
         """Propagate the estimate by dt seconds (one step of the configured integrator)."""
@@ -258,22 +232,35 @@ class HookKalmanCore:
             return
         kf = self._kf
         key = round(dt, 12)
-        Q = self._q_cache.get(key)
-        if Q is None:
-            Q = self.process_noise(dt)
+        if self.windowed and dt > self.dt_s + 1e-9:
+            Q = self._window_noise(dt)
+        else:
+            Q = self._q_step_cache.get(key)
+            if Q is None:
+                Q = self._step_noise(dt)
         # H = half the propagated covariance (the factor 1/2 is exact): P = H + H^T + Q is
         # the symmetrised P
         if self.kind == "ekf":
             if self._A is None or self.t - self._A_t >= self._jac_interval - 1e-9:
-                self._A = self.continuous_jacobian(kf.x)
+                self._A = A = self.continuous_jacobian(kf.x)
                 self._A_t = self.t
                 self.n_jacobians += 1
                 self._F_key = None
+                if self._ekf_affine:  # f(x) ~ A x + (f(x0) - A x0): only the accelerations' rows
+                    rows = self._acc_rows
+                    self._f_offset[rows] = self._sway_accelerations(kf.x) - A[rows] @ kf.x
             if key != self._F_key:  # F depends on (A, dt) only: rebuilt when either changes
                 Ad = self._A * dt
                 F = self._I + Ad + 0.5 * (Ad @ Ad)
                 self._F, self._Fh, self._F_key = F, 0.5 * F, key
-            kf.x = np.array(self._step_float(self._prm, self.flex, kf.x.tolist(), dt))
+                if self._ekf_affine:  # x' = F x + (dt + A dt^2 / 2) (f(x0) - A x0)
+                    self._c_step = dt * self._f_offset + (0.5 * dt) * (Ad @ self._f_offset)
+            if self._ekf_affine:
+                x = self._F @ kf.x
+                x += self._c_step
+                kf.x = x
+            else:
+                kf.x = np.array(self._step_float(self._prm, self.flex, kf.x.tolist(), dt))
             H = (self._Fh @ kf.P) @ self._F.T
         else:
             # sigma points from (x, P), one batched step, unscented transform
@@ -289,11 +276,21 @@ class HookKalmanCore:
         self.t += dt
 
     def advance_to(self, t: float) -> None:
-        """Predict in steps of at most 1/predict_rate up to time t (no-op for t <= self.t)."""
+        """Apply the pending samples (closing the window), then predict in steps of at most one
+        window (1/predict_rate without one) up to time t (no-op for t <= self.t)."""
+        if self._pend_t:
+            self._flush()
         while t - self.t > 1e-9:
-            self.predict(min(self.dt_s, t - self.t))
+            self.predict(min(self._step, t - self.t))
 
-    # ------------------------------------------------------------------ updates
+    def estimate_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(x, P) at time t, for the outputs (do not modify them). Without a window: the
+        estimate advanced to t; with one: fusion/hook_window.py."""
+        if not self.windowed:
+            self.advance_to(t)
+            return self._kf.x, self._kf.P
+        return self._windowed_estimate(t)
+
     def _linear_update(self, idx: Sequence[int], z: np.ndarray, r_diag: np.ndarray) -> None:
         """Exact Kalman update for z = x[idx] + noise with diagonal R (H selects states):
         K = P H^T S^-1 with S = P[idx, idx] + R.  For a linear h the unscented transform
@@ -319,25 +316,35 @@ class HookKalmanCore:
         W = P.take(ii, 1)  # P H^T, (n, k)
         kf.x, kf.P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
 
+    def _sample(self, kind: int, z: np.ndarray, t: float | None) -> None:
+        """A sample of the crane's sensors (kind: an entry of ``self._kinds``) at time t (None:
+        now): without a window applied at once; with one kept for the window's end."""
+        if not self.windowed or t is None or t - self.t <= 1e-9:
+            if t is not None:
+                self.advance_to(t)
+            elif self._pend_t:
+                self._flush()
+            idx, r = self._kinds[kind]
+            self._linear_update(idx, z, r)
+            return
+        self._enqueue(kind, z, t)
+
     def update_encoders(self, slew_rad: float, luff_rad: float, hoist_m: float | None = None,
                         t: float | None = None) -> None:
-        if t is not None:
-            self.advance_to(t)
         if hoist_m is None or not np.isfinite(hoist_m):
-            idx, z, r = (INU, IMU), np.array([slew_rad, luff_rad]), self._R_enc[:2]
+            self._sample(3, np.array([slew_rad, luff_rad]), t)
         else:
-            idx, z, r = (INU, IMU, IL), np.array([slew_rad, luff_rad, hoist_m]), self._R_enc
-        self._linear_update(idx, z, r)
+            self._sample(2, np.array([slew_rad, luff_rad, hoist_m]), t)
 
     def update_mru(self, roll_rad: float, pitch_rad: float, roll_rate_rad_s: float, pitch_rate_rad_s: float,
                    t: float | None = None) -> None:
-        if t is not None:
-            self.advance_to(t)
-        self._selection_update(self._mru_idx, self._mru_R,
-                               np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]))
+        self.update_mru_sample(np.array([roll_rad, pitch_rad, roll_rate_rad_s, pitch_rate_rad_s]), t)
 
     def update_mru_sample(self, mru: np.ndarray, t: float | None = None) -> None:
         """:meth:`update_mru` with the sample as one array (roll, pitch, roll rate, pitch rate)."""
+        if self.windowed:
+            self._sample(0, mru, t)
+            return
         if t is not None:
             self.advance_to(t)
         self._selection_update(self._mru_idx, self._mru_R, mru)
@@ -346,6 +353,9 @@ class HookKalmanCore:
         """An MRU sample (roll, pitch, roll rate, pitch rate) and an encoder sample (slew, luff,
         hoist) with the same time stamp as one linear update: the same result as one after the
         other (H selects states, R is diagonal)."""
+        if self.windowed:
+            self._sample(1, np.concatenate((mru, encoders)), t)
+            return
         if t is not None:
             self.advance_to(t)
         self._selection_update(self._me_idx, self._me_R, np.concatenate((mru, encoders)))
@@ -353,12 +363,12 @@ class HookKalmanCore:
     # ------------------------------------------------------------------ outputs
     def hook_position_velocity(self) -> tuple[np.ndarray, np.ndarray]:
         """Hook position and velocity relative to the boom tip, world axes."""
-        p, v, _, _ = hook_pos_vel(self._kf.x)
+        p, v, _, _ = hook_pos_vel(self.x)
         return p, v
 
     def hook_position_velocity_covariance(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(p_rel, v_rel, cov_p (3,3), cov_v (3,3)) by first-order propagation of P."""
-        p, v, hp, hv = hook_pos_vel(self._kf.x)
+        p, v, hp, hv = hook_pos_vel(self.x)
         Ps = self._kf.P[HOOK_IX]
         return p, v, hp @ Ps @ hp.T, hv @ Ps @ hv.T
 

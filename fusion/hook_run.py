@@ -224,10 +224,10 @@ def run_hook_filter(
             else:
                 lidar_frame(i, te)
             j += 1
-        filt.advance_to(tk)
+        x_k, P_k = filt.estimate_at(tk)
         r = k % chunk
-        x_buf[r] = filt.x
-        filt.P.take(flat_idx, out=pb_buf[r])
+        x_buf[r] = x_k
+        P_k.take(flat_idx, out=pb_buf[r])
         if r == chunk - 1 or k == n_out - 1:
             flush(k - r, k + 1)
     runtime = time.perf_counter() - tic - sink_s

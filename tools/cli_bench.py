@@ -235,6 +235,9 @@ def bench_hook_cmd(
     for name, u in r["estimators_against_rk4"].items():
         print(f"  {name} with RK4: {u['cpu_s']:.2f} s CPU, {u['cpu_ratio']:.2f}x the chain's {u['cpu_s_chain']:.2f} s; the hook within "
               f"{1e3 * u['max_pos_difference_m']:.4f} mm, {1e3 * u['max_vel_difference_mps']:.4f} mm/s")
+        print(f"  {name} stepwise (before the UKF's window, the EKF's mean by the model): {u['cpu_s_stepwise']:.2f} s CPU, "
+              f"{u['cpu_ratio_stepwise']:.2f}x the chain's; the hook within {1e3 * u['max_pos_difference_stepwise_m']:.4f} mm, "
+              f"{1e3 * u['max_vel_difference_stepwise_mps']:.4f} mm/s")
     print(f"  ratio {r['ratio']:.2f}x real time end to end")
 
 

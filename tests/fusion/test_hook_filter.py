@@ -247,12 +247,48 @@ def test_midpoint_filter_equals_rk4_filter_to_micrometres(truth, ekf_run):
     agrees to a few micrometres and hundredths of a mm/s, its states to a thousandth of their
     standard deviation (on hook-2 the same RMSE and NIS to the printed digits, BENCHMARKS.md)."""
     assert HookFilterConfig().integrator == "midpoint"
-    rk4 = run_hook_filter(measurements_from_truth(truth, seed=7), "ekf", "flexible",
-                          config=HookFilterConfig(integrator="rk4"))
-    assert np.abs(rk4.p_rel - ekf_run.p_rel).max() < 1e-5
-    assert np.abs(rk4.v_rel - ekf_run.v_rel).max() < 2e-4
-    assert (np.abs(rk4.x - ekf_run.x) / np.sqrt(rk4.P_diag)).max() < 5e-3
-    assert np.abs(rk4.x - ekf_run.x).max() > 0  # (not the same code path)
+    meas = measurements_from_truth(truth, seed=7)
+    mid = run_hook_filter(meas, "ekf", "flexible", config=HookFilterConfig(ekf_mean="model"))
+    rk4 = run_hook_filter(meas, "ekf", "flexible", config=HookFilterConfig(ekf_mean="model", integrator="rk4"))
+    assert np.abs(rk4.p_rel - mid.p_rel).max() < 1e-5
+    assert np.abs(rk4.v_rel - mid.v_rel).max() < 2e-4
+    assert (np.abs(rk4.x - mid.x) / np.sqrt(rk4.P_diag)).max() < 5e-3
+    assert np.abs(rk4.x - mid.x).max() > 0  # (not the same code path)
+
+
+def test_ekf_mean_by_the_jacobian_equals_the_model_to_micrometres(truth, ekf_run):
+    """The EKF's mean carried by F about the model's derivative at the Jacobian's state (the
+    default; A every 25 ms) and by the midpoint rule on the model every step: the hook within
+    20 micrometres and 0.5 mm/s over 60 s, the states within 0.005 standard deviations."""
+    assert HookFilterConfig().ekf_mean == "jacobian"
+    model = run_hook_filter(measurements_from_truth(truth, seed=7), "ekf", "flexible",
+                            config=HookFilterConfig(ekf_mean="model"))
+    assert np.abs(model.p_rel - ekf_run.p_rel).max() < 2e-5
+    assert np.abs(model.v_rel - ekf_run.v_rel).max() < 5e-4
+    assert (np.abs(model.x - ekf_run.x) / np.sqrt(model.P_diag)).max() < 5e-3
+    assert np.abs(model.x - ekf_run.x).max() > 0
+
+
+def test_ukf_window_equals_the_stepwise_ukf(truth):
+    """The UKF stepping its sigma points once per 25 ms window (the MRU and encoder samples
+    applied at the window's end; outputs inside it from the linearised model) and once per MRU
+    sample: after 5 s the hook within 0.1 mm and 1.5 mm/s, every state within 0.1 of its
+    standard deviation, the same RMSE and NEES to 1 %."""
+    assert HookFilterConfig().ukf_window_s == 0.025
+    meas = measurements_from_truth(truth, seed=7)
+    win = run_hook_filter(meas, "ukf", "flexible", t_end=20.0)
+    step = run_hook_filter(meas, "ukf", "flexible", config=HookFilterConfig(ukf_window_s=0.005), t_end=20.0)
+    s = step.t >= T_CONVERGE
+    assert np.abs(win.p_rel - step.p_rel)[s].max() < 1e-4
+    assert np.abs(win.v_rel - step.v_rel)[s].max() < 1.5e-3
+    assert (np.abs(win.x - step.x) / np.sqrt(step.P_diag))[s].max() < 0.1
+    stats = []
+    for run in (win, step):
+        e_p, e_v, _, _, sel = _errors(truth, run)
+        nees = np.einsum("ni,nij,nj->n", e_p, np.linalg.inv(run.cov_p[sel]), e_p).mean()
+        stats.append(np.concatenate([rmse_per_axis(e_p, 0), rmse_per_axis(e_v, 0), [nees]]))
+    np.testing.assert_allclose(stats[0], stats[1], rtol=0.01)
+    assert np.abs(win.x - step.x).max() > 0
 
 
 def test_linear_update_equals_sequential_scalar_updates():

@@ -1,0 +1,179 @@
+"""The UKF's prediction window (``HookFilterConfig.ukf_window_s``), a part of
+:class:`~boomtip.fusion.hook_kalman_core.HookKalmanCore` (its estimate, prediction and Jacobian).
+
+The sigma points step once per window (25 ms, five MRU samples). The MRU and encoder samples of
+a window wait for its end and are applied there as one linear update, each row its chain's
+state extrapolated back to the sample's time (fusion/models/linear_chains.py); a LiDAR frame
+closes the window at its time. The window's Q is the noise of its 5 ms steps carried to its end
+by the model linearised (A = df/dx) at its start: the vessel's and the joints' noise moves the
+sway within the window (the relative sway rate follows the roll rate at once). The outputs
+inside a window are its start with its samples so far applied one by one, carried by that
+linearisation. The same estimates as a sigma-point step per sample to 0.1 mm of the hook
+(tests/fusion), at a fifth of the model's cost.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from boomtip.data.crane_model import pendulum_accelerations_core
+from boomtip.fusion.hook_kalman_steps import kalman_correction
+from boomtip.fusion.models.crane_pendulum import IAD, IBD, IF, IFD
+from boomtip.fusion.models.linear_chains import accumulated_noise, sample_rows
+
+__all__ = ["PredictionWindow"]
+
+
+class PredictionWindow:
+    """The window's samples, its linearisation and the outputs inside it (mixed into
+    :class:`~boomtip.fusion.hook_kalman_core.HookKalmanCore`)."""
+
+    def _init_window(self, window_s: float) -> None:
+        self._window = float(window_s)
+        self.windowed = self._window > self.dt_s + 1e-12
+        self._step = self._window if self.windowed else self.dt_s
+        # samples (time, kind, values) waiting for the window's end; a kind is an entry of
+        # self._kinds (measured states, noise variances); the batches' (H, R) per pattern
+        self._pend_t: list[float] = []
+        self._pend_kind: list[int] = []
+        self._pend_z: list[np.ndarray] = []
+        self._batch_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        # the window's linearisation: the state it was taken at, A there, the model's derivative
+        # less A x there (non-zero in the accelerations' rows), and per step length tau the
+        # (F, c) of x' = F x + c
+        self._acc_rows = np.array([IAD, IBD, IFD] if self.flex else [IAD, IBD], np.intp)
+        self._lin_x: np.ndarray | None = None
+        self._A_win: np.ndarray | None = None
+        self._f_offset = np.zeros(self.n)
+        self._lin_steps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        # the outputs inside a window: (x, P, t, samples applied) and the window start's x
+        self._int: tuple[np.ndarray, np.ndarray, float, int] | None = None
+        self._int_base: np.ndarray | None = None
+
+    def _enqueue(self, kind: int, z, t: float) -> None:
+        """A sample for the window's end (a sample beyond the window closes it first)."""
+        if t - self.t > self._window + 1e-9:
+            self._flush()
+            while t - self.t > self._window + 1e-9:
+                self.predict(self._window)
+        self._pend_t.append(t)
+        self._pend_kind.append(kind)
+        self._pend_z.append(np.asarray(z, float))
+
+    def _windowed_estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`estimate_at` with a window: a complete window is closed first; inside one the
+        estimate at its start with its samples so far applied one by one, carried by the model
+        linearised at its start."""
+        if self._pend_t and t - self.t >= self._window - 1e-9:
+            self._flush()
+        while t - self.t >= self._window - 1e-9:
+            self.predict(self._window)
+        kf = self._kf
+        x, P, t0, applied = self._int if self._int_base is kf.x else (kf.x, kf.P, self.t, 0)
+        if applied < len(self._pend_t):
+            # the window's samples not yet in the outputs' estimate, one by one (the window's end
+            # applies them again, with the crane model's step, to the estimate at its start)
+            for tj, kind, z in zip(self._pend_t[applied:], self._pend_kind[applied:], self._pend_z[applied:]):
+                x, P = self._linear_prediction(x, P, tj - t0)
+                ii, R = self._selection(kind)
+                if not math.isfinite(z.sum()):
+                    keep = np.isfinite(z)
+                    ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
+                if len(z):
+                    W = P.take(ii, 1)
+                    x, P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
+                t0 = tj
+            self._int, self._int_base = (x, P, t0, len(self._pend_t)), kf.x
+        if t - t0 <= 1e-9:
+            return x, P
+        return self._linear_prediction(x, P, t - t0)
+
+    def _window_noise(self, dt: float) -> np.ndarray:
+        """Q of a window dt: the noise its steps of at most 1 / predict_rate add, each carried
+        to the window's end by the model linearised at its start (the discrete models' variance
+        per second depends on their step; and the vessel's and the joints' noise moves the sway
+        within the window: the relative sway rate follows the roll rate at once)."""
+        m = max(1, math.ceil(dt / self.dt_s - 1e-9))
+        h = dt / m
+        Qh = self._q_step_cache.get(round(h, 12))
+        if Qh is None:
+            Qh = self._step_noise(h)
+        return Qh if m == 1 else accumulated_noise(Qh, self._linear_step(h)[0], m)
+
+    def _selection(self, kind: int) -> tuple[np.ndarray, np.ndarray]:
+        """(measured state indices, R) of a sample kind (an entry of ``self._kinds``)."""
+        c = self._lin_cache.get((kind,))
+        if c is None:
+            idx, r = self._kinds[kind]
+            c = self._lin_cache[(kind,)] = (np.array(idx, np.intp), np.diag(r))
+        return c
+
+    def _linear_step(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """(F, c) of the step x' = F x + c over tau of the model linearised at the window's start
+        x0 (the estimate at self.t): A = df/dx there, F = I + A tau + (A tau)^2 / 2 and
+        f(x) ~ A x + (f(x0) - A x0), as the EKF's mean (HookFilterConfig.ekf_mean)."""
+        kf = self._kf
+        if self._lin_x is not kf.x:
+            A = self.continuous_jacobian(kf.x)
+            self.n_jacobians += 1
+            rows = self._acc_rows
+            self._f_offset = np.zeros(self.n)
+            self._f_offset[rows] = self._sway_accelerations(kf.x) - A[rows] @ kf.x
+            self._A_win, self._lin_x, self._lin_steps = A, kf.x, {}
+        key = round(tau, 12)
+        st = self._lin_steps.get(key)
+        if st is None:
+            Ad = self._A_win * tau
+            st = self._lin_steps[key] = (self._I + Ad + 0.5 * (Ad @ Ad),
+                                         tau * self._f_offset + (0.5 * tau) * (Ad @ self._f_offset))
+        return st
+
+    def _linear_prediction(self, x: np.ndarray, P: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """(x, P) carried over tau inside a window by the model linearised at its start."""
+        F, c = self._linear_step(tau)
+        Q = self._q_step_cache.get(round(tau, 12))
+        if Q is None:
+            Q = self._step_noise(tau)
+        P = (F @ P) @ F.T
+        P += Q
+        x = F @ x
+        x += c
+        return x, P
+
+    def _sway_accelerations(self, x: np.ndarray) -> np.ndarray:
+        """(a'', b''[, nu_f'']) of the crane model at the state x."""
+        xl = x.tolist()
+        f, fd = (xl[IF], xl[IFD]) if self.flex else (0.0, 0.0)
+        acc = pendulum_accelerations_core(math.sin, math.cos, self._prm, self.flex, *xl[:19], f, fd)
+        return np.array(acc[:3] if self.flex else acc[:2])
+
+    def _flush(self) -> None:
+        """Close the window: predict to its last sample's time and apply its samples as one
+        linear update, each row its state extrapolated back to the sample's time
+        (fusion/models/linear_chains.py)."""
+        if not self._pend_t:
+            return
+        T = self._pend_t[-1]
+        if T - self.t > 1e-12:
+            self.predict(T - self.t)
+        pattern = (tuple(self._pend_kind), tuple(round(T - tj, 9) for tj in self._pend_t))
+        z = np.concatenate(self._pend_z)
+        self._pend_t, self._pend_kind, self._pend_z = [], [], []
+        c = self._batch_cache.get(pattern)
+        if c is None:
+            kinds = [self._kinds[k] for k in pattern[0]]
+            c = (np.vstack([sample_rows(idx, tau, self.n) for (idx, _), tau in zip(kinds, pattern[1])]),
+                 np.diag(np.concatenate([r for _, r in kinds])))
+            if len(self._batch_cache) < 256:
+                self._batch_cache[pattern] = c
+        H, R = c
+        if not math.isfinite(z.sum()):  # a NaN sample updates nothing
+            keep = np.isfinite(z)
+            if not keep.any():
+                return
+            H, R, z = H[keep], R[np.ix_(keep, keep)], z[keep]
+        kf = self._kf
+        PHT = kf.P @ H.T
+        kf.x, kf.P = kalman_correction(kf.x, kf.P, PHT, H @ PHT + R, z - H @ kf.x)
