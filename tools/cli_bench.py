@@ -235,7 +235,11 @@ def bench_hook_cmd(
     for name, u in r["estimators_against_rk4"].items():
         print(f"  {name} with RK4: {u['cpu_s']:.2f} s CPU, {u['cpu_ratio']:.2f}x the chain's {u['cpu_s_chain']:.2f} s; the hook within "
               f"{1e3 * u['max_pos_difference_m']:.4f} mm, {1e3 * u['max_vel_difference_mps']:.4f} mm/s")
-    print(f"  ratio {r['ratio']:.2f}x real time end to end")
+    t = r["end_to_end_two_cores"]
+    print(f"  the run end to end: serial {t['wall_s']['serial']:.2f} s ({t['realtime_factor']['serial']:.2f}x real time), "
+          f"on two cores {t['wall_s']['two_cores']:.2f} s, {t['speedup']:.2f}x faster; same outputs: "
+          + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in t["same_outputs"].items()))
+    print(f"  ratio {r['ratio']:.2f}x real time end to end (on two cores)")
 
 
 @bench_app.command("feeder")
