@@ -12,7 +12,9 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+import signal
 import traceback
+from queue import Full
 from typing import Callable, Iterator, Sequence
 
 from boomtip.data.frames import Frame, FrameSource
@@ -40,13 +42,34 @@ def parallel_enabled() -> bool:
             and "fork" in mp.get_all_start_methods())
 
 
-def _produce(source: FrameSource, queue) -> None:
+def _as_child() -> None:
+    """A child's signals: the parent decides. Ctrl-C reaches the whole process group, so the child
+    ignores it (the parent stops it); SIGTERM, which the CLI turns into KeyboardInterrupt so that a
+    run cleans up, ends the child at once (its parent's clean-up sends it)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _put(queue, item, parent_pid: int) -> None:
+    """queue.put, giving up when the parent is gone (nobody would ever read it)."""
+    while True:
+        try:
+            queue.put(item, timeout=1.0)
+            return
+        except Full:
+            if os.getppid() != parent_pid:
+                queue.cancel_join_thread()
+                os._exit(1)
+
+
+def _produce(source: FrameSource, queue, parent_pid: int) -> None:
+    _as_child()
     try:
         for frame in source:
-            queue.put(("frame", frame))
-        queue.put(("end", None))
+            _put(queue, ("frame", frame), parent_pid)
+        _put(queue, ("end", None), parent_pid)
     except BaseException as exc:  # the parent re-raises it
-        queue.put(("error", _picklable(exc)))
+        _put(queue, ("error", _picklable(exc)), parent_pid)
     queue.close()
     queue.join_thread()
 
@@ -65,7 +88,7 @@ def frames_in_child(source: FrameSource) -> Iterator[Frame]:
     """The source's frames in order, made by a forked child up to FRAMES_AHEAD ahead."""
     ctx = mp.get_context("fork")
     queue = ctx.Queue(FRAMES_AHEAD)
-    proc = ctx.Process(target=_produce, args=(source, queue), name="boomtip-frames", daemon=True)
+    proc = ctx.Process(target=_produce, args=(source, queue, os.getpid()), name="boomtip-frames", daemon=True)
     proc.start()
     try:
         while True:
@@ -78,10 +101,17 @@ def frames_in_child(source: FrameSource) -> Iterator[Frame]:
                 raise payload
         proc.join()
     finally:
-        if proc.is_alive():  # the consumer stopped early or failed: the child's work is not wanted
-            proc.terminate()
-            proc.join()
+        _stop(proc)  # when the consumer stopped early or failed: the child's work is not wanted
         queue.close()
+
+
+def _stop(proc) -> None:
+    if proc.is_alive():
+        proc.terminate()
+        proc.join(5.0)
+    if proc.is_alive():
+        proc.kill()
+    proc.join()
 
 
 def split_by_cost(costs: dict[str, float]) -> tuple[list[str], list[str]]:
@@ -98,6 +128,7 @@ def split_by_cost(costs: dict[str, float]) -> tuple[list[str], list[str]]:
 
 
 def _run_group(jobs: Sequence[str], work: Callable[[str], object], conn) -> None:
+    _as_child()
     try:
         conn.send(("ok", [(name, work(name)) for name in jobs]))
     except BaseException as exc:
@@ -123,9 +154,7 @@ def run_split(names: Sequence[str], costs: dict[str, float], work: Callable[[str
         kind, payload = recv.recv()
         proc.join()
     finally:
-        if proc.is_alive():
-            proc.terminate()
-            proc.join()
+        _stop(proc)
         recv.close()
     if kind == "error":
         raise payload

@@ -111,3 +111,21 @@ def test_run_split_returns_each_jobs_result_in_the_given_order():
     for costs in ({"bb": 2.0}, {"a": 2.0}):  # the failing job in the child, then in this process
         with pytest.raises(ValueError, match="no job bb"):
             workers.run_split(["a", "bb"], costs, fails_on_bb)
+
+
+def test_stopping_early_ends_the_child_under_the_clis_sigterm_handler():
+    """The CLI turns SIGTERM into KeyboardInterrupt; the child, blocked on a full queue, still ends."""
+    import multiprocessing as mp
+    import signal
+
+    from boomtip.tools.cli_common import terminate_like_interrupt
+
+    saved = signal.getsignal(signal.SIGTERM)
+    try:
+        terminate_like_interrupt()
+        it = workers.frames_in_child(_Counting(1000))
+        assert next(it).index == 0
+        it.close()
+    finally:
+        signal.signal(signal.SIGTERM, saved)
+    assert not [p for p in mp.active_children() if p.name == "boomtip-frames"]
