@@ -240,6 +240,9 @@ def bench_hook_cmd(
     print(f"  the run end to end: serial {t['wall_s']['serial']:.2f} s ({t['realtime_factor']['serial']:.2f}x real time), "
           f"on two cores {t['wall_s']['two_cores']:.2f} s, {t['speedup']:.2f}x faster; same outputs: "
           + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in t["same_outputs"].items()))
+    print(f"  by CPU time: serial {t['cpu_s_own']['serial']:.2f} s; on two cores {t['cpu_s_with_children']['two_cores']:.2f} s "
+          f"in all, {t['cpu_s_own']['two_cores']:.2f} s in the parent (an idle machine at best "
+          f"{t['realtime_factor_parent_cpu']:.2f}x real time)")
     print(f"  ratio {r['ratio']:.2f}x real time end to end (on two cores)")
 
 

@@ -59,3 +59,4 @@ def test_the_whole_bench_runs_and_the_integrators_agree():
     assert two["same_outputs"] == {"hook_estimates.csv": True, "hook_measurements.csv": True, "kpis.json": True}
     assert all(len(v) == 2 and min(v) > 0 for v in two["wall_s_each"].values())
     assert r["ratio"] == pytest.approx(1.0 / two["wall_s"]["two_cores"])
+    assert 0 < two["cpu_s_own"]["two_cores"] < two["cpu_s_with_children"]["two_cores"]
