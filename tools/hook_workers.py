@@ -21,7 +21,7 @@ from boomtip.data.frames import Frame, FrameSource
 
 __all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost"]
 
-FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (each a few MB)
+FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (hook-2: 0.6 MB each)
 _serial_depth = 0
 
 
