@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from boomtip.data.block_model import lower_block_mesh, visible_model_points
 
 __all__ = ["BlockModel", "block_model", "BlockFootprint", "block_footprint", "rotation_hanging", "rot_z",
-           "hanging_pose"]
+           "rotations_z", "hanging_pose"]
 
 
 class BlockModel:
@@ -42,9 +42,12 @@ class BlockModel:
         self.lo = self.points.min(axis=0) - margin_m
         self.shape = np.ceil((self.points.max(axis=0) + margin_m - self.lo) / grid_cell_m).astype(np.int64) + 1
         axes = [self.lo[i] + (np.arange(self.shape[i]) + 0.5) * grid_cell_m for i in range(3)]
-        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        d, idx = self.tree.query(centres, distance_upper_bound=margin_m + grid_cell_m, workers=-1)
-        self.grid = np.where(np.isfinite(d), idx, -1).astype(np.int32).reshape(tuple(self.shape))
+        self.grid = np.empty(tuple(self.shape), np.int32)
+        # in slabs along x: all 600,000 cell centres and their answers at once were about 40 MB
+        for a in range(0, self.shape[0], 16):
+            centres = np.stack(np.meshgrid(axes[0][a:a + 16], axes[1], axes[2], indexing="ij"), axis=-1).reshape(-1, 3)
+            d, idx = self.tree.query(centres, distance_upper_bound=margin_m + grid_cell_m, workers=-1)
+            self.grid[a:a + 16] = np.where(np.isfinite(d), idx, -1).reshape(-1, *self.shape[1:])
         self._grid_flat = self.grid.ravel()
         self._strides = np.array([self.shape[1] * self.shape[2], self.shape[2], 1], np.int64)
         self._shape_u = self.shape.astype(np.uint64)
@@ -61,16 +64,17 @@ class BlockModel:
         """Grid lookup: (distance, index); distance inf and index -1 outside the grid's reach."""
         c = np.floor((q - self.lo) / self.cell).astype(np.int64)
         # one unsigned test for 0 <= c < shape (a negative index wraps to a huge one)
-        inside = (c.view(np.uint64) < self._shape_u).all(axis=1)
-        if inside.all():  # the usual case in the ICP: no masks
+        in_range = c.view(np.uint64) < self._shape_u
+        if in_range.all():  # the usual case in the ICP: no masks (one reduction, not one per row)
             idx = self._grid_flat[c @ self._strides]
         else:
+            inside = in_range.all(axis=1)
             idx = np.full(len(q), -1, dtype=np.int32)
             idx[inside] = self._grid_flat[c[inside] @ self._strides]
-        ok = idx >= 0
-        if ok.all():
+        if idx.min(initial=0) >= 0:
             diff = q - self.points[idx]
             return np.sqrt(np.einsum("ij,ij->i", diff, diff)), idx
+        ok = idx >= 0
         d = np.full(len(q), np.inf)
         diff = q[ok] - self.points[idx[ok]]
         d[ok] = np.sqrt(np.einsum("ij,ij->i", diff, diff))
@@ -143,6 +147,14 @@ def rot_z(psi: float) -> np.ndarray:
     """Rotation by psi about z (the block's yaw about the rope)."""
     c, s = math.cos(psi), math.sin(psi)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotations_z(psi: np.ndarray) -> np.ndarray:
+    """(S, 3, 3): :func:`rot_z` of each angle in psi (S,)."""
+    c, s = np.cos(psi), np.sin(psi)
+    R = np.zeros((len(psi), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    return R
 
 
 def hanging_pose(t: np.ndarray, yaw: float) -> np.ndarray:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from boomtip.data.block_model import SHEAVE_CROWN_Z_M
-from boomtip.perception.hook_block import BlockModel, block_model, hanging_pose, rot_z, rotation_hanging
+from boomtip.perception.hook_block import BlockModel, block_model, hanging_pose, rot_z, rotation_hanging, rotations_z
 from boomtip.perception.hook_types import HookConfig
 
 __all__ = ["BlockFit", "icp_4dof", "icp_4dof_starts", "score_pose", "score_poses", "fit_block"]
@@ -81,23 +81,16 @@ def score_pose(p: np.ndarray, t: np.ndarray, yaw: float, model: BlockModel, cfg:
 
 def _hanging_rotations(T: np.ndarray) -> np.ndarray:
     """(S, 3, 3): :func:`rotation_hanging` of each row of T (S, 3), the same formula on arrays."""
-    b = -T / np.sqrt(np.einsum("ij,ij->i", T, T))[:, None]
-    k = (1.0 + b[:, 2])[:, None, None]
+    nb = T / np.sqrt(np.einsum("ij,ij->i", T, T))[:, None]  # -b
+    b = -nb
+    k = 1.0 + b[:, 2]
     R = np.empty((len(T), 3, 3))
-    R[:, :2, :2] = (b[:, :2, None] * -b[:, None, :2]) / k  # (b_i * -b_j) / k
+    R[:, :2, :2] = (b[:, :2, None] * nb[:, None, :2]) / k[:, None, None]  # (b_i * -b_j) / k
     R[:, 0, 0] += 1.0
     R[:, 1, 1] += 1.0
     R[:, :2, 2] = b[:, :2]
-    R[:, 2, :2] = -b[:, :2]
-    R[:, 2, 2] = 1.0 + ((-b[:, 0] * b[:, 0]) + (-b[:, 1] * b[:, 1])) / k[:, 0, 0]
-    return R
-
-
-def _rotations_z(yaw: np.ndarray) -> np.ndarray:
-    """(S, 3, 3): :func:`rot_z` of each yaw."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    R = np.zeros((len(yaw), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    R[:, 2, :2] = nb[:, :2]
+    R[:, 2, 2] = 1.0 + (R[:, 2, 0] * b[:, 0] + R[:, 2, 1] * b[:, 1]) / k
     return R
 
 
@@ -118,7 +111,7 @@ def icp_4dof_starts(p: np.ndarray, T0: np.ndarray, yaw0: np.ndarray, model: Bloc
         thr = cfg.icp_max_correspondence_m if coarse else cfg.icp_final_correspondence_m
         t = T[active]
         Ru = _hanging_rotations(t)
-        Rz = _rotations_z(yaw[active])
+        Rz = rotations_z(yaw[active])
         # model frame: Rz^T Ru^T (p - t), as in icp_4dof
         q = p @ (Ru @ Rz) - ((t[:, None, :] @ Ru) @ Rz)
         d, idx = model.nearest_grid(q.reshape(-1, 3))
@@ -137,7 +130,7 @@ def icp_4dof_starts(p: np.ndarray, T0: np.ndarray, yaw0: np.ndarray, model: Bloc
         # 2-D Procrustes per start: the cross-covariance of the centred xy coordinates
         H = np.einsum("sni,snj->sij", np.where(w[:, :, :2], m[:, :, :2] - mc[:, None, :2], 0.0), x[:, :, :2] - xc[:, None, :2])
         yaw_new = np.arctan2(H[:, 0, 1] - H[:, 1, 0], H[:, 0, 0] + H[:, 1, 1])
-        t_new = np.einsum("sij,sj->si", Ru, xc - np.einsum("sij,sj->si", _rotations_z(yaw_new), mc))
+        t_new = np.einsum("sij,sj->si", Ru, xc - np.einsum("sij,sj->si", rotations_z(yaw_new), mc))
         dt = t_new - t
         T[active], yaw[active] = t_new, yaw_new
         if not coarse:
@@ -147,7 +140,7 @@ def icp_4dof_starts(p: np.ndarray, T0: np.ndarray, yaw0: np.ndarray, model: Bloc
 
 def score_poses(p: np.ndarray, T: np.ndarray, yaws: np.ndarray, model: BlockModel, cfg: HookConfig) -> list[BlockFit]:
     """:func:`score_pose` of S poses (T (S, 3), yaws (S,)) with one KD-tree query."""
-    R = _hanging_rotations(T) @ _rotations_z(yaws)
+    R = _hanging_rotations(T) @ rotations_z(yaws)
     d, _ = model.nearest(((p[None] - T[:, None, :]) @ R).reshape(-1, 3))
     d = d.reshape(len(T), -1)
     out = []

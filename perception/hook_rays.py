@@ -12,7 +12,7 @@ import numpy as np
 import open3d as o3d
 
 from boomtip.data.block_model import AMBIGUOUS_SHIFTS_M, BODY_TOP_Z_M, BODY_XY_M, SHEAVE_CROWN_Z_M
-from boomtip.perception.hook_block import BlockModel, hanging_pose, rot_z, rotation_hanging
+from boomtip.perception.hook_block import BlockModel, hanging_pose, rot_z, rotation_hanging, rotations_z
 from boomtip.perception.hook_types import HookConfig
 
 __all__ = ["RayEvidence", "ray_evidence", "ray_sigma", "ray_pick", "ray_refine"]
@@ -42,12 +42,12 @@ def _ray_costs(model: BlockModel, t_c: np.ndarray, yaw_c: np.ndarray, offs: np.n
         Ru = rotation_hanging(t_c[c])
         T = t_c[c][None] + offs @ Ru[:, :2].T  # (P, 3)
         yc = yaw_c[c] + dyaw
-        Rys = np.stack([Ru @ rot_z(y) for y in yc])  # (Y, 3, 3)
-        rays[c, ..., :3] = np.einsum("yji,pj->ypi", Rys, s[None] - T)[:, :, None, :]  # ray origins, block frame
-        rays[c, ..., 3:] = np.einsum("yji,kj->yki", Rys, d)[:, None, :, :]  # ray directions, block frame
+        Rys = Ru @ rotations_z(yc)  # (Y, 3, 3)
+        rays[c, ..., :3] = ((s[None] - T) @ Rys)[:, :, None, :]  # ray origins, block frame
+        rays[c, ..., 3:] = (d @ Rys)[:, None, :, :]  # ray directions, block frame
         Ts.append(T)
         yaws.append(yc)
-    th = model.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))["t_hit"].numpy().reshape(C * Y * P, K)
+    th = model.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))["t_hit"].numpy().reshape(C * Y * P, K)
     hit = np.isfinite(th)
     e = np.where(hit, r[None] - np.where(hit, th, 0.0), 0.0)
     use = hit & blk[None] & (np.abs(e) < 0.3)
@@ -80,12 +80,17 @@ def ray_evidence(pts: np.ndarray, blk_mask: np.ndarray, t0: np.ndarray, yaw0: fl
     pose in the search. Subsampled to ray_max_block + ray_max_other."""
     a = t0 - s
     ra = float(np.linalg.norm(a))
-    v = pts - s
-    r = np.sqrt(np.einsum("ij,ij->i", v, v))
     cos_lim = math.cos((model.radius_m + cfg.ray_cone_margin_m) / ra)
+    # A ray in the cone with r > ra - 1 reaches along the cone's axis beyond cos_lim (ra - 1): a
+    # cheap first cut (10 cm of slack for rounding) keeps the tests below to the few points near
+    # the block's line of sight instead of the whole frame; they are the same tests on the same values.
+    reach_along = cos_lim * max(ra - 1.0, 0.0) - 0.1 if cos_lim > 0 else -np.inf  # (a cone wider than 180 deg: no cut)
+    near = np.flatnonzero(pts @ (a / ra) > float(s @ (a / ra)) + reach_along)
+    v = pts[near] - s
+    r = np.sqrt(np.einsum("ij,ij->i", v, v))
     ev = (v @ (a / ra) > cos_lim * r) & (r > ra - 1.0)
-    ib = np.flatnonzero(ev & blk_mask)
-    io = np.flatnonzero(ev & ~blk_mask)
+    ib = np.flatnonzero(ev & blk_mask[near])
+    io = np.flatnonzero(ev & ~blk_mask[near])
     R0 = hanging_pose(t0, yaw0)
     ob = R0.T @ (s - t0)
     db = (v[io] / r[io, None]) @ R0
@@ -93,11 +98,12 @@ def ray_evidence(pts: np.ndarray, blk_mask: np.ndarray, t0: np.ndarray, yaw0: fl
     xy = ob[None, :2] + lam[:, None] * db[:, :2]
     out = np.maximum(np.abs(xy) - 0.5 * np.asarray(BODY_XY_M), 0.0)
     io = io[np.hypot(out[:, 0], out[:, 1]) < reach_m + 0.15]
+    ib, io = near[ib], near[io]  # indices into the frame, as the subsampling draws them
     if len(ib) > cfg.ray_max_block:
         ib = rng.choice(ib, cfg.ray_max_block, replace=False)
     if len(io) > cfg.ray_max_other:
         io = rng.choice(io, cfg.ray_max_other, replace=False)
-    idx = np.concatenate([ib, io])
+    idx = np.searchsorted(near, np.concatenate([ib, io]))  # back to rows of v and r
     blk = np.zeros(len(idx), dtype=bool)
     blk[: len(ib)] = True
     return RayEvidence(s, v[idx] / r[idx, None], r[idx], blk)

@@ -219,7 +219,8 @@ def bench_hook_cmd(
     print(f"  {'outputs':28s} {r['wall_s']['outputs']:8.2f}")
     for name, e in r["estimators"].items():
         print(f"  {name:28s} {e['runtime_s']:8.2f} {e['percent_of_real_time']:10.2f} % of real time")
-    print(f"  block segmentation + fit: {r['block_ms_per_frame']['mean']:.1f} ms/frame (p95 {r['block_ms_per_frame']['p95']:.1f}); "
+    print(f"  block segmentation + fit: {r['block_ms_per_frame']['mean']:.1f} ms/frame (p95 {r['block_ms_per_frame']['p95']:.1f}; "
+          f"the first frame, which builds the block model, {r['block_ms_per_frame']['first_frame']:.0f} ms); "
           f"rope fit {r['rope_ms_per_frame']['mean']:.1f} ms/frame; peak RSS {r['peak_rss_mb']:.0f} MB")
     b = r["block_against_reference"]
     print(f"  block segmentation + fit against its reference (tools/hook_reference.py), same frames, CPU: "
@@ -238,7 +239,14 @@ def bench_hook_cmd(
         print(f"  {name} stepwise (before the UKF's window, the EKF's mean by the model): {u['cpu_s_stepwise']:.2f} s CPU, "
               f"{u['cpu_ratio_stepwise']:.2f}x the chain's; the hook within {1e3 * u['max_pos_difference_stepwise_m']:.4f} mm, "
               f"{1e3 * u['max_vel_difference_stepwise_mps']:.4f} mm/s")
-    print(f"  ratio {r['ratio']:.2f}x real time end to end")
+    t = r["end_to_end_two_cores"]
+    print(f"  the run end to end: serial {t['wall_s']['serial']:.2f} s ({t['realtime_factor']['serial']:.2f}x real time), "
+          f"on two cores {t['wall_s']['two_cores']:.2f} s, {t['speedup']:.2f}x faster; same outputs: "
+          + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in t["same_outputs"].items()))
+    print(f"  by CPU time: serial {t['cpu_s_own']['serial']:.2f} s; on two cores {t['cpu_s_with_children']['two_cores']:.2f} s "
+          f"in all, {t['cpu_s_own']['two_cores']:.2f} s in the parent (an idle machine at best "
+          f"{t['realtime_factor_parent_cpu']:.2f}x real time)")
+    print(f"  ratio {r['ratio']:.2f}x real time end to end (on two cores)")
 
 
 @bench_app.command("feeder")

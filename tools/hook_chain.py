@@ -20,6 +20,7 @@ from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.data.installation import CraneSpec, Installation, LidarSpec
 from boomtip.data.meshes import Label
 from boomtip.data.processing import Processing
+from boomtip.data.sim.simulator import Simulation
 from boomtip.fusion.hook_run import HookFilterRun, HookMeasurements, run_hook_filter
 from boomtip.fusion.hook_tracker import HookTracker
 from boomtip.perception.geometry import rpy_matrix
@@ -27,6 +28,7 @@ from boomtip.perception.hook import HookDetection, detect_hook, segmentation_sco
 from boomtip.perception.rope import RopeFix, fit_rope
 from boomtip.perception.timing import StageTimes
 from boomtip.tools import hook_outputs as outputs
+from boomtip.tools import hook_workers as workers
 from boomtip.tools.hook_rows import FrameRows
 from boomtip.tools.hook_store import P_REL, EstimateStore
 from boomtip.tools.runner import ChainError
@@ -37,6 +39,9 @@ ROW_DEFAULTS = {"x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sig
                 "pred_sigma_across_m": np.nan, "rope_status": "", "rope_points": 0, "rope_ux": np.nan,
                 "rope_uy": np.nan, "rope_uz": np.nan, "rope_sigma_across_m": np.nan, "rope_accepted": False,
                 "rope_precision": np.nan, "rope_radius_m": np.nan}
+# each estimator's CPU time relative to the others (bench hook, 20 s of hook-2): to split them
+# evenly between two cores
+ESTIMATOR_COST = {"ukf_flexible": 5.3, "ukf_rigid": 2.9, "ekf_flexible": 0.95, "ekf_rigid": 0.85}
 
 
 def nominal_crane_params(crane: CraneSpec, flexible: bool = True) -> CraneParams:
@@ -138,6 +143,13 @@ class HookChain:
         self.rows.append(res.row, res.cov, res.rope.direction if ok else None, res.rope.cov if ok else None)
         return res
 
+    def frames(self, source: FrameSource):
+        """The source's frames: a simulation's made on the second core while this one perceives
+        (the simulator's ray casting costs about as much as the perception)."""
+        if workers.parallel_enabled() and isinstance(source, Simulation):
+            return workers.frames_in_child(source)
+        return iter(source)
+
     def _perceive(self, frame: Frame, res: HookFrameResult, times: StageTimes) -> None:
         row, t = res.row, frame.t_s
         with times.stage("hook.track"):
@@ -211,13 +223,21 @@ class HookChain:
             t_encoders=self.enc["t"], encoders=self.enc_table, t_mru=self.mru.t_s, mru=self.mru_table,
             lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
         )
-        runs, stores = {}, {}
-        for name in self.estimators:
+        # each run's samples go to disk as they come: a run's memory stays flat in its length
+        stores = {name: EstimateStore(self.params) for name in self.estimators}
+
+        def estimate(name: str):
             kind, model = name.split("_")
-            # each run's samples go to disk as they come: a run's memory stays flat in its length
-            stores[name] = EstimateStore(self.params)
-            runs[name] = run_hook_filter(meas, kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
-                                         self.filter_cfg, sink=stores[name])
+            run = run_hook_filter(meas, kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
+                                  self.filter_cfg, sink=stores[name])
+            return run, stores[name].state()
+
+        # the estimators are independent: shared between this process and a forked child
+        done = workers.run_split(self.estimators, ESTIMATOR_COST, estimate)
+        runs = {}
+        for name, (run, state) in done.items():
+            stores[name].adopt(state)
+            runs[name] = run
         return HookResult(rows, meas, runs, stores)
 
     # -- outputs -------------------------------------------------------------------------

@@ -53,6 +53,7 @@ class EstimateStore:
         self.params = params
         self._file: IO[bytes] = tempfile.TemporaryFile(prefix="boomtip-hook-")
         self._sha1 = hashlib.sha1()
+        self._sha1_hex: str | None = None  # the digest of a run filled by another process
         self.n = 0
         self.t_first = self.t_last = float("nan")
 
@@ -71,7 +72,17 @@ class EstimateStore:
 
     @property
     def states_sha1(self) -> str:
-        return self._sha1.hexdigest()
+        return self._sha1_hex or self._sha1.hexdigest()
+
+    def state(self) -> tuple[int, float, float, str]:
+        """What another process needs to read this store (its file is shared through a fork):
+        flushes the samples to the file first."""
+        self._file.flush()
+        return self.n, self.t_first, self.t_last, self.states_sha1
+
+    def adopt(self, state: tuple[int, float, float, str]) -> None:
+        """Take the samples another process wrote to this store's file (``state()`` there)."""
+        self.n, self.t_first, self.t_last, self._sha1_hex = state
 
     def chunks(self, size: int | None = None) -> Iterator[StoredSamples]:
         """The samples in order, ``size`` (default READ_CHUNK) at a time."""

@@ -105,7 +105,7 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     chain = build_chain(source, processing_for(source, processing))
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
     frames = 0
-    for frame in source:
+    for frame in (chain.frames(source) if hasattr(chain, "frames") else source):
         viz.log_frame(chain.process(frame))
         frames += 1
         if progress:

@@ -25,7 +25,9 @@ from boomtip.data.scenario import Scenario
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
 from boomtip.data.sim.simulator import SENSOR_IDS, SimScene, Simulation, frame_times
 
-BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
+BOOM_SHORT_OF_TIP_M = 2.0
+# the crane truth's tracks the frames' poses interpolate (_scene_poses)
+POSE_TRACKS = ("t", "roll", "pitch", "nu", "mu", "nu_f", "p_tip_world", "p_hook_rel_tip")  # the lattice stops short of the tip: the sensors hang in free space
 
 
 def crane_params(s: Scenario) -> CraneParams:
@@ -111,22 +113,26 @@ class HookSimulation(Simulation):
                               bank.eval(np.atleast_1d(t), 1)[:, i].reshape(np.shape(t)),
                               bank.eval(np.atleast_1d(t), 2)[:, i].reshape(np.shape(t)))
 
-        self.crane: CraneTruth = simulate_crane(
+        crane: CraneTruth = simulate_crane(
             self.params, spec.joints, CallableVesselMotion(dof(3), dof(4)),
             duration_s=scenario.duration_s + 0.5, record_rate_hz=max(scenario.world.truth_rate_hz, 200.0),
             # richer than the filter's model: an elastic reeving and the wind on block and load
             rope_ea_n=scenario.world.mismatch.rope_ea_n, wind_mps=scenario.world.mismatch.wind_mps,
             drag_area_m2=scenario.world.hook.drag_area_m2,
         )
+        self._tracks: dict[str, np.ndarray] = vars(crane)  # the crane truth's arrays by name
         super().__init__(scenario, world)
         self.encoders = self._encoder_log()
+        # The truth table and the logs are made: the frames' poses need only these tracks, and
+        # the rest of the crane truth (41 floats a sample at 200 Hz) would stay for the whole run.
+        self._tracks = {name: self._tracks[name] for name in POSE_TRACKS}
 
     # -- poses from the crane truth ------------------------------------------------------
     def _interp(self, name: str, t: np.ndarray) -> np.ndarray:
-        v = getattr(self.crane, name)
+        v, t_crane = self._tracks[name], self._tracks["t"]
         if v.ndim == 1:
-            return np.interp(t, self.crane.t, v)
-        return np.stack([np.interp(t, self.crane.t, v[:, k]) for k in range(v.shape[1])], axis=-1)
+            return np.interp(t, t_crane, v)
+        return np.stack([np.interp(t, t_crane, v[:, k]) for k in range(v.shape[1])], axis=-1)
 
     def _scene_poses(self, times: np.ndarray, sensor: str):
         roll, pitch = self._interp("roll", times), self._interp("pitch", times)

@@ -74,3 +74,42 @@ def test_pose_grids_cast_together_cost_as_one_at_a_time():
         np.testing.assert_array_equal(refs[c * per:(c + 1) * per], r1)
         np.testing.assert_array_equal(ys[c * per:(c + 1) * per], y1)
     assert cost[per // 2] == cost[:per].min()  # the true pose is the first grid's best
+
+
+def test_the_voxel_grid_built_in_slabs_answers_as_the_tree_does():
+    """Each cell holds the model point nearest to its centre (the grid is built slab by slab)."""
+    model = block_model(CFG.block_height_m, CFG.model_points)
+    rng = np.random.default_rng(3)
+    cells = np.column_stack([rng.integers(0, n, 3000) for n in model.shape])
+    centres = model.lo + (cells + 0.5) * model.cell
+    d, idx = model.tree.query(centres, distance_upper_bound=0.55 + model.cell)
+    want = np.where(np.isfinite(d), idx, -1)
+    assert np.array_equal(model.grid[tuple(cells.T)], want)
+    assert np.count_nonzero(want >= 0) > 300 and np.count_nonzero(want < 0) > 300  # both kinds of cell tried
+
+
+def test_the_ray_evidence_keeps_the_rays_a_test_on_every_point_keeps():
+    """ray_evidence's first cut (along the line of sight) drops no ray the full tests keep."""
+    from boomtip.perception.hook_rays import ray_evidence
+
+    model = block_model(CFG.block_height_m, CFG.model_points)
+    t, yaw, s = np.array([1.5, -1.0, -40.0]), 0.3, np.array([0.6, 0.4, -0.2])
+    rng = np.random.default_rng(5)
+    block = _block_points(t, yaw, 120, 1)
+    deck = np.column_stack([rng.uniform(-15, 15, 4000), rng.uniform(-15, 15, 4000), np.full(4000, -46.0)])
+    far = rng.normal(0, 20, (4000, 3)) + [0, 0, -20]  # everywhere, in front of and behind the block
+    pts = np.vstack([block, deck, far])
+    blk = np.zeros(len(pts), dtype=bool)
+    blk[: len(block) - 1] = True
+    cfg = CFG.model_copy(update={"ray_max_block": 10_000, "ray_max_other": 10_000})  # no subsample
+    ev = ray_evidence(pts, blk, t, yaw, s, 0.5, model, cfg, np.random.default_rng(0))
+    # the same tests on every point of the frame
+    a = t - s
+    ra = float(np.linalg.norm(a))
+    v = pts - s
+    r = np.sqrt(np.einsum("ij,ij->i", v, v))
+    cos_lim = math.cos((model.radius_m + cfg.ray_cone_margin_m) / ra)
+    ev_all = (v @ (a / ra) > cos_lim * r) & (r > ra - 1.0)
+    got_block = {tuple(x) for x in (s + ev.d[ev.blk] * ev.r[ev.blk, None]).round(9)}
+    assert got_block == {tuple(x) for x in pts[ev_all & blk].round(9)} and len(got_block) > 50
+    assert 0 < np.count_nonzero(~ev.blk) < np.count_nonzero(ev_all & ~blk)  # the footprint test drops some

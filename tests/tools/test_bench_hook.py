@@ -4,6 +4,7 @@ block fit and ray steps (tools.hook_reference), timed, and its fixes compared.""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from boomtip.perception.hook import detect_hook
 from boomtip.perception.hook_block import block_model, hanging_pose
@@ -54,3 +55,8 @@ def test_the_whole_bench_runs_and_the_integrators_agree():
         rk4 = r["estimators_against_rk4"][name]
         assert rk4["max_pos_difference_m"] < 1e-5 and rk4["cpu_s"] > 0
     assert r["block_against_reference"]["same_fix"] == r["block_against_reference"]["frames"] > 0
+    two = r["end_to_end_two_cores"]  # the run timed serial and on two cores: the same outputs
+    assert two["same_outputs"] == {"hook_estimates.csv": True, "hook_measurements.csv": True, "kpis.json": True}
+    assert all(len(v) == 2 and min(v) > 0 for v in two["wall_s_each"].values())
+    assert r["ratio"] == pytest.approx(1.0 / two["wall_s"]["two_cores"])
+    assert 0 < two["cpu_s_own"]["two_cores"] < two["cpu_s_with_children"]["two_cores"]

@@ -1,0 +1,162 @@
+"""A hook run on two cores: the simulator's frames made in a child process while this one runs
+the perception on the previous ones, and the estimators shared between this process and a child.
+
+Both children are forks that run exactly the code a serial run would (same inputs, same random
+draws, same order), so a run's outputs do not depend on it; only the wall clock does. Processes
+and not threads: the simulator and the filters are mostly small numpy calls holding the GIL
+(measured: a frame-producing thread gave no gain at all).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import os
+import signal
+import traceback
+from queue import Full
+from typing import Callable, Iterator, Sequence
+
+from boomtip.data.frames import Frame, FrameSource
+
+__all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost"]
+
+FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (hook-2: 0.6 MB each)
+_serial_depth = 0
+
+
+@contextlib.contextmanager
+def serial() -> Iterator[None]:
+    """Everything in this process, as one core would run it (benchmark baselines, tests)."""
+    global _serial_depth
+    _serial_depth += 1
+    try:
+        yield
+    finally:
+        _serial_depth -= 1
+
+
+def parallel_enabled() -> bool:
+    """A second core to use, the fork start method (Linux), and not inside `serial()`."""
+    return (_serial_depth == 0 and len(os.sched_getaffinity(0)) > 1
+            and "fork" in mp.get_all_start_methods())
+
+
+def _as_child() -> None:
+    """A child's signals: the parent decides. Ctrl-C reaches the whole process group, so the child
+    ignores it (the parent stops it); SIGTERM, which the CLI turns into KeyboardInterrupt so that a
+    run cleans up, ends the child at once (its parent's clean-up sends it)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _put(queue, item, parent_pid: int) -> None:
+    """queue.put, giving up when the parent is gone (nobody would ever read it)."""
+    while True:
+        try:
+            queue.put(item, timeout=1.0)
+            return
+        except Full:
+            if os.getppid() != parent_pid:
+                queue.cancel_join_thread()
+                os._exit(1)
+
+
+def _produce(source: FrameSource, queue, parent_pid: int) -> None:
+    _as_child()
+    try:
+        for frame in source:
+            _put(queue, ("frame", frame), parent_pid)
+        _put(queue, ("end", None), parent_pid)
+    except BaseException as exc:  # the parent re-raises it
+        _put(queue, ("error", _picklable(exc)), parent_pid)
+    queue.close()
+    queue.join_thread()
+
+
+def _picklable(exc: BaseException) -> BaseException:
+    import pickle
+
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:
+        return RuntimeError("".join(traceback.format_exception(exc)))
+
+
+def frames_in_child(source: FrameSource) -> Iterator[Frame]:
+    """The source's frames in order, made by a forked child up to FRAMES_AHEAD ahead."""
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue(FRAMES_AHEAD)
+    proc = ctx.Process(target=_produce, args=(source, queue, os.getpid()), name="boomtip-frames", daemon=True)
+    proc.start()
+    try:
+        while True:
+            kind, payload = queue.get()
+            if kind == "frame":
+                yield payload
+            elif kind == "end":
+                break
+            else:
+                raise payload
+        proc.join()
+    finally:
+        _stop(proc)  # when the consumer stopped early or failed: the child's work is not wanted
+        queue.close()
+
+
+def _stop(proc) -> None:
+    if proc.is_alive():
+        proc.terminate()
+        proc.join(5.0)
+    if proc.is_alive():
+        proc.kill()
+    proc.join()
+
+
+def split_by_cost(costs: dict[str, float]) -> tuple[list[str], list[str]]:
+    """Two groups of about equal total cost (largest first, each to the lighter group); the
+    first group is the one with the largest job."""
+    a: list[str] = []
+    b: list[str] = []
+    load = [0.0, 0.0]
+    for name in sorted(costs, key=lambda k: -costs[k]):
+        i = 0 if load[0] <= load[1] else 1
+        (a, b)[i].append(name)
+        load[i] += costs[name]
+    return a, b
+
+
+def _run_group(jobs: Sequence[str], work: Callable[[str], object], conn) -> None:
+    _as_child()
+    try:
+        conn.send(("ok", [(name, work(name)) for name in jobs]))
+    except BaseException as exc:
+        conn.send(("error", _picklable(exc)))
+    conn.close()
+
+
+def run_split(names: Sequence[str], costs: dict[str, float], work: Callable[[str], object]) -> dict[str, object]:
+    """{name: work(name)} for every name, the names split by cost between this process and a
+    forked child (which runs its share first to last, as a serial run would). What ``work``
+    returns must pickle; it may write to files opened before the call (the child shares them)."""
+    names = list(names)
+    if len(names) < 2 or not parallel_enabled():
+        return {name: work(name) for name in names}
+    child_jobs, own_jobs = split_by_cost({n: costs.get(n, 1.0) for n in names})
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_run_group, args=(child_jobs, work, send), name="boomtip-estimators", daemon=True)
+    proc.start()
+    send.close()
+    try:
+        out = {name: work(name) for name in own_jobs}
+        kind, payload = recv.recv()
+        proc.join()
+    finally:
+        _stop(proc)
+        recv.close()
+    if kind == "error":
+        raise payload
+    out.update(dict(payload))
+    return {name: out[name] for name in names}
