@@ -244,7 +244,11 @@ class FeederModel:
         self.kiss_map.add_points(pts_map)
         self.keyframes += 1
         self.keyframe_size = 1
-        self.collected = [(source_level, T_map_level)] if not self.merged else []
+        # a new keyframe is a new model: it grows and merges again from this frame (and a
+        # registration's x and y wait for it as they did for the first)
+        self.collected = [(source_level, T_map_level)]
+        self.merged = False
+        self.model_frames = 1
 
     def collect(self, source_level: np.ndarray, T_map_level: np.ndarray) -> bool:
         """Keep a registered frame for the model; True when it is time to merge."""

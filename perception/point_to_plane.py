@@ -51,10 +51,14 @@ class Surface:
     def nearest(self, query: np.ndarray, max_distance_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(query index, surface index, squared distance) of the queries with a surface point
         within max_distance_m."""
-        idx, d2 = self._nns.knn_search(self._o3c.Tensor(np.ascontiguousarray(query, dtype=np.float64)), 1)
+        rows = np.flatnonzero(np.isfinite(query).all(axis=1))  # Open3D's search fails on a non-finite row
+        if len(rows) == 0:
+            return rows, np.zeros(0, dtype=np.int64), np.zeros(0)
+        q = query if len(rows) == len(query) else query[rows]
+        idx, d2 = self._nns.knn_search(self._o3c.Tensor(np.ascontiguousarray(q, dtype=np.float64)), 1)
         idx, d2 = idx.numpy()[:, 0], d2.numpy()[:, 0]
         ok = np.flatnonzero(d2 <= max_distance_m * max_distance_m)
-        return ok, idx[ok].astype(np.int64), d2[ok]
+        return rows[ok], idx[ok].astype(np.int64), d2[ok]
 
 
 def rotation_zyx(rx: float, ry: float, rz: float) -> np.ndarray:
@@ -93,7 +97,7 @@ def icp_point_to_plane(surface: Surface, source: np.ndarray, T_guess: np.ndarray
         try:
             x = -np.linalg.solve(JTJ, JTr)
         except np.linalg.LinAlgError:
-            break  # a degenerate set (Open3D keeps the pose too)
+            break  # exactly singular (every residual beyond the kernel): the pose stays
         update = np.eye(4)
         update[:3, :3] = rotation_zyx(*x[:3])
         update[:3, 3] = x[3:]

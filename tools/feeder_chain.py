@@ -86,8 +86,8 @@ class FeederChain:
         self.perception = FeederPerception(inst, cfg.perception, rates_averaged_over=n_rates)
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
-        # frames the model must be merged from before a registration's x and y update the filter
-        # (a model that merges fewer never will: then from the start)
+        # frames the model must be merged from before a registration's x and y update the filter:
+        # at most its last merge's (no merges at all: the first keyframe's one frame)
         self.xy_after_frames = min(cfg.register_xy_after_frames, max(cfg.perception.registration.model_merges, default=1))
         self.filter = FeederFilter(cfg.filter)
         # An MRU on the feeder, when the source has its stream (document 004's second MRU)

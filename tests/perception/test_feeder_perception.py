@@ -245,3 +245,23 @@ def test_a_flat_deck_is_degenerate_in_x_y_and_yaw():
     A, _ = well_observed(info[np.ix_([0, 1, 5], [0, 1, 5])], 0.05)
     assert A.shape[0] == 0  # nothing to update
     assert info[2, 2] > 1e6  # but z is pinned
+
+
+def test_a_new_keyframe_starts_a_new_model():
+    """After a re-key the model is one frame again: it merges anew, and its frame count (which
+    holds back a registration's x and y) starts from one."""
+    rng = np.random.default_rng(5)
+    pts = _deck_scene(rng)
+    structure = pts[np.abs(pts[:, 2]) > 0.2]
+    model = FeederModel(RegistrationConfig(model_merges=(2, 3)))
+    model.set_keyframe(structure, np.eye(4))
+    assert model.model_frames == 1
+    assert model.collect(structure, np.eye(4))  # the second frame: time to merge
+    model.merge()
+    assert model.model_frames == 2
+    assert model.collect(structure, np.eye(4))
+    model.merge()
+    assert model.model_frames == 3 and model.merged
+    model.set_keyframe(structure, np.eye(4))
+    assert model.model_frames == 1 and not model.merged and len(model.collected) == 1
+    assert model.collect(structure, np.eye(4))  # merging again

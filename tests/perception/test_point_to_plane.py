@@ -68,3 +68,16 @@ def test_no_overlap_keeps_the_guess():
 def test_a_surface_needs_matching_normals():
     with pytest.raises(ValueError, match="points and normals"):
         Surface(np.zeros((5, 3)), np.zeros((4, 3)))
+
+
+def test_a_non_finite_guess_matches_nothing():
+    """A NaN pose (a filter gone wrong upstream) is no overlap, not an exception."""
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(0, 5, (300, 3))
+    surface = Surface(pts, np.tile([0.0, 0.0, 1.0], (300, 1)))
+    guess = np.eye(4)
+    guess[0, 3] = np.nan
+    got = icp_point_to_plane(surface, pts, guess, 1.0, 0.3, 1e-4, 30)
+    assert got.fitness == 0.0 and len(got.source_index) == 0 and got.iterations == 0
+    src_i, srf_i, _ = surface.nearest(np.vstack([pts[:3], [np.inf, 0.0, 0.0]]), 1.0)
+    assert list(src_i) == [0, 1, 2] and list(srf_i) == [0, 1, 2]
