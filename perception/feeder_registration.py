@@ -194,9 +194,9 @@ def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], 
                                             cfg.model_voxel_m, cfg.normal_neighbours))
             for i in moving:
                 poses[i] = register(i, model)
-    # The frames were placed by the filter while it tracked one frame's keyframe, biased alike:
-    # aligned to each other they keep that shared offset. The first frame defines the map frame:
-    # where it registers to the others is where the others must be moved to.
+    # The frames were placed by the filter (against a young model, or dead-reckoned while x and y
+    # wait for one), with an offset they share: aligned to each other they keep it. The first
+    # frame defines the map frame: where it registers to the others is where they must be moved to.
     others = surface_of(merged_cloud(frames_level[1:], poses[1:], cfg.model_voxel_m, cfg.normal_neighbours))
     T0 = T_map_level[0]
     fit0 = register(0, others)
