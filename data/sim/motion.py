@@ -36,6 +36,25 @@ class SineBank:
         return np.sum(self.amplitude[None] * self.omega[None] ** derivative * np.sin(arg), axis=2)
 
 
+class ShiftedSines:
+    """A SineBank at t + c_j for fixed offsets c_j (a sweep's column times), frame after
+    frame: sin(w (t + c) + phi) = sin(w t + phi) cos(w c) + cos(w t + phi) sin(w c), so a call
+    takes a sine and a cosine per component and one product, not a sine per offset and
+    component. The same values as `SineBank.eval(t + c)` to rounding."""
+
+    def __init__(self, bank: SineBank, offsets_s: np.ndarray) -> None:
+        self.bank, self.offsets_s = bank, offsets_s
+        wc = bank.omega[:, :, None] * np.asarray(offsets_s, dtype=float)  # (6,K,C)
+        self._table = np.concatenate([np.cos(wc), np.sin(wc)], axis=1)  # (6,2K,C)
+
+    def eval(self, t_s: float) -> np.ndarray:
+        """The DOFs at t_s + each offset: (C, 6), a transposed view."""
+        b = self.bank
+        theta = b.omega * t_s + b.phase  # (6,K)
+        coef = np.concatenate([b.amplitude * np.sin(theta), b.amplitude * np.cos(theta)], axis=1)  # (6,2K)
+        return np.einsum("dk,dkc->cd", coef, self._table)
+
+
 def sine_bank(motion: Motion, irregular: IrregularSea, seed: int) -> SineBank:
     """Collect the scenario's sinusoids, plus the irregular sea's components, per DOF."""
     amp, om, ph = [], [], []

@@ -12,7 +12,7 @@ from typing import Iterator
 import numpy as np
 
 from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
-from boomtip.data.sim.motion import BodyStates, ShipMotion, rpy_matrices
+from boomtip.data.sim.motion import BodyStates, ShiftedSines, ShipMotion, rpy_matrices
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.scenario import Scenario
 from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
@@ -49,6 +49,7 @@ class SimScene:
                                  "radar": true_T_boomtip_sensor(inst.radar.mount, mm.radar_mount_rpy_deg)}
         self.deck_plane_body = feeder_deck_plane_body(s)
         self.sea_index = next((i for i, b in enumerate(self.bodies) if b.name == "sea"), None)
+        self._shifted: dict[str, ShiftedSines] = {}  # per ship, for the last offsets asked for
 
     def body_states(self, t_s: np.ndarray) -> list[BodyStates | None]:
         out: list[BodyStates | None] = []
@@ -61,18 +62,26 @@ class SimScene:
                 out.append(None)  # static in the world
         return out
 
-    def body_poses(self, t_s: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    def body_poses(self, t_s: np.ndarray, offsets_s: np.ndarray | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Every body's rotation (M,3,3) and position (M,3) at the times: `poses(body_states(t))`
-        without the velocities, which casting does not need."""
+        without the velocities, which casting does not need. With `offsets_s` (C,), at the one
+        time t_s[0] plus each offset (a sweep's columns, M = C), by `ShiftedSines`."""
         motions = {"crane": self.crane_motion, "feeder": self.feeder_motion}
+        m = len(t_s) if offsets_s is None else len(offsets_s)
         Rs, ps = [], []
         for b in self.bodies:
             motion = motions.get(b.name)
             if motion is None:  # static in the world
-                Rs.append(np.broadcast_to(np.eye(3), (len(t_s), 3, 3)))
-                ps.append(np.zeros((len(t_s), 3)))
+                Rs.append(np.broadcast_to(np.eye(3), (m, 3, 3)))
+                ps.append(np.zeros((m, 3)))
             else:
-                q = motion.bank.eval(t_s)
+                if offsets_s is None:
+                    q = motion.bank.eval(t_s)
+                else:
+                    shifted = self._shifted.get(b.name)
+                    if shifted is None or shifted.offsets_s is not offsets_s:
+                        shifted = self._shifted[b.name] = ShiftedSines(motion.bank, offsets_s)
+                    q = shifted.eval(float(t_s[0]))
                 Rs.append(rpy_matrices(q[:, 3:]))
                 ps.append(motion.rest_position_m + q[:, :3])
         return Rs, ps
@@ -150,11 +159,12 @@ class Simulation(FrameSource):
         return np.random.default_rng([self.scenario.seed, SENSOR_IDS[sensor], index])
 
     # -- sensors -------------------------------------------------------------------------
-    def _scene_poses(self, times: np.ndarray, sensor: str):
+    def _scene_poses(self, times: np.ndarray, sensor: str, offsets_s: np.ndarray | None = None):
         """Sensor pose (R (M,3,3), p (M,3)) and every body's pose (lists of (M,3,3), (M,3),
-        and per-body axis scales or None) at the given times."""
+        and per-body axis scales or None) at the given times (with `offsets_s`, at times[0]
+        plus each offset)."""
         w = self.world
-        Rs, ps = w.body_poses(times)
+        Rs, ps = w.body_poses(times, offsets_s)
         T_cs = w.T_crane_boomtip @ w.T_boomtip_sensor[sensor]  # the sensor rides on the crane vessel (body 0)
         R_crane = Rs[0].reshape(-1, 3)  # (M*3,3): one product, not M small ones
         return (R_crane @ T_cs[:3, :3]).reshape(-1, 3, 3), (R_crane @ T_cs[:3, 3]).reshape(-1, 3) + ps[0], Rs, ps, None
@@ -180,8 +190,12 @@ class Simulation(FrameSource):
         """The LiDAR's hits at true time t_s and the sensor's world pose (R (M,3,3), p (M,3)):
         M = 1, or one pose per column when the scene moves during the sweep."""
         w, pat = self.world, self.lidar_pattern
-        times = t_s + pat.column_time_s if w.lidar.motion_during_sweep else np.array([t_s])
-        R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
+        if w.lidar.motion_during_sweep and getattr(scene_poses, "__func__", None) is Simulation._scene_poses:
+            # The ships' closed-form motion: the columns' poses as offsets from t_s.
+            R_ws, p_ws, Rs, ps, scales = scene_poses(np.array([t_s]), "lidar", pat.column_time_s)
+        else:
+            times = t_s + pat.column_time_s if w.lidar.motion_during_sweep else np.array([t_s])
+            R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
         hits = w.caster.cast_fans(pat.fans, R_ws, p_ws, Rs, ps, scales, fixed_hits)
         return hits, R_ws, p_ws
 

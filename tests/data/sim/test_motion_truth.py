@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from boomtip.data.sim.motion import ShipMotion, euler_rates_to_omega_world
+from boomtip.data.sim.motion import ShiftedSines, ShipMotion, euler_rates_to_omega_world
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.world import DOFS, IrregularSea, Motion
 from boomtip.data.sim.scene import feeder_deck_plane_body
@@ -136,6 +136,33 @@ def test_body_states_match_finite_differences(irregular):
     T = s.matrices()
     np.testing.assert_allclose(T[:, :3, :3], s.rotation.as_matrix())
     np.testing.assert_allclose(T[:, :3, 3], s.position_m)
+
+
+@pytest.mark.parametrize("irregular", [False, True])
+def test_shifted_sines_are_the_bank_at_each_offset(irregular):
+    """A sweep's columns by angle addition: the bank's DOFs at t + c to rounding (metres, rad)."""
+    bank = make_motion(irregular=irregular).bank
+    offsets = np.arange(1024) / 1024 / 10.0
+    shifted = ShiftedSines(bank, offsets)
+    for t in (0.0, 0.37, 612.9):
+        np.testing.assert_allclose(shifted.eval(t), bank.eval(t + offsets), rtol=0, atol=1e-12)
+
+
+def test_sweep_poses_are_the_poses_at_the_column_times():
+    """The LiDAR's per-column poses from offsets (the frame path) against the poses evaluated
+    at each column's time, for both ships and the sensor."""
+    s = load_scenario("sts-irregular", ["lidar.pattern=spinning", "lidar.columns=256", "lidar.motion_during_sweep=true"])
+    sim = Simulation(s)
+    offsets = sim.lidar_pattern.column_time_s
+    for t in (0.0, 4.3):
+        direct = sim._scene_poses(t + offsets, "lidar")
+        shifted = sim._scene_poses(np.array([t]), "lidar", offsets)
+        for a, b in zip(direct[:2], shifted[:2]):
+            np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
+        for key in (2, 3):
+            for a, b in zip(direct[key], shifted[key]):
+                assert b.shape == a.shape == (256, *a.shape[1:])
+                np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
 
 
 def test_ship_motion_is_the_scenario_sinusoid():
