@@ -66,9 +66,10 @@ class Fans:
 
     def body_frame_rays(self, axes: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,
                         fan: np.ndarray | None = None) -> np.ndarray:
-        """As `body_frame_rays_one_pose` for the rays (all, or `ray_k` and their fans `fan`)
-        given the fans' `axes_in` the body and the origin o (M = 1 or one per fan): a fan's
-        rays are cos(el) A u_f + sin(el) A z, two vectors per fan, not a matrix per ray."""
+        """As `body_frame_rays_one_pose` for the rays (all, or `ray_k` and their fans `fan`,
+        fan by fan as `reaching_box` gives them) given the fans' `axes_in` the body and the
+        origin o (M = 1 or one per fan): a fan's rays are cos(el) A u_f + sin(el) A z, two
+        vectors per fan, not a matrix per ray."""
         n = len(self.dirs) if ray_k is None else len(ray_k)
         rays = self._ray_buffer(n)
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
@@ -80,10 +81,11 @@ class Fans:
                 rays.reshape(n_fan, n_el, 6)[:, :, i] = o[:, i, None]
             return rays
         ce, se = np.take(self.cos_el_ray, ray_k), np.take(self.sin_el_ray, ray_k)
-        # Each ray's fan vectors A u_f, A z and origin, in one gather.
+        # Each ray's fan vectors A u_f, A z and origin: the rays come fan by fan, so each fan's
+        # column repeated over its rays (a gather along the fans' axis takes 2-3x longer).
         per_fan = np.empty((9, len(self.az_rad)))
         per_fan[0:3], per_fan[3:6], per_fan[6:9] = axes[1].T, axes[2].T, o.T
-        g = np.take(per_fan, fan, axis=1)  # (9,n)
+        g = np.repeat(per_fan, np.bincount(fan, minlength=n_fan), axis=1)  # (9,n)
         for i in range(3):
             d = g[i] * ce
             s = g[3 + i] * se

@@ -9,6 +9,7 @@ with o(t) = rest position + (surge, sway, heave). Surge/sway/heave are along wor
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -87,6 +88,12 @@ def sine_bank(motion: Motion, irregular: IrregularSea, seed: int) -> SineBank:
 
 def rpy_matrices(rpy: np.ndarray) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll) for (T,3) angles: (T,3,3)."""
+    if len(rpy) == 1:  # one instant (a frame's pose): Python floats, not 20 calls on 1-element arrays
+        roll, pitch, yaw = rpy[0].tolist()
+        cr, cp, cy, sr, sp, sy = math.cos(roll), math.cos(pitch), math.cos(yaw), math.sin(roll), math.sin(pitch), math.sin(yaw)
+        return np.array([[[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                          [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                          [-sp, cp * sr, cp * cr]]])
     c, s = np.cos(rpy), np.sin(rpy)
     cr, cp, cy, sr, sp, sy = c[:, 0], c[:, 1], c[:, 2], s[:, 0], s[:, 1], s[:, 2]
     R = np.empty((len(rpy), 3, 3))

@@ -253,6 +253,7 @@ class RayCaster:
         the body frame (as in `cast`), one component at a time in float32. Rotated unit rays
         stay unit; only a stretched body's rays need normalising."""
         n_b = self.face_normals32_by_axis[b]
+        face = face.astype(np.intp, copy=False)  # once: np.take widens other indices at each call
         c = np.take(n_b[0], face)
         c *= rays[:, 3] if ray_i is None else np.take(rays[:, 3], ray_i)
         for i in (1, 2):

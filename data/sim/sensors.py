@@ -123,6 +123,18 @@ def standard_normal32(rng: np.random.Generator, n: int) -> np.ndarray:
     return out[:n]
 
 
+def range_window(min_m: float, max_m: float, dtype) -> tuple[np.generic, np.generic]:
+    """The window [min_m, max_m] in `dtype`: the least value >= min_m and the greatest <= max_m,
+    so that ranges of that dtype compare in it as their float64 values would (float32 ranges
+    need no widening, a pass over every ray)."""
+    lo, hi = np.asarray(min_m, dtype=dtype)[()], np.asarray(max_m, dtype=dtype)[()]
+    if float(lo) < min_m:
+        lo = np.nextafter(lo, dtype.type(np.inf))
+    if float(hi) > max_m:
+        hi = np.nextafter(hi, dtype.type(-np.inf))
+    return lo, hi
+
+
 def lidar_measure(
     cfg: Lidar,
     hits: Hits,
@@ -140,9 +152,10 @@ def lidar_measure(
     the rays' directions `dirs_world` and origin heights `origin_z_world` (needed only then).
     The arithmetic runs in place on the returns kept, in the dtypes of the expressions it
     stands for (intensity float32, range float64), so frames do not depend on how it is laid out."""
-    r_all = hits.range_m  # float32 or 64; compared and used in float64
-    keep = r_all >= np.float64(cfg.min_range_m)
-    keep &= r_all <= np.float64(cfg.max_range_m)  # a miss (inf) fails the max
+    r_all = hits.range_m  # float32 or 64; compared and used as float64
+    lo, hi = range_window(cfg.min_range_m, cfg.max_range_m, r_all.dtype)
+    keep = r_all >= lo
+    keep &= r_all <= hi  # a miss (inf) fails the max
     idx = np.flatnonzero(keep)
     # The clutter and dropout draws are made for the returns in range only (most of a
     # spinning LiDAR's rays miss), in float32: a probability needs no more.

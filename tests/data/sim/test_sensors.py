@@ -761,3 +761,17 @@ def test_spray_returns_early_and_weakly_from_its_height_band():
     fog = Simulation(load_scenario("sts-empty", ["duration_s=0.2", "lidar.extinction_per_km=40"])).lidar_frame(0, 0.0)
     clear = Simulation(load_scenario("sts-empty", ["duration_s=0.2"])).lidar_frame(0, 0.0)
     assert len(fog) < len(clear) and fog.fields["intensity"].max() < clear.fields["intensity"].max()
+
+
+@pytest.mark.parametrize("window", [(0.5, 300.0), (0.7, 120.7), (0.1, 0.3)])  # exact; lo rounds down; hi rounds up
+def test_range_window_compares_float32_ranges_as_their_float64_values(window):
+    from boomtip.data.sim.sensors import range_window
+
+    lo, hi = range_window(*window, np.dtype(np.float32))
+    assert lo.dtype == hi.dtype == np.float32
+    # the float32 values either side of each bound, the bounds themselves, and a miss
+    x = np.array([np.nextafter(lo, np.float32(-1)), lo, np.nextafter(lo, np.float32(1)),
+                  np.nextafter(hi, np.float32(-1)), hi, np.nextafter(hi, np.float32(1e9)), np.inf], dtype=np.float32)
+    wide = x.astype(np.float64)
+    np.testing.assert_array_equal((x >= lo) & (x <= hi), (wide >= window[0]) & (wide <= window[1]))
+    assert ((x >= lo) & (x <= hi)).tolist() == [False, True, True, True, True, False, False]
