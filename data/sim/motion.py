@@ -49,7 +49,7 @@ class ShiftedSines:
         self._table = np.concatenate([np.cos(wc), np.sin(wc)], axis=1)  # (6,2K,C)
 
     def eval(self, t_s: float) -> np.ndarray:
-        """The DOFs at t_s + each offset: (C, 6), a transposed view."""
+        """The DOFs at t_s + each offset: (C, 6)."""
         b = self.bank
         theta = b.omega * t_s + b.phase  # (6,K)
         coef = np.concatenate([b.amplitude * np.sin(theta), b.amplitude * np.cos(theta)], axis=1)  # (6,2K)
