@@ -312,18 +312,30 @@ def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray,
     1-sigma, all from one eigendecomposition of the scatter: the smallest eigenvector is the
     normal, the other two are the in-plane axes the prediction variance needs. `offset_m`
     moves the plane that far away from the sensor (points lying on top of the surface wanted)."""
-    c = np.add.reduce(points, axis=0) / len(points)  # ndarray.mean's arithmetic, without its wrapper
+    n_pts = len(points)
+    c = np.add.reduce(points, axis=0) / n_pts  # ndarray.mean's arithmetic, without its wrapper
     X = points - c
     evals, evecs = eigh3(X.T @ X)  # np.linalg.eigh bit for bit, without its wrapper
-    n = evecs[:, 0]
-    d = -float(n @ c)
-    plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
-    fitted = plane.copy()
-    plane[3] += offset_m  # normal towards the sensor: a larger d is farther away
-    D = heave_distance(plane, wire_dir, p_tip)
-    if not math.isfinite(D) or len(points) < 4:
+    # Past the eigendecomposition every quantity is 3-long: Python floats, where numpy's per-call
+    # overhead (some twenty calls on 3-vectors, each ~5-20 us in a cold cache) was most of the time.
+    (l0, l1, l2), ((n0, a0, b0), (n1, a1, b1), (n2, a2, b2)) = evals.tolist(), evecs.tolist()
+    cx, cy, cz = c.tolist()
+    d = -(n0 * cx + n1 * cy + n2 * cz)
+    if d < 0:
+        n0, n1, n2, d = -n0, -n1, -n2, -d
+    plane = np.array([n0, n1, n2, d + offset_m])  # normal towards the sensor: a larger d is farther away
+    (wx, wy, wz), (px, py, pz) = wire_dir.tolist(), p_tip.tolist()
+    denom = n0 * wx + n1 * wy + n2 * wz  # heave_distance's arithmetic
+    D = float("nan") if abs(denom) < 1e-6 else -((n0 * px + n1 * py + n2 * pz) + (d + offset_m)) / denom
+    if not math.isfinite(D) or n_pts < 4:
         return plane, D, float("nan")
-    return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
+    # prediction_sigma at the wire's point on the plane. The inliers' squared distances to the
+    # plane fitted through their centroid along the least eigenvector sum to its eigenvalue.
+    s2 = max(l0, 0.0) / (n_pts - 3)
+    qx, qy, qz = px + D * wx - cx, py + D * wy - cy, pz + D * wz - cz
+    q0, q1 = qx * a0 + qy * a1 + qz * a2, qx * b0 + qy * b1 + qz * b2
+    var = s2 * (1.0 / n_pts + q0 * q0 / l1 + q1 * q1 / l2)
+    return plane, D, math.sqrt(max(var, 0.0))
 
 
 def inv3(a: np.ndarray) -> np.ndarray | None:
