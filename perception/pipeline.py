@@ -108,9 +108,12 @@ def doppler_inputs(frame: Frame, pc: PreprocessConfig) -> tuple[np.ndarray, np.n
     if rr is None:
         return None
     rng_m = frame.fields.get("range")
-    rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor)) if rng_m is None else rng_m.astype(np.float64)
-    keep = rng_m >= max(pc.min_range_m, 1e-6)
-    keep &= rng_m <= pc.max_range_m
+    if rng_m is None:
+        rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor))
+    # The bounds as numpy float64 scalars: a float32 range is compared in float64 (NEP 50), as
+    # after a conversion to float64 (exact), without that conversion's call and array.
+    keep = rng_m >= np.float64(max(pc.min_range_m, 1e-6))
+    keep &= rng_m <= np.float64(pc.max_range_m)
     keep &= np.isfinite(rr)  # NaN compares False
     idx = keep.nonzero()[0]
     if len(idx) == len(keep):  # every detection kept: no gathers
