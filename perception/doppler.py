@@ -228,7 +228,9 @@ def doppler_velocity(
     """
     b_all = as_points(beam_dirs)
     cfg = cfg or DopplerConfig()
-    r_all = np.asarray(range_rate_mps, dtype=np.float64).reshape(-1)
+    r_all = range_rate_mps
+    if not (type(r_all) is np.ndarray and r_all.dtype == np.float64 and r_all.ndim == 1):  # the usual input: no call
+        r_all = np.asarray(range_rate_mps, dtype=np.float64).reshape(-1)
     if len(b_all) != len(r_all):
         raise ValueError("beam_dirs and range_rate_mps must have the same length")
     n_all = len(r_all)

@@ -28,6 +28,45 @@ def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
     ])
 
 
+def level_rotation_rows(rpy_rad, R_crane_sensor_rows: list[list[float]]) -> list[list[float]]:
+    """R_level_sensor = rpy_matrix(rpy) @ R_crane_sensor as three rows of Python floats, from the
+    mount's rows (Python floats too, computed once per run). Once per frame of every sensor, and
+    everything it feeds on a radar frame (u and its covariance to level axes, the tip) is 3x3:
+    a numpy matmul of that size costs ~20 us in a cold cache (BLAS's code and numpy's dispatch
+    fetched afresh), nine dot products in floats a fraction of it. The same products as
+    rpy_matrix's, summed in order (BLAS's 3x3 product may fuse multiply-adds: the last bit may
+    differ from it)."""
+    r, p, y = rpy_rad.tolist() if isinstance(rpy_rad, np.ndarray) else (float(v) for v in rpy_rad)
+    cr, cp, cy, sr, sp, sy = math.cos(r), math.cos(p), math.cos(y), math.sin(r), math.sin(p), math.sin(y)
+    rows = (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R_crane_sensor_rows
+    return [[a * m00 + b * m10 + c * m20, a * m01 + b * m11 + c * m21, a * m02 + b * m12 + c * m22] for a, b, c in rows]
+
+
+def mat3_vec(rows, v) -> list[float]:
+    """A 3x3 matrix (rows of Python floats) times a 3-vector (any sequence of floats), in floats."""
+    x, y, z = v
+    return [a * x + b * y + c * z for a, b, c in rows]
+
+
+def mat3T_vec(rows, v) -> list[float]:
+    """The transpose of a 3x3 matrix (rows of Python floats) times a 3-vector, in floats."""
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = rows
+    x, y, z = v
+    return [a0 * x + b0 * y + c0 * z, a1 * x + b1 * y + c1 * z, a2 * x + b2 * y + c2 * z]
+
+
+def quad3(m, v) -> float:
+    """v^T M v for a 3x3 matrix (rows of Python floats) and a 3-vector, in floats."""
+    x, y, z = v
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = m
+    return x * (a0 * x + a1 * y + a2 * z) + y * (b0 * x + b1 * y + b2 * z) + z * (c0 * x + c1 * y + c2 * z)
+
+
 def mount_rotation(T_crane_boomtip: np.ndarray, T_boomtip_sensor: np.ndarray) -> np.ndarray:
     """Sensor axes -> crane-vessel axes: fixed for a run, so callers may compute it once."""
     return T_crane_boomtip[:3, :3] @ T_boomtip_sensor[:3, :3]
@@ -61,6 +100,10 @@ def heave_distance(plane_sensor: np.ndarray, wire_dir: np.ndarray, p_tip_sensor:
     return -(float(n @ np.asarray(p_tip_sensor, dtype=np.float64)) + d) / denom
 
 
+def _floats3(v) -> list[float]:
+    return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]
+
+
 def heave_rate_document(u_level: np.ndarray) -> float:
     """Document 000's D-dot (eq. 4.29): the deck's velocity relative to the sensor projected
     on the wire direction, D-dot = u . n_w with n_w = -e_z. Ignores the deck's rotation."""
@@ -88,13 +131,14 @@ def heave_rate_exact(
     """
     # Python floats: eleven products per radar frame, where numpy's per-call overhead on
     # 3-vectors would cost more than the arithmetic.
-    ux, uy, uz = np.asarray(u_level, dtype=float).tolist()
-    nx, ny, nz = np.asarray(normal_level, dtype=float).tolist()
+    # Arrays or sequences of floats (the pipeline passes lists: no conversion call per vector).
+    ux, uy, uz = _floats3(u_level)
+    nx, ny, nz = _floats3(normal_level)
     if nz < 0:
         nx, ny, nz = -nx, -ny, -nz
-    cx, cy, cz = np.asarray(omega_crane_level, dtype=float).tolist()
-    fx, fy, fz = np.asarray(omega_feeder_level, dtype=float).tolist()
-    rx, ry, rz = np.asarray(r_tip_from_sensor_level, dtype=float).tolist()
+    cx, cy, cz = _floats3(omega_crane_level)
+    fx, fy, fz = _floats3(omega_feeder_level)
+    rx, ry, rz = _floats3(r_tip_from_sensor_level)
     qz = rz - float(D_m)  # r - D e_z
     rel_x = -ux + (cy * rz - cz * ry) - (fy * qz - fz * ry)
     rel_y = -uy + (cz * rx - cx * rz) - (fz * rx - fx * qz)
@@ -195,24 +239,38 @@ class NormalRate:
 
     def omega(self, t_s: float) -> np.ndarray | None:
         """w_perp at time t (extrapolated from the fit), or None with too few samples."""
+        w = self.omega_floats(t_s)
+        return None if w is None else np.array(w)
+
+    def omega_floats(self, t_s: float) -> list[float] | None:
+        """:meth:`omega` as Python floats (for arithmetic in floats, no array built)."""
         if len(self.t) < self.min_samples:
             return None
         (nx, ny, nz), (dx, dy, dz) = self._predict(t_s)
-        return np.array([ny * dz - nz * dy, nz * dx - nx * dz, nx * dy - ny * dx])
+        return [ny * dz - nz * dy, nz * dx - nx * dz, nx * dy - ny * dx]
 
     def normal(self, t_s: float) -> np.ndarray | None:
         if not self.n:
             return None
         return self.n[-1]
 
+    def normal_floats(self, t_s: float) -> list[float] | None:
+        """:meth:`normal` as Python floats (the same values)."""
+        return self._n_floats[-1] if self._n_floats else None
+
 
 def omega_from_euler_rates(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:
     """Angular velocity (world axes) of R = Rz(yaw) Ry(pitch) Rx(roll) from Euler rates;
     one-sample form of data.motion.euler_rates_to_omega_world."""
+    return np.array(omega_from_euler_rates_floats(rpy, rpy_dot))
+
+
+def omega_from_euler_rates_floats(rpy, rpy_dot) -> list[float]:
+    """:func:`omega_from_euler_rates` as Python floats."""
     _, p, y = rpy.tolist() if isinstance(rpy, np.ndarray) else rpy
     rd, pd, yd = rpy_dot.tolist() if isinstance(rpy_dot, np.ndarray) else rpy_dot
     cy, sy, cp, sp = math.cos(y), math.sin(y), math.cos(p), math.sin(p)
-    return np.array([-sy * pd + cy * cp * rd, cy * pd + sy * cp * rd, yd - sp * rd])
+    return [-sy * pd + cy * cp * rd, cy * pd + sy * cp * rd, yd - sp * rd]
 
 
 def plane_sigma_at(points_on_plane: np.ndarray, plane: np.ndarray, query: np.ndarray) -> float:
@@ -254,18 +312,30 @@ def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray,
     1-sigma, all from one eigendecomposition of the scatter: the smallest eigenvector is the
     normal, the other two are the in-plane axes the prediction variance needs. `offset_m`
     moves the plane that far away from the sensor (points lying on top of the surface wanted)."""
-    c = np.add.reduce(points, axis=0) / len(points)  # ndarray.mean's arithmetic, without its wrapper
+    n_pts = len(points)
+    c = np.add.reduce(points, axis=0) / n_pts  # ndarray.mean's arithmetic, without its wrapper
     X = points - c
     evals, evecs = eigh3(X.T @ X)  # np.linalg.eigh bit for bit, without its wrapper
-    n = evecs[:, 0]
-    d = -float(n @ c)
-    plane = np.array([n[0], n[1], n[2], d]) if d >= 0 else -np.array([n[0], n[1], n[2], d])
-    fitted = plane.copy()
-    plane[3] += offset_m  # normal towards the sensor: a larger d is farther away
-    D = heave_distance(plane, wire_dir, p_tip)
-    if not math.isfinite(D) or len(points) < 4:
+    # Past the eigendecomposition every quantity is 3-long: Python floats, where numpy's per-call
+    # overhead (some twenty calls on 3-vectors, each ~5-20 us in a cold cache) was most of the time.
+    (l0, l1, l2), ((n0, a0, b0), (n1, a1, b1), (n2, a2, b2)) = evals.tolist(), evecs.tolist()
+    cx, cy, cz = c.tolist()
+    d = -(n0 * cx + n1 * cy + n2 * cz)
+    if d < 0:
+        n0, n1, n2, d = -n0, -n1, -n2, -d
+    plane = np.array([n0, n1, n2, d + offset_m])  # normal towards the sensor: a larger d is farther away
+    (wx, wy, wz), (px, py, pz) = wire_dir.tolist(), p_tip.tolist()
+    denom = n0 * wx + n1 * wy + n2 * wz  # heave_distance's arithmetic
+    D = float("nan") if abs(denom) < 1e-6 else -((n0 * px + n1 * py + n2 * pz) + (d + offset_m)) / denom
+    if not math.isfinite(D) or n_pts < 4:
         return plane, D, float("nan")
-    return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
+    # prediction_sigma at the wire's point on the plane. The inliers' squared distances to the
+    # plane fitted through their centroid along the least eigenvector sum to its eigenvalue.
+    s2 = max(l0, 0.0) / (n_pts - 3)
+    qx, qy, qz = px + D * wx - cx, py + D * wy - cy, pz + D * wz - cz
+    q0, q1 = qx * a0 + qy * a1 + qz * a2, qx * b0 + qy * b1 + qz * b2
+    var = s2 * (1.0 / n_pts + q0 * q0 / l1 + q1 * q1 / l2)
+    return plane, D, math.sqrt(max(var, 0.0))
 
 
 def inv3(a: np.ndarray) -> np.ndarray | None:

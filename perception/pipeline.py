@@ -26,11 +26,13 @@ from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
     heave_rate_exact,
+    level_rotation_rows,
+    mat3_vec,
+    mat3T_vec,
     mount_rotation,
-    omega_from_euler_rates,
-    rpy_matrix,
+    omega_from_euler_rates_floats,
+    quad3,
     tip_in_sensor,
-    wire_dir_sensor,
 )
 from boomtip.perception.preprocess import PreprocessConfig
 from boomtip.perception.reflectors import ReflectorConfig, ReflectorResult, detect_reflectors
@@ -106,9 +108,12 @@ def doppler_inputs(frame: Frame, pc: PreprocessConfig) -> tuple[np.ndarray, np.n
     if rr is None:
         return None
     rng_m = frame.fields.get("range")
-    rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor)) if rng_m is None else rng_m.astype(np.float64)
-    keep = rng_m >= max(pc.min_range_m, 1e-6)
-    keep &= rng_m <= pc.max_range_m
+    if rng_m is None:
+        rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor))
+    # The bounds as numpy float64 scalars: a float32 range is compared in float64 (NEP 50), as
+    # after a conversion to float64 (exact), without that conversion's call and array.
+    keep = rng_m >= np.float64(max(pc.min_range_m, 1e-6))
+    keep &= rng_m <= np.float64(pc.max_range_m)
     keep &= np.isfinite(rr)  # NaN compares False
     idx = keep.nonzero()[0]
     if len(idx) == len(keep):  # every detection kept: no gathers
@@ -168,6 +173,9 @@ class HeavePipeline:
         self.p_tip = {s: tip_in_sensor(T_boomtip_sensor[s]) for s in ("lidar", "radar")}
         # The mount is fixed: sensor axes -> crane-vessel axes once, the MRU attitude per frame.
         self.R_crane_sensor = {s: mount_rotation(T_crane_boomtip, T_boomtip_sensor[s]) for s in ("lidar", "radar")}
+        # the same as Python floats: the per-frame 3x3 arithmetic runs in floats (level_rotation_rows)
+        self._R_crane_sensor_rows = {s: R.tolist() for s, R in self.R_crane_sensor.items()}
+        self._p_tip_floats = {s: p.tolist() for s, p in self.p_tip.items()}
         self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
@@ -219,8 +227,11 @@ class HeavePipeline:
             att = self.mru.attitude(frame.t_s)
             if att is not None:
                 rpy, rpy_rate = att
-                R_ls = rpy_matrix(rpy) @ self.R_crane_sensor[frame.sensor]  # geometry.rotation_level_sensor, mount cached
-                wire = wire_dir_sensor(R_ls)
+                # geometry.rotation_level_sensor with the mount's rotation cached, in floats; the
+                # rotation and the wire (its third row negated: wire_dir_sensor) in one conversion
+                R_rows = level_rotation_rows(rpy, self._R_crane_sensor_rows[frame.sensor])
+                R_and_wire = np.array([*R_rows, [-v for v in R_rows[2]]])
+                R_ls, wire = R_and_wire[:3], R_and_wire[3]
         if att is None:
             status = f"no MRU attitude at t={frame.t_s:.3f} s (outside the log or in a gap)"
             return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, status) for m in wanted}, times), times)
@@ -253,7 +264,7 @@ class HeavePipeline:
                 out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck")
                 results["deck_radar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "radar", R_ls)
             if {"doppler_radar", "doppler_radar_rot"} & set(wanted):
-                results.update(self._doppler(frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out))
+                results.update(self._doppler(frame, wanted, R_rows, rpy, rpy_rate, rng, times, out))
         out.measurements = self._rows(frame, results, times)
         planes = {"deck_lidar": out.deck_lidar, "reflectors_lidar": out.reflectors, "deck_radar": out.deck_radar}
         for row in out.measurements:
@@ -280,7 +291,7 @@ class HeavePipeline:
         sigma = math.hypot(deck.sigma_m, attitude_sigma_D(deck.D_m, deck.plane_sensor, wire, self.mru_sigma_rad))
         return (deck.D_m, sigma, deck.status)
 
-    def _doppler(self, frame, wanted, R_ls, rpy, rpy_rate, p_tip, rng, times, out) -> dict:
+    def _doppler(self, frame, wanted, R_rows, rpy, rpy_rate, rng, times, out) -> dict:
         res: dict[str, tuple[float, float, str]] = {}
         with times.stage("doppler.preprocess"):
             inputs = doppler_inputs(frame, self.cfg.doppler_preprocess)
@@ -290,37 +301,42 @@ class HeavePipeline:
         with times.stage("doppler.fit"):
             prior = self.last_doppler[1] if self.last_doppler and frame.t_s - self.last_doppler[0] <= 0.2 else None
             fit = doppler_velocity(pts, range_rate_mps, self.cfg.doppler, rng, prior) if len(pts) >= 3 else None
-            if fit is not None:  # to level axes, where D-dot is defined
-                u_level = R_ls @ fit.velocity_sensor
-                cov_level = R_ls @ fit.covariance @ R_ls.T
+            if fit is not None:  # to level axes, where D-dot is defined (Python floats: 3x3 algebra)
+                u_level = mat3_vec(R_rows, fit.velocity_sensor.tolist())
+                cov = fit.covariance.tolist()  # sensor axes: each method takes the variance it needs
         out.doppler = fit
         self.last_doppler = (frame.t_s, fit.velocity_sensor) if fit is not None else None
         if fit is None:
             return {m: (np.nan, np.nan, f"no Doppler velocity ({len(pts)} detections or degenerate beams)") for m in wanted if m.startswith("doppler")}
         if "doppler_radar" in wanted:
             with times.stage("doppler.document"):
-                res["doppler_radar"] = (heave_rate_document(u_level), float(np.sqrt(cov_level[2, 2])), "ok")
+                var = quad3(cov, R_rows[2])  # R C R^T's (2, 2) element
+                res["doppler_radar"] = (heave_rate_document(u_level), math.sqrt(var) if var >= 0.0 else math.nan, "ok")
         if "doppler_radar_rot" in wanted:
             with times.stage("doppler.rotation"):
-                res["doppler_radar_rot"] = self._doppler_rot(frame.t_s, u_level, cov_level, R_ls, rpy, rpy_rate, p_tip)
+                res["doppler_radar_rot"] = self._doppler_rot(frame.t_s, u_level, cov, R_rows, rpy, rpy_rate,
+                                                             self._p_tip_floats[frame.sensor])
         return res
 
-    def _doppler_rot(self, t_s, u_level, cov_level, R_ls, rpy, rpy_rate, p_tip) -> tuple[float, float, str]:
+    def _doppler_rot(self, t_s, u_level, cov_sensor, R_rows, rpy, rpy_rate, p_tip) -> tuple[float, float, str]:
+        """u_level, the rotation's rows, the tip (sensor axes) and the fit's covariance (sensor
+        axes) as Python floats: every vector here is 3-long."""
         # Deck normal, spin and D from the LiDAR when it has a recent deck, else from the radar.
         for sensor in ("lidar", "radar"):
             last = self.last_deck.get(sensor)
             if last is None or t_s - last[0] > self.cfg.max_deck_age_s:
                 continue
-            omega_f = self.normals[sensor].omega(t_s)
+            omega_f = self.normals[sensor].omega_floats(t_s)
             if omega_f is None:
                 continue
-            n = self.normals[sensor].normal(t_s)
-            omega_c = omega_from_euler_rates(rpy, rpy_rate)
-            r_tip = R_ls @ p_tip
+            n = self.normals[sensor].normal_floats(t_s)
+            omega_c = omega_from_euler_rates_floats(rpy, rpy_rate)
+            r_tip = mat3_vec(R_rows, p_tip)
             value = heave_rate_exact(u_level, n, omega_f, omega_c, r_tip, last[1])
             # Besides the fit: an attitude error tilts the (large) horizontal relative velocity
             # into the vertical when u is levelled; the MRU's stated noise sizes that term.
-            tilt_var = (math.hypot(float(u_level[0]), float(u_level[1])) * self.mru_sigma_rad) ** 2
-            sigma = math.sqrt(float(n @ cov_level @ n) + tilt_var) / abs(float(n[2]))
+            tilt_var = (math.hypot(u_level[0], u_level[1]) * self.mru_sigma_rad) ** 2
+            # n^T (R C R^T) n = (R^T n)^T C (R^T n): the level covariance is never formed
+            sigma = math.sqrt(quad3(cov_sensor, mat3T_vec(R_rows, n)) + tilt_var) / abs(n[2])
             return (value, sigma, "ok")
         return (np.nan, np.nan, "no recent deck plane for the deck's normal and spin")

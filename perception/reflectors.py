@@ -74,9 +74,11 @@ def intensity_threshold(intensity_comp: np.ndarray, cfg: ReflectorConfig) -> flo
     if cfg.intensity_threshold is not None:
         return cfg.intensity_threshold
     sample = intensity_comp[:: max(1, len(intensity_comp) // 2000)]  # a percentile needs no 10k points
-    sample = sample[np.isfinite(sample)]
+    sample = sample[np.isfinite(sample)]  # a new array: partitioned in place below
     k = int(0.99 * (len(sample) - 1))
-    p99 = float(np.partition(sample, k)[k]) if len(sample) else 0.0
+    if len(sample):
+        sample.partition(k)  # the method, in place: np.partition's wrapper copies first
+    p99 = float(sample[k]) if len(sample) else 0.0
     return float(max(cfg.diffuse_max, cfg.tail_factor * p99))
 
 

@@ -14,7 +14,13 @@ from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
     heave_rate_exact,
+    level_rotation_rows,
+    mat3_vec,
+    mat3T_vec,
+    omega_from_euler_rates,
+    omega_from_euler_rates_floats,
     plane_sigma_at,
+    quad3,
     rotation_level_sensor,
     rpy_matrix,
     tip_in_sensor,
@@ -128,6 +134,26 @@ def test_rpy_matrix_matches_scipy():
 
     for rpy in np.random.default_rng(7).uniform(-1, 1, (20, 3)):
         assert np.allclose(rpy_matrix(rpy), Rotation.from_euler("xyz", rpy).as_matrix(), atol=1e-14)
+
+
+def test_the_3x3_algebra_in_floats_equals_numpys():
+    rng = np.random.default_rng(8)
+    for rpy, rate in rng.uniform(-1, 1, (20, 2, 3)):
+        mount = Rotation_from(rng.normal(size=3))
+        rows = level_rotation_rows(rpy, mount.tolist())
+        R = rpy_matrix(rpy) @ mount
+        assert isinstance(rows[0][0], float) and np.allclose(rows, R, rtol=0, atol=4e-16)
+        v, C = rng.normal(size=3), rng.normal(size=(3, 3))
+        assert np.allclose(mat3_vec(rows, v.tolist()), R @ v, rtol=1e-15, atol=1e-15)
+        assert np.allclose(mat3T_vec(rows, v.tolist()), R.T @ v, rtol=1e-15, atol=1e-15)
+        assert quad3(C.tolist(), v.tolist()) == pytest.approx(v @ C @ v, rel=1e-13, abs=1e-14)
+        assert omega_from_euler_rates_floats(rpy, rate) == omega_from_euler_rates(rpy, rate).tolist()
+
+
+def Rotation_from(rotvec: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(rotvec).as_matrix()
 
 
 def test_rotation_aware_doppler_is_exact_where_the_document_is_not():
@@ -287,6 +313,8 @@ def test_normal_rate_fit_equals_a_quadratic_least_squares_fit():
             assert np.allclose(coef[: deg + 1, c], ref, rtol=1e-9, atol=1e-12)
         if deg == 1:
             assert np.all(coef[2] == 0.0)
+        assert nr.omega_floats(0.95) == nr.omega(0.95).tolist()
+        assert nr.normal_floats(0.95) == nr.normal(0.95).tolist()
 
 
 @pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="glibc's mallopt")

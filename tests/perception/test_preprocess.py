@@ -151,9 +151,34 @@ def test_statistical_outliers_match_open3d_and_remove_isolated_points():
     _, ind = pcd.remove_statistical_outlier(16, 2.0)
     keep_o3d = np.zeros(len(cloud), bool)
     keep_o3d[np.asarray(ind)] = True
-    assert np.mean(keep == keep_o3d) > 0.999
+    assert np.array_equal(keep, keep_o3d)
+    # the statistic as documented, from scipy's k-NN distances: the same points kept
+    from scipy.spatial import cKDTree
+
+    mean_d = cKDTree(cloud).query(cloud, k=16)[0].mean(axis=1)
+    assert np.array_equal(keep, mean_d < mean_d.mean() + 2.0 * mean_d.std(ddof=1))
     out, _, stats = preprocess(cloud, None, PreprocessConfig(outlier_nb_neighbors=16))
     assert stats["outlier"] == keep.sum()
+
+
+def test_statistical_outliers_drop_stacks_of_identical_points():
+    # nb_neighbors identical returns have a mean neighbour distance of 0: dropped, and left out of
+    # the statistic's sums (Open3D's rule)
+    rng = np.random.default_rng(45)
+    pts = deck_cloud(rng, n=3000)
+    stacked = np.vstack([np.repeat(pts[:1], 16, axis=0), pts])
+    keep = statistical_outlier_mask(stacked, 16, 2.0)
+    from scipy.spatial import cKDTree
+
+    mean_d = cKDTree(stacked).query(stacked, k=16)[0].mean(axis=1)
+    judged = mean_d > 0
+    assert not judged[:17].any() and judged[17:].all()  # the stack and the point it copies
+    # Open3D sums over the others but divides by every point's count
+    mu = mean_d[judged].sum() / len(mean_d)
+    sd = np.sqrt(((mean_d[judged] - mu) ** 2).sum() / (len(mean_d) - 1))
+    assert np.array_equal(keep, judged & (mean_d < mu + 2.0 * sd))
+    assert keep[17:].mean() > 0.95
+    assert statistical_outlier_mask(pts[:1], 16, 2.0).tolist() == [True]
 
 
 def test_open3d_baselines_run_and_agree():
