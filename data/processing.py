@@ -15,6 +15,7 @@ from boomtip.fusion.feeder_filter import FeederFilterConfig
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.solutions import FusionConfig
 from boomtip.perception.feeder import FeederConfig
+from boomtip.perception.feeder_radar import RadarRegistrationConfig
 from boomtip.perception.hook_types import HookConfig
 from boomtip.perception.pipeline import PipelineConfig
 from boomtip.perception.rope import RopeConfig
@@ -54,6 +55,7 @@ class FeederProcessing(_Model):
                                       "many points on it (the calibration's rotation about the vertical)")
     hull_edge_frames: int = Field(30, ge=3, description="the own hull's edge is looked for in this many frames (it is static: "
                                   "their spread was 0.0001 deg)")
+    radar_registration: RadarRegistrationConfig = RadarRegistrationConfig()
     calibration_min_s: float = Field(30.0, gt=0, description="deck planes needed before the levelling calibration applies")
 
 

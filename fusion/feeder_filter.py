@@ -201,12 +201,14 @@ class FeederFilter:
         # be traded for roll and pitch that keep the normal (38 deg of yaw in a 50 s outage).
         return self._update(kind, plane_abc, deck_plane(self.x), numeric_jacobian(deck_plane, self.x, np.arange(5)), cov)
 
-    def update_registration(self, x_y_yaw: np.ndarray, info_xy_yaw: np.ndarray, extra_cov: np.ndarray | None = None) -> bool:
-        """A registration's x, y, yaw; only the directions its information constrains.
-        extra_cov (3x3): errors the registration does not see (the frame's levelling noise)."""
-        A, var = well_observed(info_xy_yaw, self.cfg.max_sigma_m)
+    def update_registration(self, x_y_yaw: np.ndarray, info_xy_yaw: np.ndarray, extra_cov: np.ndarray | None = None,
+                            kind: str = "registration", max_sigma_m: float | None = None) -> bool:
+        """A registration's x, y, yaw; only the directions its information constrains (known
+        better than max_sigma_m, by default the configured one). extra_cov (3x3): errors the
+        registration does not see (the frame's levelling noise, a calibration's spread)."""
+        A, var = well_observed(info_xy_yaw, self.cfg.max_sigma_m if max_sigma_m is None else max_sigma_m)
         if len(var) == 0:
-            counts = self._counts("registration")
+            counts = self._counts(kind)
             counts["degenerate"] = counts.get("degenerate", 0) + 1
             return False
         S = np.zeros((3, len(self.x)))
@@ -217,7 +219,7 @@ class FeederFilter:
         fx, fyaw = self.cfg.registration_floor
         floor = np.diag([fx * fx, fx * fx, (fyaw * DEG) ** 2]) + (extra_cov if extra_cov is not None else 0.0)
         R = np.diag(var) + A @ floor @ A.T
-        return self._update("registration", A @ z_full, A @ h_full, A @ S, R)
+        return self._update(kind, A @ z_full, A @ h_full, A @ S, R)
 
     def update_point_velocity(self, velocity_level: np.ndarray, cov: np.ndarray, xi_level: np.ndarray) -> bool:
         """The velocity relative to the tip of the feeder's point at xi (radar Doppler); the

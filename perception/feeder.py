@@ -81,6 +81,7 @@ class RadarObservation:
     status: str
     tip_level: np.ndarray = field(default_factory=lambda: np.zeros(3))
     tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    detections_sensor: np.ndarray | None = None  # the frame's points, for a registration to the feeder model
 
 
 def plane_in_level(points_level: np.ndarray, inflation: float) -> PlaneLevel:

@@ -38,6 +38,7 @@ from boomtip.perception.feeder import (
     RadarObservation,
     centre_line_yaw,
 )
+from boomtip.perception.feeder_radar import RadarOffset, detection_covariance, register_radar
 from boomtip.perception.feeder_registration import (
     FeederModel,
     condition_on,
@@ -111,6 +112,14 @@ class FeederChain:
         self.failed_registrations = 0  # in a row: after rekey_after_failures a new keyframe is taken
         self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck
         self.radar_offset, self.radar_offset_n = np.zeros(3), 0  # radar deck - LiDAR deck: slopes, height
+        # the radar's detections registered to the model: while the LiDAR registers too, their
+        # offset is learnt from every `learn_every`-th radar frame; without the LiDAR, they update
+        self.radar_reg = cfg.radar_registration
+        self.radar_reg_offset = RadarOffset(self.radar_reg.offset_frames)
+        self.detection_sigma = (inst.radar.range_noise_m, math.radians(inst.radar.azimuth_noise_deg),
+                                math.radians(inst.radar.elevation_noise_deg))
+        self.last_registration_t = -math.inf
+        self.radar_frames = 0
 
     # -- per frame -------------------------------------------------------------------------
     def process(self, frame: Frame, heave: FrameResult | None) -> StageTimes:
@@ -132,6 +141,7 @@ class FeederChain:
             else:
                 obs = self.perception.radar(frame.t_s, rpy, rpy_rate, heave.doppler if heave is not None else None,
                                             heave.deck_radar if heave is not None else None)
+                obs.detections_sensor = frame.points_sensor
         if frame.sensor == "lidar":
             # the chain's time per LiDAR frame: this, the steps below, and the deck stage it reuses
             obs.ms = (time.perf_counter() - t_obs) * 1e3 + (heave.times.total(*DECK_STAGES) if heave is not None else 0.0)
@@ -211,6 +221,7 @@ class FeederChain:
                     if self.model.model_frames < self.xy_after_frames:
                         info = yaw_only(info)  # a young model is biased by its few viewpoints: x, y wait
                     f.update_registration(xy_yaw, info, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
+                    self.last_registration_t = obs.t_s
                     if self.model.collect(structure, inverse(pose_matrix(*f.x[:6]))):
                         t_merge = time.perf_counter()
                         n = len(self.model.collected)
@@ -244,7 +255,7 @@ class FeederChain:
         f = self.filter
         if not f.started:
             return
-        if obs.velocity_level is None and obs.plane is None:
+        if obs.velocity_level is None and obs.plane is None and obs.detections_sensor is None:
             self.missing.append((obs.t_s, "radar", obs.status))
             return
         f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma, obs.tip_level)
@@ -255,7 +266,37 @@ class FeederChain:
                 f.update_point_velocity(obs.velocity_level, obs.velocity_cov + tip_var, obs.xi_level)
             if obs.plane is not None:
                 self._radar_deck(obs)
+        with times.stage("feeder.radar_register"):
+            self._radar_registration(obs)
+        self.radar_frames += 1
         self._record(obs)
+
+    def _radar_registration(self, obs: RadarObservation) -> None:
+        """The radar's detections registered to the LiDAR's model (perception/feeder_radar):
+        its offset from the LiDAR's registrations learnt while both see the feeder, then,
+        with the LiDAR out, x, y and yaw less that offset."""
+        cfg, f = self.radar_reg, self.filter
+        if (not cfg.enabled or obs.detections_sensor is None or len(obs.detections_sensor) == 0
+                or self.model.surface is None or self.model.model_frames < cfg.min_model_frames):
+            return
+        lidar_out = obs.t_s - self.last_registration_t > cfg.after_s
+        if not lidar_out and self.radar_frames % cfg.learn_every:
+            return
+        if lidar_out and self.radar_reg_offset.n < cfg.min_offset_frames:
+            return
+        R_ls, t_ls = self.perception.sensor_in_level("radar", self.mru.attitude(obs.t_s)[0])
+        points = obs.detections_sensor[np.isfinite(obs.detections_sensor).all(axis=1)]
+        cov = detection_covariance(points, *self.detection_sigma)
+        reg = register_radar(self.model.surface, points @ R_ls.T + t_ls, R_ls @ cov @ R_ls.T, f.x[:6], cfg)
+        if reg.status != "ok":
+            if lidar_out:
+                self.missing.append((obs.t_s, "radar", reg.status))
+            return
+        if not lidar_out:
+            self.radar_reg_offset.add(reg.x_y_yaw, f.x[[0, 1, 5]])
+            return
+        f.update_registration(reg.x_y_yaw - self.radar_reg_offset.mean, reg.info, self.radar_reg_offset.covariance(),
+                              kind="radar_registration", max_sigma_m=cfg.max_sigma_m)
 
     def _feeder_mru(self, t_s: float) -> None:
         """The feeder MRU's sample at a frame's time: the filter steps with the frames (30 a
