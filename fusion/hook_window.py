@@ -18,9 +18,8 @@ import math
 
 import numpy as np
 
-from boomtip.data.crane_model import pendulum_accelerations_core
 from boomtip.fusion.hook_kalman_steps import kalman_correction
-from boomtip.fusion.models.crane_pendulum import IAD, IBD, IF, IFD
+from boomtip.fusion.models.crane_pendulum import IAD, IBD, IFD
 from boomtip.fusion.models.linear_chains import accumulated_noise, sample_rows
 
 __all__ = ["PredictionWindow"]
@@ -116,12 +115,8 @@ class PredictionWindow:
         f(x) ~ A x + (f(x0) - A x0), as the EKF's mean (HookFilterConfig.ekf_mean)."""
         kf = self._kf
         if self._lin_x is not kf.x:
-            A = self.continuous_jacobian(kf.x)
-            self.n_jacobians += 1
-            rows = self._acc_rows
-            self._f_offset = np.zeros(self.n)
-            self._f_offset[rows] = self._sway_accelerations(kf.x) - A[rows] @ kf.x
-            self._A_win, self._lin_x, self._lin_steps = A, kf.x, {}
+            self._A_win, self._f_offset = self._linearisation(kf.x)
+            self._lin_x, self._lin_steps = kf.x, {}
         key = round(tau, 12)
         st = self._lin_steps.get(key)
         if st is None:
@@ -141,13 +136,6 @@ class PredictionWindow:
         x = F @ x
         x += c
         return x, P
-
-    def _sway_accelerations(self, x: np.ndarray) -> np.ndarray:
-        """(a'', b''[, nu_f'']) of the crane model at the state x."""
-        xl = x.tolist()
-        f, fd = (xl[IF], xl[IFD]) if self.flex else (0.0, 0.0)
-        acc = pendulum_accelerations_core(math.sin, math.cos, self._prm, self.flex, *xl[:19], f, fd)
-        return np.array(acc[:3] if self.flex else acc[:2])
 
     def _flush(self) -> None:
         """Close the window: predict to its last sample's time and apply its samples as one
