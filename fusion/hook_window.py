@@ -77,7 +77,7 @@ class PredictionWindow:
             for tj, kind, z in zip(self._pend_t[applied:], self._pend_kind[applied:], self._pend_z[applied:]):
                 x, P = self._linear_prediction(x, P, tj - t0)
                 ii, R = self._selection(kind)
-                if not math.isfinite(z.sum()):
+                if not math.isfinite(z @ z):
                     keep = np.isfinite(z)
                     ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
                 if len(z):
@@ -157,7 +157,7 @@ class PredictionWindow:
             if len(self._batch_cache) < 256:
                 self._batch_cache[pattern] = c
         H, R = c
-        if not math.isfinite(z.sum()):  # a NaN sample updates nothing
+        if not math.isfinite(z @ z):  # a NaN sample updates nothing (z @ z: NaN or inf with one)
             keep = np.isfinite(z)
             if not keep.any():
                 return
