@@ -43,6 +43,7 @@ from boomtip.fusion.models.crane_pendulum import (
 __all__ = ["HookFilter"]
 
 _HOOK_COLS_A = np.array(HOOK_COLS, np.intp)
+_SWAY_AB = np.array([IA, IB], np.intp)
 
 
 class HookFilter(HookKalmanCore):
@@ -155,13 +156,19 @@ class HookFilter(HookKalmanCore):
         ``reacquire_after_rejections`` consecutive gated directions the sway is re-initialised
         from one. Returns False when gated out (or NaN).
         """
-        self.advance_to(self.t if t is None else t)  # (closes a pending window)
         zr = sway_angles_from_direction(direction, cov)
         if zr is None:
+            self.advance_to(self.t if t is None else t)  # (closes a pending window)
             return False
-        z, R = zr
+        return self.update_sway_angles(zr[0], zr[1], direction, t)
+
+    def update_sway_angles(self, z: np.ndarray, R: np.ndarray, direction, t: float | None = None) -> bool:
+        """:meth:`update_rope` with the direction's sway angles z = (a, b) and their 2x2
+        covariance R already computed (:func:`~boomtip.fusion.models.crane_pendulum.sway_angles_from_directions`
+        for a whole run); ``direction`` re-initialises the sway after gated directions."""
+        self.advance_to(self.t if t is None else t)  # (closes a pending window)
         kf = self._kf
-        ii = np.array([IA, IB], np.intp)
+        ii = _SWAY_AB
 
         def terms():
             y = z - kf.x.take(ii)

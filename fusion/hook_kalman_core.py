@@ -63,7 +63,7 @@ from boomtip.fusion.models.crane_pendulum import (
     rk4_batch,
     rk4_float,
 )
-from boomtip.fusion.models.jacobian import continuous_jacobian
+from boomtip.fusion.models.jacobian import continuous_jacobian, jacobian_and_accelerations
 
 __all__ = ["HookKalmanCore", "kalman_correction"]
 
@@ -205,6 +205,16 @@ class HookKalmanCore(PredictionWindow):
         x = self._kf.x if x is None else np.asarray(x, float)
         return continuous_jacobian(self._prm, self.flex, x, method or self.cfg.jacobian)
 
+    def _linearisation(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A = df/dx at x, f(x) - A x): f(x') ~ A x' + (f(x) - A x) near x (zero but in the
+        accelerations' rows), from one call of the generated Jacobian."""
+        A, acc = jacobian_and_accelerations(self._prm, self.flex, x, self.cfg.jacobian)
+        self.n_jacobians += 1
+        rows = self._acc_rows
+        offset = np.zeros(self.n)
+        offset[rows] = acc - A[rows] @ x
+        return A, offset
+
     def process_noise(self, dt: float) -> np.ndarray:
         """Discrete Q for a step dt (eqs. 4.29-4.30)."""
         key = round(dt, 12)
@@ -242,13 +252,10 @@ class HookKalmanCore(PredictionWindow):
         # the symmetrised P
         if self.kind == "ekf":
             if self._A is None or self.t - self._A_t >= self._jac_interval - 1e-9:
-                self._A = A = self.continuous_jacobian(kf.x)
+                # f(x) ~ A x + (f(x0) - A x0) (the offset: only the accelerations' rows)
+                self._A, self._f_offset = self._linearisation(kf.x)
                 self._A_t = self.t
-                self.n_jacobians += 1
                 self._F_key = None
-                if self._ekf_affine:  # f(x) ~ A x + (f(x0) - A x0): only the accelerations' rows
-                    rows = self._acc_rows
-                    self._f_offset[rows] = self._sway_accelerations(kf.x) - A[rows] @ kf.x
             if key != self._F_key:  # F depends on (A, dt) only: rebuilt when either changes
                 Ad = self._A * dt
                 F = self._I + Ad + 0.5 * (Ad @ Ad)
@@ -307,8 +314,8 @@ class HookKalmanCore(PredictionWindow):
         kf = self._kf
         x, P = kf.x, kf.P
         z = np.asarray(z, dtype=float)
-        # (the sum is NaN or inf with any NaN or inf sample; the cheaper test at 200 Hz)
-        if not math.isfinite(z.sum()) and not np.all(np.isfinite(z)):  # a NaN sample updates nothing
+        # (z @ z is NaN or inf with any NaN or inf sample: one C call, the cheapest test at 200 Hz)
+        if not math.isfinite(z @ z) and not np.all(np.isfinite(z)):  # a NaN sample updates nothing
             keep = np.isfinite(z)
             if not keep.any():
                 return

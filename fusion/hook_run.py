@@ -13,7 +13,7 @@ import numpy as np
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
-from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch
+from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch, sway_angles_from_directions
 
 _OUTPUT_CHUNK = 8192  # recorded samples per block of the vectorised hook outputs
 
@@ -191,14 +191,23 @@ def run_hook_filter(
     lid_cov = meas.lidar_cov_m2
     enc_ok = np.isfinite(enc[:, 2]).tolist() if len(enc) else []
 
+    rope_z = rope_R = None
+    rope_conv_ok: list[bool] = []
+
     def lidar_frame(i: int, te: float | None = None) -> None:
         """One LiDAR frame: its rope direction, then its block fix."""
         if rope_ok[i]:
-            filt.update_rope(rope[i], rope_cov[i], t=te)
+            if rope_conv_ok[i]:
+                filt.update_sway_angles(rope_z[i], rope_R[i], rope[i], t=te)
+            else:  # (no sway angles from this direction: update_rope says so)
+                filt.update_rope(rope[i], rope_cov[i], t=te)
         lidar_ok[i] = filt.update_lidar(lid[i], t=te, sigma_m=None if lid_sigma is None else lid_sigma[i],
                                         cov_m2=None if lid_cov is None else lid_cov[i])
 
     tic, cpu0 = time.perf_counter(), time.process_time()
+    if rope_ok.any():  # the rope's sway angles and their covariances, all frames at once
+        rope_z, rope_R = sway_angles_from_directions(rope, rope_cov)
+        rope_conv_ok = (np.all(np.isfinite(rope_z), 1) & np.all(np.isfinite(rope_R.reshape(len(rope_R), 4)), 1)).tolist()
     if not has_fix:
         filt.initialize_from_measurements(np.array([0.0, 0.0, -1.0]), enc[ie], mru[im], t0)
     elif rope_ok[k0]:  # the sway from the rope's direction, then the whole frame as any other

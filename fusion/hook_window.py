@@ -18,9 +18,8 @@ import math
 
 import numpy as np
 
-from boomtip.data.crane_model import pendulum_accelerations_core
 from boomtip.fusion.hook_kalman_steps import kalman_correction
-from boomtip.fusion.models.crane_pendulum import IAD, IBD, IF, IFD
+from boomtip.fusion.models.crane_pendulum import IAD, IBD, IFD
 from boomtip.fusion.models.linear_chains import accumulated_noise, sample_rows
 
 __all__ = ["PredictionWindow"]
@@ -78,7 +77,7 @@ class PredictionWindow:
             for tj, kind, z in zip(self._pend_t[applied:], self._pend_kind[applied:], self._pend_z[applied:]):
                 x, P = self._linear_prediction(x, P, tj - t0)
                 ii, R = self._selection(kind)
-                if not math.isfinite(z.sum()):
+                if not math.isfinite(z @ z):
                     keep = np.isfinite(z)
                     ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
                 if len(z):
@@ -116,12 +115,8 @@ class PredictionWindow:
         f(x) ~ A x + (f(x0) - A x0), as the EKF's mean (HookFilterConfig.ekf_mean)."""
         kf = self._kf
         if self._lin_x is not kf.x:
-            A = self.continuous_jacobian(kf.x)
-            self.n_jacobians += 1
-            rows = self._acc_rows
-            self._f_offset = np.zeros(self.n)
-            self._f_offset[rows] = self._sway_accelerations(kf.x) - A[rows] @ kf.x
-            self._A_win, self._lin_x, self._lin_steps = A, kf.x, {}
+            self._A_win, self._f_offset = self._linearisation(kf.x)
+            self._lin_x, self._lin_steps = kf.x, {}
         key = round(tau, 12)
         st = self._lin_steps.get(key)
         if st is None:
@@ -141,13 +136,6 @@ class PredictionWindow:
         x = F @ x
         x += c
         return x, P
-
-    def _sway_accelerations(self, x: np.ndarray) -> np.ndarray:
-        """(a'', b''[, nu_f'']) of the crane model at the state x."""
-        xl = x.tolist()
-        f, fd = (xl[IF], xl[IFD]) if self.flex else (0.0, 0.0)
-        acc = pendulum_accelerations_core(math.sin, math.cos, self._prm, self.flex, *xl[:19], f, fd)
-        return np.array(acc[:3] if self.flex else acc[:2])
 
     def _flush(self) -> None:
         """Close the window: predict to its last sample's time and apply its samples as one
@@ -169,7 +157,7 @@ class PredictionWindow:
             if len(self._batch_cache) < 256:
                 self._batch_cache[pattern] = c
         H, R = c
-        if not math.isfinite(z.sum()):  # a NaN sample updates nothing
+        if not math.isfinite(z @ z):  # a NaN sample updates nothing (z @ z: NaN or inf with one)
             keep = np.isfinite(z)
             if not keep.any():
                 return

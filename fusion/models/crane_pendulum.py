@@ -39,6 +39,7 @@ __all__ = [
     "KIN_CHAINS", "HOOK_COLS", "HOOK_IX", "kin_at", "rk4_step", "rk4_float", "rk4_batch", "midpoint_float",
     "midpoint_batch", "process_noise",
     "hook_pos_vel", "hook_pos_vel_batch", "lidar_h_jac", "sway_angles_from_direction",
+    "sway_angles_from_directions",
 ]
 
 STATE_NAMES = [
@@ -347,3 +348,27 @@ def sway_angles_from_direction(direction, cov) -> tuple[np.ndarray, np.ndarray] 
     J = np.array([[-1.0 / math.sqrt(h2), 0.0, 0.0], [0.0, -u[2] / h2, u[1] / h2]])  # cos a = sqrt(h2)
     Pn = np.eye(3) - np.outer(u, u)
     return np.array([a, b]), J @ (Pn @ C @ Pn) @ J.T
+
+
+def sway_angles_from_directions(directions: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sway_angles_from_direction` for K directions (K, 3) and covariances (K, 3, 3) at
+    once: (z (K, 2), R (K, 2, 2)), NaN rows where it gives None (a run's rope fits converted
+    before its loop instead of one by one at 20 Hz)."""
+    U = np.asarray(directions, float).reshape(-1, 3)
+    C = np.asarray(covs, float).reshape(-1, 3, 3)
+    K = len(U)
+    norm = np.linalg.norm(U, axis=1)
+    ok = np.isfinite(norm) & (norm > 0) & np.all(np.isfinite(C.reshape(K, 9)), 1)
+    u = U / np.where(ok, norm, 1.0)[:, None]
+    h2 = u[:, 1] ** 2 + u[:, 2] ** 2
+    ok &= h2 >= 1e-12  # the rope horizontal along x: b undefined
+    h2 = np.where(ok, h2, 1.0)
+    z = np.stack([np.arcsin(np.clip(-u[:, 0], -1.0, 1.0)), np.arctan2(u[:, 1], -u[:, 2])], 1)
+    J = np.zeros((K, 2, 3))
+    J[:, 0, 0] = -1.0 / np.sqrt(h2)  # cos a = sqrt(h2)
+    J[:, 1, 1], J[:, 1, 2] = -u[:, 2] / h2, u[:, 1] / h2
+    Pn = np.eye(3) - u[:, :, None] * u[:, None, :]
+    JP = J @ Pn
+    R = JP @ C @ JP.transpose(0, 2, 1)
+    z[~ok], R[~ok] = np.nan, np.nan
+    return z, R

@@ -17,7 +17,7 @@ from boomtip.data.crane_model import pendulum_accelerations_core
 from boomtip.fusion.models.autodiff import accel_jacobian
 from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD, KIN_CHAINS
 
-__all__ = ["continuous_jacobian"]
+__all__ = ["continuous_jacobian", "jacobian_and_accelerations"]
 
 _CS_H = 1e-30  # complex step
 
@@ -43,6 +43,31 @@ def _complex_step(n: int) -> np.ndarray:
     return step
 
 
+@cache
+def _rows(flex: bool) -> np.ndarray:
+    r = np.array((IAD, IBD, IFD) if flex else (IAD, IBD), np.intp)
+    r.flags.writeable = False
+    return r
+
+
+def jacobian_and_accelerations(prm: tuple, flex: bool, x: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """(A (n, n), the accelerations (a'', b''[, nu_f'']) of the model) at the state x: with
+    ``"autodiff"`` both from one generated call (its forward sweep is the model's arithmetic)."""
+    n = 21 if flex else 19
+    jac = accel_jacobian(prm, flex) if method == "autodiff" else None
+    if jac is None:
+        xl = x.tolist()
+        f, fd = (xl[IF], xl[IFD]) if flex else (0.0, 0.0)
+        acc = pendulum_accelerations_core(math.sin, math.cos, prm, flex, *xl[:19], f, fd)
+        return continuous_jacobian(prm, flex, x, method), np.array(acc[:3] if flex else acc[:2])
+    rows = _rows(flex)
+    k = len(rows)
+    out = np.array(jac(x.tolist()))
+    A = _constant_part(n, flex).copy()
+    A[rows] = out[: k * n].reshape(k, n)
+    return A, out[k * n:]
+
+
 def continuous_jacobian(prm: tuple, flex: bool, x: np.ndarray, method: str) -> np.ndarray:
     """A (n, n) at the state x; ``prm`` is ``CraneParams.as_tuple()``."""
     n = 21 if flex else 19
@@ -51,7 +76,7 @@ def continuous_jacobian(prm: tuple, flex: bool, x: np.ndarray, method: str) -> n
     if method == "autodiff":
         jac = accel_jacobian(prm, flex)
         if jac is not None:
-            A[list(rows)] = np.array(jac(x.tolist())).reshape(len(rows), n)
+            A[list(rows)] = np.array(jac(x.tolist())[: len(rows) * n]).reshape(len(rows), n)
             return A
         method = "complex_step"  # the core not traceable
     if method == "complex_step":

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from boomtip.data.crane_model import CraneParams
+from boomtip.data.crane_model import CraneParams, pendulum_accelerations_core
 from boomtip.data.sim.crane_joints import CraneJointProfiles
 from boomtip.data.sim.crane_truth import simulate_crane
 from boomtip.data.sim.hook_measurements import measurements_from_truth
@@ -18,9 +18,11 @@ from boomtip.fusion.hook_kalman import HookFilter
 from boomtip.fusion.hook_run import run_hook_filter
 from boomtip.fusion.hook_tracker import HookTracker
 from boomtip.fusion.models.autodiff import accel_jacobian
+from boomtip.fusion.models.jacobian import jacobian_and_accelerations
 from boomtip.fusion.models.batched_model import midpoint_sigma_points, rk4_sigma_points
 from boomtip.fusion.models.crane_pendulum import (hook_pos_vel, hook_pos_vel_batch, midpoint_batch, midpoint_float, rk4_batch,
-                                                   rk4_float, rk4_step)
+                                                   rk4_float, rk4_step, sway_angles_from_direction,
+                                                   sway_angles_from_directions)
 from boomtip.tools.hook_eval import rmse_per_axis, world_hook_from_states
 
 DEG = math.pi / 180
@@ -209,6 +211,20 @@ def test_autodiff_jacobian_equals_complex_step(model):
         scale = np.abs(A_cs[rows]).max(1, keepdims=True)
         assert np.all(np.abs(A_ad[rows] - A_cs[rows]) <= 1e-13 * scale)
         np.testing.assert_array_equal(np.delete(A_ad, rows, 0), np.delete(A_cs, rows, 0))
+
+
+@pytest.mark.parametrize("model", ["flexible", "rigid"])
+@pytest.mark.parametrize("method", ["autodiff", "complex_step"])
+def test_jacobian_and_accelerations_are_the_models(model, method):
+    # the accelerations from the generated Jacobian's forward sweep are the model's, bit for bit
+    f = HookFilter("ekf", model)
+    for x in _random_states(f.n, 20):
+        A, acc = jacobian_and_accelerations(f._prm, f.flex, x, method)
+        xl = x.tolist()
+        fd = (xl[19], xl[20]) if f.flex else (0.0, 0.0)
+        ref = pendulum_accelerations_core(math.sin, math.cos, f._prm, f.flex, *xl[:19], *fd)
+        assert acc.tolist() == list(ref[: 3 if f.flex else 2])
+        np.testing.assert_array_equal(A, f.continuous_jacobian(x, method))
 
 
 @pytest.mark.parametrize("flex", [True, False])
@@ -429,3 +445,22 @@ def test_ukf_generated_model_equals_the_core(truth, model, integrator):
     assert len(gen.t) > 90
     np.testing.assert_array_equal(gen.x, core.x)
     np.testing.assert_array_equal(gen.P_diag, core.P_diag)
+
+
+def test_sway_angles_from_directions_equal_one_by_one():
+    rng = np.random.default_rng(3)
+    a, b = rng.uniform(-0.2, 0.2, 30), rng.uniform(-0.2, 0.2, 30)
+    U = np.stack([-np.sin(a), np.cos(a) * np.sin(b), -np.cos(a) * np.cos(b)], 1) * rng.uniform(0.5, 2, (30, 1))
+    L = rng.normal(0, 1e-3, (30, 3, 3))
+    C = L @ L.transpose(0, 2, 1)
+    U[3], C[5, 1, 2], U[7] = np.nan, np.nan, 0.0  # no direction, a NaN covariance, a zero vector
+    U[9] = [1.0, 0.0, 0.0]  # horizontal along x: b undefined
+    z, R = sway_angles_from_directions(U, C)
+    for k in range(30):
+        one = sway_angles_from_direction(U[k], C[k])
+        if one is None:
+            assert np.all(np.isnan(z[k])) and np.all(np.isnan(R[k]))
+            continue
+        np.testing.assert_allclose(z[k], one[0], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(R[k], one[1], rtol=1e-12, atol=0)
+    assert np.isfinite(z).all(1).sum() == 26
