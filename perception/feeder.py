@@ -254,10 +254,15 @@ def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tu
         return None
     i, d, length = i[ok], d[ok], length[ok]
     nrm = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
-    # distances of every point to every hypothesis, (N, H): one product (scoring is capped at
-    # max_scored points, so this is at most a few MB)
-    dist = np.abs(scored @ nrm.T - np.einsum("hj,hj->h", scored[i], nrm))
-    counts = np.count_nonzero(dist < tol_m, axis=0)
+    # distances of every point to every hypothesis, in blocks of 500 points: a block's (500, H)
+    # product stays in the cache, where the whole (N, H) one (4.5 MB) took 3-10 ms of page faults
+    offset = np.einsum("hj,hj->h", scored[i], nrm)
+    counts = np.zeros(len(nrm), dtype=np.int64)
+    for start in range(0, len(scored), 500):  # blocks of points, each vectorised
+        dist = scored[start:start + 500] @ nrm.T
+        dist -= offset
+        np.abs(dist, out=dist)
+        counts += np.count_nonzero(dist < tol_m, axis=0)
     best = int(np.argmax(counts))
     point, normal = scored[i[best]], nrm[best]
     for _ in range(4):  # refit on the band about the last fit: RANSAC's line clips a thick edge unevenly
