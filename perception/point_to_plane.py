@@ -103,8 +103,8 @@ class _Correspondences:
         step = moved - self.queried_at
         moved_m = np.sqrt(np.einsum("ij,ij->i", step, step))
         stale = ~(2.0 * moved_m + 1e-9 < self.gap)  # NaN (never queried): stale
-        stale &= np.isfinite(np.einsum("ij,ij->i", moved, moved))  # Open3D's search fails on a non-finite row
         rows = self.order[stale[self.order]]
+        rows = rows[np.isfinite(np.einsum("ij,ij->i", moved[rows], moved[rows]))]  # Open3D's search fails on a non-finite row
         if len(rows):
             self.index[rows], _, self.gap[rows] = self.surface.nearest_two(moved[rows])
             self.queried_at[rows] = moved[rows]
