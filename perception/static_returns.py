@@ -164,7 +164,7 @@ class StaticRays(_Window):
         at_range = self.range_counts[range_slots].astype(np.int32)
         if len(self._dilation):
             near = self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())]
-            at_range += near.reshape(len(ranges), -1).sum(axis=1, dtype=np.int32)
+            at_range += near.reshape(len(ranges), len(self._dilation)).sum(axis=1, dtype=np.int32)
         need = max(3, int(np.ceil(self.cfg.ray_min_presence * len(self.frames))))
         return (held >= need) & (at_range >= self.cfg.ray_min_fraction * held)
 

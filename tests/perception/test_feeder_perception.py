@@ -94,6 +94,7 @@ def test_static_rays_keep_the_feeder_and_flag_the_own_hull_through_its_gaps():
         assert whole.any() and not whole.all()
         assert np.array_equal(st.static_mask(pts, keys, rows), whole[rows])
         assert np.array_equal(st.static_mask(pts, None, rows), whole[rows])
+        assert st.static_mask(pts, keys, rows[:0]).shape == (0,)  # a frame whose geometry keeps nothing
 
 
 def test_plane_in_level_covariance_is_honest():
