@@ -47,8 +47,10 @@ def _o3d():
 class RegistrationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    sample_m: float = Field(0.25, gt=0, description="frames are voxel-sampled at this size (the keyframe keeps it)")
-    keyframe_m: float = Field(0.25, gt=0, description="the keyframe's voxel")
+    sample_m: float = Field(0.0, ge=0, description="frames are voxel-sampled at this size before the static test and the "
+                            "structure (0: every return kept; the keyframe keeps it). At 0.25 m it kept 28 780 of a 128 x 1024 "
+                            "frame's 28 786 returns and every grid LiDAR return, for 3.5 ms a frame: the ICP samples its own")
+    keyframe_m: float = Field(0.0, ge=0, description="the keyframe's voxel, when coarser than the frames' (0: the frame's)")
     icp_sample_m: float = Field(0.5, gt=0, description="and the frame registered to it at this size: ICP's time goes with the source")
     kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel (re-acquisition only)")
     kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this")
@@ -276,7 +278,7 @@ class FeederModel:
         """Add a registered frame to the keyframe: the scan pattern falls elsewhere on the
         structure each frame, so a few frames fill the edges one frame leaves ragged."""
         pts = np.vstack([np.asarray(self.keyframe.points), transform(T_map_level, source_level)])
-        kf = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(pts)).voxel_down_sample(self.cfg.sample_m * 0.5)
+        kf = _o3d().geometry.PointCloud(_o3d().utility.Vector3dVector(pts)).voxel_down_sample((self.cfg.sample_m or self.cfg.model_voxel_m) * 0.5)
         kf.estimate_normals(_o3d().geometry.KDTreeSearchParamKNN(self.cfg.normal_neighbours))
         self._use(kf)
         self.kiss_map.add_points(transform(T_map_level, source_level))

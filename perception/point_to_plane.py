@@ -12,6 +12,13 @@ the update solves the Gauss-Newton normal equations of the residuals n . (p - q)
 Tukey's (1 - (r / k)^2)^2, for (rx, ry, rz, tx, ty, tz) applied as Rz Ry Rx; it stops when the
 fitness and the inlier RMSE both change by less than `relative_change`. The poses agree with
 Open3D's to 1e-14 on recorded feeder frames (tests/perception/test_point_to_plane.py).
+
+The nearest-neighbour queries are most of an iteration's time, and after the first the pose
+moves by millimetres: each source point's nearest and second-nearest surface points are kept,
+and a point is queried again only when it has moved by half their distances' gap or more since
+(below that the nearest cannot have changed: every other point is at least d2 - moved away,
+the nearest at most d1 + moved). The correspondences are the full query's, for about 1.2 of
+the 3 queries a registration from a good prediction took.
 """
 
 from __future__ import annotations
@@ -61,6 +68,52 @@ class Surface:
         return rows[ok], idx[ok].astype(np.int64), d2[ok]
 
 
+    def nearest_two(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per query row (finite rows only): its nearest surface point, the distance to it, and
+        the gap to the second nearest (inf on a one-point surface)."""
+        k = 2 if len(self.points) >= 2 else 1
+        idx, d2 = self._nns.knn_search(self._o3c.Tensor(np.ascontiguousarray(query, dtype=np.float64)), k)
+        idx, d = idx.numpy(), np.sqrt(d2.numpy())
+        gap = d[:, 1] - d[:, 0] if k == 2 else np.full(len(d), np.inf)
+        return idx[:, 0].astype(np.int64), d[:, 0], gap
+
+
+class _Correspondences:
+    """The nearest surface point of each source point as the pose changes, queried again only
+    for the points that may have changed it: moved by half the gap between their nearest and
+    second-nearest distances (with a margin for rounding) since they were last queried."""
+
+    def __init__(self, surface: Surface, source: np.ndarray, max_distance_m: float) -> None:
+        n = len(source)
+        self.surface, self.max_d2 = surface, max_distance_m * max_distance_m
+        self.queried_at = np.full((n, 3), np.nan)  # where each point was when last queried (NaN: never)
+        self.index = np.zeros(n, dtype=np.int64)
+        self.gap = np.zeros(n)
+        # queries in spatial order (1 m cells of the source's own frame): neighbouring queries walk
+        # the same branches of the index, a third faster than the voxel sampling's hash order
+        finite = np.where(np.isfinite(source), source, 0.0)
+        cell = np.floor(finite - finite.min(axis=0, initial=np.inf)).astype(np.int64) if n else np.zeros((0, 3), np.int64)
+        dims = cell.max(axis=0, initial=0) + 1
+        self.order = np.argsort((cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2], kind="stable")
+
+    def at(self, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(source index, surface index, squared distance) of the points matched within the
+        distance at these positions (non-finite rows match nothing)."""
+        # row-wise sums of squares by einsum: numpy's sum over a length-3 axis is several times slower
+        step = moved - self.queried_at
+        moved_m = np.sqrt(np.einsum("ij,ij->i", step, step))
+        stale = ~(2.0 * moved_m + 1e-9 < self.gap)  # NaN (never queried): stale
+        rows = self.order[stale[self.order]]
+        rows = rows[np.isfinite(np.einsum("ij,ij->i", moved[rows], moved[rows]))]  # Open3D's search fails on a non-finite row
+        if len(rows):
+            self.index[rows], _, self.gap[rows] = self.surface.nearest_two(moved[rows])
+            self.queried_at[rows] = moved[rows]
+        dq = moved - self.surface.points[self.index]
+        d2 = np.einsum("ij,ij->i", dq, dq)
+        ok = np.flatnonzero(d2 <= self.max_d2)  # a non-finite row compares False
+        return ok, self.index[ok], d2[ok]
+
+
 def rotation_zyx(rx: float, ry: float, rz: float) -> np.ndarray:
     """Rz(rz) Ry(ry) Rx(rx), Open3D's TransformVector6dToMatrix4d."""
     cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
@@ -69,9 +122,9 @@ def rotation_zyx(rx: float, ry: float, rz: float) -> np.ndarray:
                      [-sy, cy * sx, cy * cx]])
 
 
-def _matches(surface: Surface, source: np.ndarray, T: np.ndarray, max_corr: float):
+def _matches(matcher: _Correspondences, source: np.ndarray, T: np.ndarray):
     moved = source @ T[:3, :3].T + T[:3, 3]
-    src_i, srf_i, d2 = surface.nearest(moved, max_corr)
+    src_i, srf_i, d2 = matcher.at(moved)
     fitness = len(src_i) / len(source) if len(source) else 0.0
     rmse = float(np.sqrt(d2.sum() / len(d2))) if len(d2) else 0.0
     return moved, src_i, srf_i, fitness, rmse
@@ -81,7 +134,8 @@ def icp_point_to_plane(surface: Surface, source: np.ndarray, T_guess: np.ndarray
                        tukey_m: float, relative_change: float, max_iterations: int) -> IcpResult:
     """Register source points (their own frame) to the surface from T_guess (source -> surface)."""
     T = np.array(T_guess, dtype=np.float64)
-    moved, src_i, srf_i, fitness, rmse = _matches(surface, source, T, max_correspondence_m)
+    matcher = _Correspondences(surface, source, max_correspondence_m)
+    moved, src_i, srf_i, fitness, rmse = _matches(matcher, source, T)
     it = 0
     while it < max_iterations and len(src_i) >= 6:
         p, q, n = moved[src_i], surface.points[srf_i], surface.normals[srf_i]
@@ -104,7 +158,7 @@ def icp_point_to_plane(surface: Surface, source: np.ndarray, T_guess: np.ndarray
         T = update @ T
         it += 1
         previous = (fitness, rmse)
-        moved, src_i, srf_i, fitness, rmse = _matches(surface, source, T, max_correspondence_m)
+        moved, src_i, srf_i, fitness, rmse = _matches(matcher, source, T)
         if abs(previous[0] - fitness) < relative_change and abs(previous[1] - rmse) < relative_change:
             break
     return IcpResult(T, src_i, srf_i, fitness, rmse, it)

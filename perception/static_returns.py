@@ -70,6 +70,13 @@ def voxel_hash(packed: np.ndarray) -> np.ndarray:
     return ((packed.astype(np.uint64) * _GOLDEN) >> np.uint64(64 - _TABLE_BITS)).astype(np.int64)
 
 
+def _rows(a, rows: np.ndarray | None):
+    """a[rows], or each array of a tuple at rows; all of it when rows is None."""
+    if rows is None:
+        return a
+    return tuple(k[rows] for k in a) if isinstance(a, tuple) else a[rows]
+
+
 def StaticReturns(cfg: StaticReturnsConfig | None = None) -> "StaticVoxels | StaticRays":
     """The static-return test the settings name."""
     cfg = cfg or StaticReturnsConfig()
@@ -144,18 +151,20 @@ class StaticRays(_Window):
         self._push(t_s, (keys[0], keys[2]))
         return keys
 
-    def static_mask(self, points_sensor: np.ndarray, keys: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+    def static_mask(self, points_sensor: np.ndarray, keys: tuple[np.ndarray, ...] | None = None,
+                    rows: np.ndarray | None = None) -> np.ndarray:
         """True where the return's beam held its range in ray_min_fraction of the frames it
         returned, and returned in at least ray_min_presence of the window's frames. The band of
         range bins is summed here, not spread when counting: a beam has one range a frame, so
         the sum counts each frame once, with a fifth of the hashing at every add. `keys`: what
-        `add` returned for these points."""
-        beam_slots, ranges, range_slots = keys if keys is not None else self.keys(points_sensor)
+        `add` returned for these points; `rows`: only these of them are tested."""
+        beam_slots, ranges, range_slots = _rows(keys if keys is not None else self.keys(_rows(points_sensor, rows)),
+                                                rows if keys is not None else None)
         held = self.beam_counts[beam_slots]
         at_range = self.range_counts[range_slots].astype(np.int32)
         if len(self._dilation):
             near = self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())]
-            at_range += near.reshape(len(ranges), -1).sum(axis=1, dtype=np.int32)
+            at_range += near.reshape(len(ranges), len(self._dilation)).sum(axis=1, dtype=np.int32)
         need = max(3, int(np.ceil(self.cfg.ray_min_presence * len(self.frames))))
         return (held >= need) & (at_range >= self.cfg.ray_min_fraction * held)
 
@@ -182,9 +191,10 @@ class StaticVoxels(_Window):
         self._push(t_s, (np.unique(packed),))  # 1-D: a sort, not a lexsort
         return (packed,)
 
-    def static_mask(self, points_sensor: np.ndarray, keys: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+    def static_mask(self, points_sensor: np.ndarray, keys: tuple[np.ndarray, ...] | None = None,
+                    rows: np.ndarray | None = None) -> np.ndarray:
         """True where a point falls in a voxel held in min_fraction of the window's frames.
-        `keys`: what `add` returned for these points."""
+        `keys`: what `add` returned for these points; `rows`: only these of them are tested."""
         need = max(2, int(np.ceil(self.cfg.min_fraction * len(self.frames))))
-        packed = keys[0] if keys is not None else packed_voxels(points_sensor, self.cfg.voxel_m)
+        packed = _rows(keys[0], rows) if keys is not None else packed_voxels(_rows(points_sensor, rows), self.cfg.voxel_m)
         return self.counts[voxel_hash(packed)] >= need

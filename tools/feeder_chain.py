@@ -194,15 +194,16 @@ class FeederChain:
             self.missing.append((obs.t_s, "lidar", obs.status))
             self._record(obs)  # a frame without a deck: its structure has nothing to stand on
             return
-        with times.stage("feeder.static"):
-            mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
-            obs.static_keys = None
-        with times.stage("feeder.structure"):
+        with times.stage("feeder.structure"):  # with the static test of the returns it keeps
             T_map_level = inverse(pose_matrix(*f.x[:6]))
             if self.footprint is None and obs.plane is not None and obs.plane.points_level is not None:
                 deck_map = transform(T_map_level, obs.plane.points_level)
                 self.footprint = Footprint(deck_map[:, :2], self.cfg.perception.footprint_margin_m)
-            structure = self.perception.structure(obs, mask, deck_plane(f.x), self.footprint, T_map_level)
+            keys = obs.static_keys
+            structure = self.perception.structure(
+                obs, deck_plane(f.x), self.footprint, T_map_level,
+                is_static=lambda rows: self.static.static_mask(obs.sample_returns_sensor, keys, rows))
+            obs.static_keys = None
         with times.stage("feeder.register"):
             T_guess = T_map_level  # the prediction, after the deck's update
             sigma = float(np.linalg.norm(f.pose_sigma()[[0, 1]])) + 10.0 * float(f.pose_sigma()[5])
@@ -244,6 +245,7 @@ class FeederChain:
                 # the own hull's side among the static returns (a wall: a line in plan), for the
                 # calibration's rotation about the vertical
                 if len(self.hull_yaws) < self.cfg.hull_edge_frames:  # a constant: a few dozen frames pin it
+                    mask = self.static.static_mask(obs.sample_returns_sensor, keys)
                     static_level = obs.sample_sensor[mask] @ obs.R_level_sensor.T + obs.t_level_sensor
                     hull = centre_line_yaw(static_level, self.rng, band_m=(-np.inf, np.inf))
                     if hull is not None and hull[1] >= self.cfg.hull_edge_min_points:

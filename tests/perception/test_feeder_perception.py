@@ -86,6 +86,15 @@ def test_static_rays_keep_the_feeder_and_flag_the_own_hull_through_its_gaps():
     assert rays.static_mask(own_now).mean() > 0.97
     assert rays.static_mask(deck_now).mean() < 0.03
     assert voxels.static_mask(deck_now).mean() > 0.9  # why the beams are the default
+    # the test of some rows, from the frame's keys, is the whole frame's test at those rows
+    rows = np.flatnonzero(rng.random(len(pts)) < 0.3)
+    for st in (rays, voxels):
+        keys = st.add(12.1, pts)
+        whole = st.static_mask(pts, keys)
+        assert whole.any() and not whole.all()
+        assert np.array_equal(st.static_mask(pts, keys, rows), whole[rows])
+        assert np.array_equal(st.static_mask(pts, None, rows), whole[rows])
+        assert st.static_mask(pts, keys, rows[:0]).shape == (0,)  # a frame whose geometry keeps nothing
 
 
 def test_plane_in_level_covariance_is_honest():

@@ -4,7 +4,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from boomtip.perception.point_to_plane import Surface, icp_point_to_plane, rotation_zyx
+from boomtip.perception.point_to_plane import Surface, _Correspondences, icp_point_to_plane, rotation_zyx
 
 
 def _structure(rng: np.random.Generator) -> np.ndarray:
@@ -81,3 +81,45 @@ def test_a_non_finite_guess_matches_nothing():
     assert got.fitness == 0.0 and len(got.source_index) == 0 and got.iterations == 0
     src_i, srf_i, _ = surface.nearest(np.vstack([pts[:3], [np.inf, 0.0, 0.0]]), 1.0)
     assert list(src_i) == [0, 1, 2] and list(srf_i) == [0, 1, 2]
+
+
+def test_tracked_correspondences_are_a_full_querys(scene):
+    """Re-querying only the points that moved by half their nearest-second gap gives every
+    nearest point a full query gives, over steps from a millimetre to a metre; the small steps
+    query a few of the points."""
+    model, src, _ = scene
+    surface = Surface(np.asarray(model.points), np.asarray(model.normals))
+    source = src[::3]
+    tracked = _Correspondences(surface, source, 1.0)
+    queried = []
+    full_query = surface.nearest_two
+    surface.nearest_two = lambda q: (queried.append(len(q)), full_query(q))[1]
+    rng = np.random.default_rng(5)
+    for step_m in (0.0, 0.001, 0.002, 0.003, 0.01, 0.3, 1.0, 0.001):
+        T = np.eye(4)
+        T[:3, :3] = rotation_zyx(*rng.normal(0, step_m / 20, 3))
+        T[:3, 3] = rng.normal(0, step_m, 3)
+        moved = source @ T[:3, :3].T + T[:3, 3]
+        queried.append(0)
+        src_i, srf_i, d2 = tracked.at(moved)
+        ref_src, ref_srf, ref_d2 = surface.nearest(moved, 1.0)
+        assert np.array_equal(src_i, ref_src) and np.array_equal(srf_i, ref_srf)
+        assert np.allclose(d2, ref_d2, rtol=0, atol=1e-12)
+    per_step = [sum(queried[i + 1:i + 2]) for i in range(len(queried)) if queried[i] == 0][:8]
+    assert per_step[0] == len(source)  # the first: all of them
+    assert max(per_step[1:4]) < 0.2 * len(source)  # millimetres: a few
+    assert per_step[6] > 0.9 * len(source)  # a metre: nearly all
+
+
+def test_tracked_correspondences_skip_non_finite_rows(scene):
+    model, src, _ = scene
+    surface = Surface(np.asarray(model.points), np.asarray(model.normals))
+    source = src[:50].copy()
+    tracked = _Correspondences(surface, source, 1.0)
+    moved = source.copy()
+    moved[[3, 7]] = np.nan
+    src_i, _, _ = tracked.at(moved)
+    ref_src, _, _ = surface.nearest(moved, 1.0)
+    assert np.array_equal(src_i, ref_src) and 3 not in src_i and 7 not in src_i
+    src_i, _, _ = tracked.at(source)  # finite again: queried then
+    assert np.array_equal(src_i, surface.nearest(source, 1.0)[0])
