@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -34,9 +34,10 @@ from boomtip.data.crane_model import (
     rk4_substep,
     tip_kinematics,
 )
+from boomtip.data.sim.crane_truth_stream import dop853_chunks
 from boomtip.data.sim.vessel_waves import as_vessel_motion
 
-__all__ = ["CraneTruth", "simulate_crane"]
+__all__ = ["CraneTruth", "crane_truth_chunks", "simulate_crane"]
 
 
 @dataclass
@@ -241,6 +242,79 @@ def _dop853(prm, flex, joints, vessel, y0, duration_s, t_rec, rtol, accel):
     return out
 
 
+def _setup(params, joints, vessel_motion, initial_state, rope_ea_n, wind_mps, drag_area_m2, drag_coefficient,
+           air_density_kgpm3):
+    """The integration's inputs: the stretched rope's programme, the accelerations (with the
+    drag), the vessel, the parameters as a tuple, the flexibility and the initial state."""
+    if rope_ea_n is not None and not rope_ea_n > 0:
+        raise ValueError("rope_ea_n must be positive (or None for a rigid rope)")
+    if not drag_area_m2 >= 0:
+        raise ValueError("drag_area_m2 must be >= 0")
+    rope = joints if rope_ea_n is None else _StretchedRope(joints, 1.0 + params.m * params.g / rope_ea_n)
+    accel = pendulum_accelerations_core
+    if drag_area_m2 > 0:
+        k_drag = 0.5 * air_density_kgpm3 * drag_coefficient * drag_area_m2 / params.m
+        accel = _accelerations_with_drag(k_drag, float(wind_mps[0]), float(wind_mps[1]))
+    vessel = as_vessel_motion(vessel_motion)
+    flex = bool(params.flexible)
+    y0 = np.array(initial_state, float)
+    if not flex:
+        y0[4:] = 0.0
+    return rope, accel, vessel, params.as_tuple(), flex, y0
+
+
+def _truth_from_states(params, joints, rope, vessel, t_rec, Y, runtime_s, method) -> CraneTruth:
+    """The recorded truth from the integrated states Y (m, 6) at the times t_rec: elementwise in
+    the samples, so a chunk of records gives the same numbers as the whole run."""
+    a, ad, b, bd, f, fd = Y.T
+    J = joints.evaluate(t_rec)
+    V = vessel.evaluate(t_rec)
+    J = JointStates(*(np.broadcast_to(np.asarray(x, float), t_rec.shape).copy() for x in J))
+    V = VesselState(*(np.broadcast_to(np.asarray(x, float), t_rec.shape).copy() for x in V))
+    Jt = J if rope is joints else JointStates(*(np.broadcast_to(np.asarray(x, float), t_rec.shape).copy()
+                                                for x in rope.evaluate(t_rec)))
+    # the drag leaves nu_f'' unchanged (module docstring): the nominal model gives it
+    _, _, fdd = crane_accelerations(params, a, ad, b, bd, Jt, V, f, fd)
+    p_tip, v_tip, _ = tip_kinematics(params, Jt, V, f, fd, fdd)
+    r, rd = hook_relative_kinematics(Jt.l, Jt.l_dot, a, ad, b, bd)
+    return CraneTruth(
+        t=t_rec, nu=J.nu, nu_dot=J.nu_dot, nu_ddot=J.nu_ddot, mu=J.mu, mu_dot=J.mu_dot, mu_ddot=J.mu_ddot,
+        l=J.l, l_dot=J.l_dot, l_ddot=J.l_ddot, l_rope=Jt.l, nu_f=f, nu_f_dot=fd, a=a, b=b, a_dot=ad, b_dot=bd,
+        roll=V.roll, roll_dot=V.roll_dot, roll_ddot=V.roll_ddot,
+        pitch=V.pitch, pitch_dot=V.pitch_dot, pitch_ddot=V.pitch_ddot,
+        p_tip_world=p_tip, v_tip_world=v_tip, p_hook_world=p_tip + r, v_hook_world=v_tip + rd,
+        p_hook_rel_tip=r, v_hook_rel_tip=rd, params=params, runtime_s=runtime_s, method=method,
+    )
+
+
+def crane_truth_chunks(
+    params: CraneParams,
+    joints,
+    vessel_motion=None,
+    duration_s: float = 100.0,
+    record_rate_hz: float = 200.0,
+    *,
+    chunk_s: float = 10.0,
+    initial_state: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    rtol: float = 1e-9,
+    rope_ea_n: float | None = None,
+    wind_mps: tuple[float, float] = (0.0, 0.0),
+    drag_area_m2: float = 0.0,
+    drag_coefficient: float = 1.2,
+    air_density_kgpm3: float = 1.225,
+) -> Iterator[CraneTruth]:
+    """:func:`simulate_crane` (DOP853) a chunk of ``chunk_s`` seconds of records at a time, in
+    order: the same numbers, with a memory that does not grow with ``duration_s`` (a 700 s run's
+    whole truth is 46 MB, and its derivation several times that)."""
+    rope, accel, vessel, prm, flex, y0 = _setup(params, joints, vessel_motion, initial_state, rope_ea_n, wind_mps,
+                                                drag_area_m2, drag_coefficient, air_density_kgpm3)
+    n_rec = int(round(duration_s * record_rate_hz)) + 1
+    t_rec = np.arange(n_rec) / record_rate_hz
+    chunk_n = max(1, int(round(chunk_s * record_rate_hz)))
+    for first, Y in dop853_chunks(prm, flex, rope, vessel, y0, duration_s, t_rec, rtol, accel, chunk_n):
+        yield _truth_from_states(params, joints, rope, vessel, t_rec[first:first + len(Y)], Y, 0.0, "dop853")
+
+
 def simulate_crane(
     params: CraneParams,
     joints,
@@ -275,21 +349,8 @@ def simulate_crane(
     drag area ``drag_area_m2`` (0: no drag) with ``drag_coefficient`` and ``air_density_kgpm3``.
     The truth's ``l`` is the hoist programme's (the encoder's), ``l_rope`` the stretched length.
     """
-    if rope_ea_n is not None and not rope_ea_n > 0:
-        raise ValueError("rope_ea_n must be positive (or None for a rigid rope)")
-    if not drag_area_m2 >= 0:
-        raise ValueError("drag_area_m2 must be >= 0")
-    rope = joints if rope_ea_n is None else _StretchedRope(joints, 1.0 + params.m * params.g / rope_ea_n)
-    accel = pendulum_accelerations_core
-    if drag_area_m2 > 0:
-        k_drag = 0.5 * air_density_kgpm3 * drag_coefficient * drag_area_m2 / params.m
-        accel = _accelerations_with_drag(k_drag, float(wind_mps[0]), float(wind_mps[1]))
-    vessel = as_vessel_motion(vessel_motion)
-    prm = params.as_tuple()
-    flex = bool(params.flexible)
-    y0 = np.array(initial_state, float)
-    if not flex:
-        y0[4:] = 0.0
+    rope, accel, vessel, prm, flex, y0 = _setup(params, joints, vessel_motion, initial_state, rope_ea_n, wind_mps,
+                                                drag_area_m2, drag_coefficient, air_density_kgpm3)
     rec_every = int(round(1.0 / (record_rate_hz * dt_s)))
     if method == "rk4" and abs(rec_every * dt_s * record_rate_hz - 1.0) > 1e-9:
         raise ValueError("dt_s must divide the record period")
@@ -304,22 +365,4 @@ def simulate_crane(
     else:
         raise ValueError(f"unknown method {method!r}")
     runtime = time.perf_counter() - t_start
-    a, ad, b, bd, f, fd = Y.T
-    J = joints.evaluate(t_rec)
-    V = vessel.evaluate(t_rec)
-    J = JointStates(*(np.broadcast_to(np.asarray(x, float), t_rec.shape).copy() for x in J))
-    V = VesselState(*(np.broadcast_to(np.asarray(x, float), t_rec.shape).copy() for x in V))
-    Jt = J if rope is joints else JointStates(*(np.broadcast_to(np.asarray(x, float), t_rec.shape).copy()
-                                                for x in rope.evaluate(t_rec)))
-    # the drag leaves nu_f'' unchanged (module docstring): the nominal model gives it
-    _, _, fdd = crane_accelerations(params, a, ad, b, bd, Jt, V, f, fd)
-    p_tip, v_tip, _ = tip_kinematics(params, Jt, V, f, fd, fdd)
-    r, rd = hook_relative_kinematics(Jt.l, Jt.l_dot, a, ad, b, bd)
-    return CraneTruth(
-        t=t_rec, nu=J.nu, nu_dot=J.nu_dot, nu_ddot=J.nu_ddot, mu=J.mu, mu_dot=J.mu_dot, mu_ddot=J.mu_ddot,
-        l=J.l, l_dot=J.l_dot, l_ddot=J.l_ddot, l_rope=Jt.l, nu_f=f, nu_f_dot=fd, a=a, b=b, a_dot=ad, b_dot=bd,
-        roll=V.roll, roll_dot=V.roll_dot, roll_ddot=V.roll_ddot,
-        pitch=V.pitch, pitch_dot=V.pitch_dot, pitch_ddot=V.pitch_ddot,
-        p_tip_world=p_tip, v_tip_world=v_tip, p_hook_world=p_tip + r, v_hook_world=v_tip + rd,
-        p_hook_rel_tip=r, v_hook_rel_tip=rd, params=params, runtime_s=runtime, method=method,
-    )
+    return _truth_from_states(params, joints, rope, vessel, t_rec, Y, runtime, method)

@@ -1,8 +1,9 @@
 """The hook scene (document 002): a crane vessel whose boom, rope and lower block move with
 the crane's joints and the pendulum, seen by a spinning LiDAR at the boom tip.
 
-The crane and hook truth is integrated once (data/sim/crane_truth.py, DOP853 or RK4 at 1 kHz) over
-the whole run; frames then pose the bodies from it. The vessel's waves are the scenario's
+The crane and hook truth is integrated once (data/sim/crane_truth.py, DOP853) over the whole run,
+a chunk at a time; the tracks the frames, the logs and the truth table need go to temporary files
+as they come, and are read back a window at a time: a run's memory does not grow with its length. The vessel's waves are the scenario's
 `crane.motion.roll` and `crane.motion.pitch` about the vessel origin, as in data/motion.py.
 
 Frames: the boom-tip frame has its origin at the tip and the axes of the vessel slewed by
@@ -13,11 +14,16 @@ perception reports and the filter's LiDAR model h(x) = l u(a, b) predicts.
 
 from __future__ import annotations
 
+import os
+import tempfile
+from collections.abc import Mapping
+from typing import IO, Iterator
+
 import numpy as np
 
 from boomtip.data.crane_model import CraneParams
 from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
-from boomtip.data.sim.crane_truth import CraneTruth, simulate_crane
+from boomtip.data.sim.crane_truth import crane_truth_chunks
 from boomtip.data.sim.vessel_waves import CallableVesselMotion
 from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Frame, Truth
 from boomtip.data.block_model import lower_block_parts, rope_mesh
@@ -25,9 +31,11 @@ from boomtip.data.scenario import Scenario
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
 from boomtip.data.sim.simulator import SENSOR_IDS, SimScene, Simulation, frame_times
 
-BOOM_SHORT_OF_TIP_M = 2.0
-# the crane truth's tracks the frames' poses interpolate (_scene_poses)
-POSE_TRACKS = ("t", "roll", "pitch", "nu", "mu", "nu_f", "p_tip_world", "p_hook_rel_tip")  # the lattice stops short of the tip: the sensors hang in free space
+BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
+# the crane truth's tracks kept (on disk): the frames' poses (_scene_poses), the encoders and the truth table
+TRUTH_CHUNK = 4096  # truth rows made at a time
+KEPT_TRACKS = ("roll", "pitch", "nu", "mu", "l", "nu_f", "a", "b", "p_tip_world", "p_hook_world", "v_hook_world",
+               "p_hook_rel_tip", "v_hook_rel_tip")
 
 
 def crane_params(s: Scenario) -> CraneParams:
@@ -97,6 +105,87 @@ def hanging_rotation(u: np.ndarray, heading: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z], axis=-1)
 
 
+class TrackFiles:
+    """Arrays of a common length, each in an unnamed temporary file (removed when closed or
+    collected), appended a chunk of rows at a time and read back by rows. Reads are positional
+    (``os.preadv``): a forked process reading the same files does not move this one's offsets."""
+
+    def __init__(self) -> None:
+        self._files: dict[str, IO[bytes]] = {}
+        self._row_shape: dict[str, tuple[int, ...]] = {}
+        self._rows: dict[str, int] = {}
+
+    def append(self, name: str, rows: np.ndarray) -> None:
+        rows = np.ascontiguousarray(rows, dtype=float)
+        if name not in self._files:
+            self._files[name] = tempfile.TemporaryFile(prefix="boomtip-track-")
+            self._row_shape[name], self._rows[name] = rows.shape[1:], 0
+        self._files[name].write(rows.tobytes())
+        self._rows[name] += len(rows)
+
+    def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Rows start..stop-1 of a track."""
+        fh, shape = self._files[name], self._row_shape[name]
+        stop = self._rows[name] if stop is None else min(stop, self._rows[name])
+        out = np.empty((max(stop - start, 0), *shape))
+        fh.flush()
+        if out.size:
+            row_bytes = out.itemsize * int(np.prod(shape, dtype=int))
+            os.preadv(fh.fileno(), [memoryview(out).cast("B")], start * row_bytes)
+        return out
+
+    def interp(self, name: str, t: np.ndarray, t_grid: np.ndarray, **kw) -> np.ndarray:
+        """``np.interp`` of the track (per column) at t over the grid t_grid, reading only the rows
+        that bracket t: each value depends on its two neighbours alone, so the same numbers."""
+        t = np.asarray(t, dtype=float)
+        if t.size and np.all(np.isfinite(t)):
+            i0 = max(int(np.searchsorted(t_grid, t.min(), "right")) - 1, 0)
+            i1 = min(int(np.searchsorted(t_grid, t.max(), "left")) + 1, len(t_grid))
+        else:
+            i0, i1 = 0, len(t_grid)
+        v, tg = self.read(name, i0, i1), t_grid[i0:i1]
+        if v.ndim == 1:
+            return np.interp(t, tg, v, **kw)
+        return np.stack([np.interp(t, tg, v[:, k], **kw) for k in range(v.shape[1])], axis=-1)
+
+
+class _TruthColumns(Mapping):
+    """The truth table's columns, each read from its file when asked for."""
+
+    def __init__(self, t: np.ndarray, files: TrackFiles) -> None:
+        self._t, self._files = t, files
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "t":
+            return self._t
+        if name not in HOOK_TRUTH_COLUMNS:
+            raise KeyError(name)
+        return self._files.read(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(HOOK_TRUTH_COLUMNS)
+
+    def __len__(self) -> int:
+        return len(HOOK_TRUTH_COLUMNS)
+
+
+class StoredTruth(Truth):
+    """A hook run's truth table with its columns on disk (`TrackFiles`): ``at`` reads only the
+    rows about the asked times, ``columns`` reads a whole column when indexed."""
+
+    def __init__(self, t: np.ndarray, files: TrackFiles) -> None:  # noqa: D107 (no dataclass fields of its own)
+        self._t, self._files = t, files
+
+    @property
+    def columns(self) -> Mapping:
+        return _TruthColumns(self._t, self._files)
+
+    def at(self, name: str, t_s: np.ndarray) -> np.ndarray:
+        if name == "t":
+            return super().at(name, t_s)
+        return self._files.interp(name, t_s, self._t, left=np.nan, right=np.nan)
+
+
 class HookSimulation(Simulation):
     """A hook scenario simulated in memory: LiDAR frames, MRU and encoder logs, hook truth."""
 
@@ -113,26 +202,25 @@ class HookSimulation(Simulation):
                               bank.eval(np.atleast_1d(t), 1)[:, i].reshape(np.shape(t)),
                               bank.eval(np.atleast_1d(t), 2)[:, i].reshape(np.shape(t)))
 
-        crane: CraneTruth = simulate_crane(
+        self._tracks = TrackFiles()
+        t_crane = []
+        for crane in crane_truth_chunks(
             self.params, spec.joints, CallableVesselMotion(dof(3), dof(4)),
             duration_s=scenario.duration_s + 0.5, record_rate_hz=max(scenario.world.truth_rate_hz, 200.0),
             # richer than the filter's model: an elastic reeving and the wind on block and load
             rope_ea_n=scenario.world.mismatch.rope_ea_n, wind_mps=scenario.world.mismatch.wind_mps,
             drag_area_m2=scenario.world.hook.drag_area_m2,
-        )
-        self._tracks: dict[str, np.ndarray] = vars(crane)  # the crane truth's arrays by name
+        ):
+            t_crane.append(crane.t)
+            for name in KEPT_TRACKS:
+                self._tracks.append(name, getattr(crane, name))
+        self._t_crane = np.concatenate(t_crane)
         super().__init__(scenario, world)
         self.encoders = self._encoder_log()
-        # The truth table and the logs are made: the frames' poses need only these tracks, and
-        # the rest of the crane truth (41 floats a sample at 200 Hz) would stay for the whole run.
-        self._tracks = {name: self._tracks[name] for name in POSE_TRACKS}
 
     # -- poses from the crane truth ------------------------------------------------------
     def _interp(self, name: str, t: np.ndarray) -> np.ndarray:
-        v, t_crane = self._tracks[name], self._tracks["t"]
-        if v.ndim == 1:
-            return np.interp(t, t_crane, v)
-        return np.stack([np.interp(t, t_crane, v[:, k]) for k in range(v.shape[1])], axis=-1)
+        return self._tracks.interp(name, t, self._t_crane)
 
     def _scene_poses(self, times: np.ndarray, sensor: str):
         roll, pitch = self._interp("roll", times), self._interp("pitch", times)
@@ -178,18 +266,21 @@ class HookSimulation(Simulation):
         }
 
     def _truth(self) -> Truth:
+        """The truth table at the truth rate, made a chunk of rows at a time into files of its own."""
         s = self.scenario
         t = frame_times(s.world.truth_rate_hz, s.duration_s + 1.0 / s.world.truth_rate_hz)
-        cols = {"t": t}
-        for prefix, name in (("hook_", "p_hook_world"), ("hook_v", "v_hook_world"), ("hook_rel_", "p_hook_rel_tip"),
-                             ("hook_rel_v", "v_hook_rel_tip"), ("tip_", "p_tip_world")):
-            v = self._interp(name, t)
-            for k, ax in enumerate("xyz"):
-                cols[f"{prefix}{ax}"] = v[:, k]
-        for col, name in (("slew", "nu"), ("luff", "mu"), ("hoist", "l"), ("boom_deflection", "nu_f"),
-                          ("sway_a", "a"), ("sway_b", "b"), ("crane_roll", "roll"), ("crane_pitch", "pitch")):
-            cols[col] = self._interp(name, t)
-        return Truth({k: cols[k] for k in HOOK_TRUTH_COLUMNS})
+        files = TrackFiles()
+        for a in range(0, len(t), TRUTH_CHUNK):
+            tc = t[a:a + TRUTH_CHUNK]
+            for prefix, name in (("hook_", "p_hook_world"), ("hook_v", "v_hook_world"), ("hook_rel_", "p_hook_rel_tip"),
+                                 ("hook_rel_v", "v_hook_rel_tip"), ("tip_", "p_tip_world")):
+                v = self._interp(name, tc)
+                for k, ax in enumerate("xyz"):
+                    files.append(f"{prefix}{ax}", v[:, k])
+            for col, name in (("slew", "nu"), ("luff", "mu"), ("hoist", "l"), ("boom_deflection", "nu_f"),
+                              ("sway_a", "a"), ("sway_b", "b"), ("crane_roll", "roll"), ("crane_pitch", "pitch")):
+                files.append(col, self._interp(name, tc))
+        return StoredTruth(t, files)
 
 
 def _rx(theta: np.ndarray) -> np.ndarray:
