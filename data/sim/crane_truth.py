@@ -34,7 +34,7 @@ from boomtip.data.crane_model import (
     rk4_substep,
     tip_kinematics,
 )
-from boomtip.data.sim.crane_truth_stream import dop853_chunks
+from boomtip.data.sim.crane_truth_stream import dop853_chunks, rhs_and_pieces
 from boomtip.data.sim.vessel_waves import as_vessel_motion
 
 __all__ = ["CraneTruth", "crane_truth_chunks", "simulate_crane"]
@@ -216,22 +216,10 @@ def _dop853(prm, flex, joints, vessel, y0, duration_s, t_rec, rtol, accel):
     """scipy DOP853 integrated piecewise between the inputs' breakpoints (acceleration steps)."""
     from scipy.integrate import solve_ivp
 
-    sin, cos = math.sin, math.cos
-
-    def rhs(t, y):
-        J = joints.evaluate(t)
-        V = vessel.evaluate(t)
-        a, ad, b, bd, f, fd = y
-        add, bdd, fdd = accel(sin, cos, prm, flex, a, ad, b, bd, *J, *V, f, fd)
-        return [ad, add, bd, bdd, fd, fdd]
-
-    bps = getattr(joints, "breakpoints", lambda: [])()
-    edges = sorted({0.0, duration_s, *[t for t in bps if 0.0 < t < duration_s]})
+    rhs, pieces = rhs_and_pieces(prm, flex, joints, vessel, duration_s, accel)
     out = np.empty((len(t_rec), 6))
     y = np.asarray(y0, float)
-    for t0, t1 in zip(edges[:-1], edges[1:]):
-        if t1 - t0 < 1e-12:
-            continue
+    for t0, t1 in pieces:
         sel = (t_rec >= t0) & (t_rec <= t1)
         sol = solve_ivp(rhs, (t0, t1), y, method="DOP853", rtol=rtol, atol=rtol * 1e-3, dense_output=True)
         if not sol.success:

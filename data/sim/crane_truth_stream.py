@@ -10,15 +10,9 @@ import numpy as np
 __all__ = ["dop853_chunks"]
 
 
-def dop853_chunks(prm, flex, joints, vessel, y0, duration_s, t_rec, rtol, accel, chunk_n):
-    """crane_truth's ``_dop853`` as it goes: (first record index, (m, 6) states) for ``chunk_n`` records at a
-    time, keeping only the step in progress (not the whole run's dense output). The same solver
-    steps as ``solve_ivp`` takes on each piece, and each record read from the interpolant of the
-    same step as ``solve_ivp``'s dense output picks (the one ending at or after it): the same
-    numbers to the last bit. A record on a breakpoint belongs to the later piece, as in
-    :func:`_dop853`."""
-    from scipy.integrate import DOP853
-
+def rhs_and_pieces(prm, flex, joints, vessel, duration_s, accel):
+    """The state's derivative (a, a', b, b', f, f') for scipy, and the intervals between the
+    inputs' breakpoints (acceleration steps) that it is integrated over one at a time."""
     sin, cos = math.sin, math.cos
 
     def rhs(t, y):
@@ -30,7 +24,19 @@ def dop853_chunks(prm, flex, joints, vessel, y0, duration_s, t_rec, rtol, accel,
 
     bps = getattr(joints, "breakpoints", lambda: [])()
     edges = sorted({0.0, duration_s, *[t for t in bps if 0.0 < t < duration_s]})
-    pieces = [(t0, t1) for t0, t1 in zip(edges[:-1], edges[1:]) if t1 - t0 >= 1e-12]
+    return rhs, [(t0, t1) for t0, t1 in zip(edges[:-1], edges[1:]) if t1 - t0 >= 1e-12]
+
+
+def dop853_chunks(prm, flex, joints, vessel, y0, duration_s, t_rec, rtol, accel, chunk_n):
+    """crane_truth's ``_dop853`` as it goes: (first record index, (m, 6) states) for ``chunk_n`` records at a
+    time, keeping only the step in progress (not the whole run's dense output). The same solver
+    steps as ``solve_ivp`` takes on each piece, and each record read from the interpolant of the
+    same step as ``solve_ivp``'s dense output picks (the one ending at or after it): the same
+    numbers to the last bit. A record on a breakpoint belongs to the later piece, as in
+    :func:`_dop853`."""
+    from scipy.integrate import DOP853
+
+    rhs, pieces = rhs_and_pieces(prm, flex, joints, vessel, duration_s, accel)
     # each record's piece: the last one that holds it
     owner = np.full(len(t_rec), -1)
     for k, (t0, t1) in enumerate(pieces):
