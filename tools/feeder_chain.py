@@ -51,6 +51,7 @@ from boomtip.perception.feeder_registration import (
 from boomtip.perception.pipeline import FrameResult
 from boomtip.perception.static_returns import StaticReturns
 from boomtip.perception.timing import StageTimes
+from boomtip.tools.feeder_frame import estimates_in_feeder_frame
 
 DECK_STAGES = ("deck.preprocess", "deck.planes", "deck.refine", "deck.intersect")
 
@@ -381,32 +382,10 @@ class FeederChain:
             notes.append("feeder: no straight hull edge in the keyframe: x is along the crane's heading")
         psi0 = line[0] if line is not None else 0.0
         T_map_feeder = pose_matrix(*origin_map, 0.0, 0.0, psi0)
-        sigma_level = self.perception.mount_sigma_rad["lidar"]
-        pose, rates, var = [], [], []
-        for k, (t, x, P) in enumerate(zip(out.t_s, out.x, out.P)):
-            x = relative_to_tip(x, self.tips[k])
-            tl, C = tilt, C_final
-            pivot = self.pivots[k]
-            y, J = _feeder_pose_jacobian(x[:6], C, pivot, T_map_feeder)
-            Pp = J @ P[:6, :6] @ J.T
-            Pr = J @ P[6:12, 6:12] @ J.T
-            # The levelling's own uncertainty: the calibration's sigma once it has one, else the
-            # survey's. Corrected about the LiDAR, a tilt moves the deck below it sideways by its
-            # lever. The MRU's bias tilts the same sensor-to-level rotation as a mount error and
-            # is calibrated with it; what it moves besides is the tip about the vessel's origin,
-            # which the estimate (relative to the tip) sees only in z, by the horizontal offset.
-            s_lvl = tl.sigma_rad if tl is not None else sigma_level
-            lever = float(np.linalg.norm(y[:3] - pivot))
-            s_mru = self.perception.mru_bias_sigma_rad
-            # about the vertical: the own hull's calibration, else the survey's mount accuracy
-            s_rz = tl.rz_sigma_rad if tl is not None and tl.rz_sigma_rad is not None else sigma_level
-            extra = np.array([(lever * s_lvl) ** 2] * 2
-                             + [(float(np.hypot(y[0], y[1])) * s_mru) ** 2, s_lvl ** 2, s_lvl ** 2, line_sigma ** 2 + s_rz ** 2])
-            pose.append(y)
-            rates.append(J @ x[6:12])
-            var.append(np.concatenate([np.diag(Pp) + extra, np.diag(Pr)]))
+        pose, rates, var = estimates_in_feeder_frame(out, self.tips, self.pivots, tilt, C_final, T_map_feeder,
+                                                     self.perception.mount_sigma_rad["lidar"],
+                                                     self.perception.mru_bias_sigma_rad, line_sigma)
         t = np.asarray(out.t_s)
-        pose, rates, var = np.array(pose), np.array(rates), np.array(var)
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
         return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
                             self.frame_ms, notes, self.missing, T_map_feeder,
@@ -421,35 +400,3 @@ class FeederChain:
                 "body_yaw_in_map_deg": round(float(x[1]), 4), "body_yaw_sigma_deg": round(float(s[1]), 4),
                 "body_tilt_deg": np.round(x[2:], 4).tolist(), "body_tilt_sigma_deg": np.round(s[2:], 4).tolist(),
                 "gaps": self.feeder_mru_gaps}
-
-
-def relative_to_tip(x: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
-    """Pose and rates relative to the tip: the state's rates are relative to the vessel."""
-    out = np.array(x[:12], dtype=float)
-    out[6:9] -= tip_velocity
-    return out
-
-
-def _feeder_pose_jacobian(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray,
-                          T_map_feeder: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The feeder frame's pose and its Jacobian (6x6, central differences) w.r.t. the map's."""
-    y = _feeder_pose(pose_map_level, C, pivot, T_map_feeder)
-    J = np.zeros((6, 6))
-    for j in range(6):
-        e = np.zeros(6)
-        e[j] = 1e-6
-        d = _feeder_pose(pose_map_level + e, C, pivot, T_map_feeder) - _feeder_pose(pose_map_level - e, C, pivot, T_map_feeder)
-        d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi
-        J[:, j] = d / 2e-6
-    return y, J
-
-
-def _feeder_pose(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray, T_map_feeder: np.ndarray) -> np.ndarray:
-    """The feeder frame's pose in the corrected heading frame: the map's pose in the level
-    frame, turned by the levelling correction about the LiDAR, composed with the feeder
-    frame's place in the map."""
-    T = pose_matrix(*pose_map_level) @ T_map_feeder
-    Tc = np.eye(4)
-    Tc[:3, :3] = C
-    Tc[:3, 3] = pivot - C @ pivot
-    return pose_vector(Tc @ T)
