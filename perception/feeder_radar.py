@@ -12,8 +12,9 @@ The registration here is a Gauss-Newton of the point-to-plane residuals in the f
 coordinates (x, y, yaw of the feeder frame in the level frame), each residual weighted by the
 detection's noise along the model's normal and a Tukey kernel at `tukey_sigmas` of it.
 Open3D's ICP (and `point_to_plane.icp_point_to_plane`) weigh every point alike and move all
-six degrees of freedom: with the radar's anisotropic noise, ten times the LiDAR's, that lets
-the noisy deck points tilt the pose.
+six degrees of freedom: with the radar's anisotropic noise, ten times the LiDAR's, that would
+weigh a grazing wall detection like a good one and let the detections' noise move z, roll and
+pitch, which the deck planes already fix far better.
 """
 
 from __future__ import annotations
