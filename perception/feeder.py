@@ -83,6 +83,7 @@ class RadarObservation:
     tip_level: np.ndarray = field(default_factory=lambda: np.zeros(3))
     tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     detections_sensor: np.ndarray | None = None  # the frame's points, for a registration to the feeder model
+    R_level_sensor: np.ndarray | None = None  # the radar's axes in the level frame (its origin: xi_level)
 
 
 def plane_in_level(points_level: np.ndarray, inflation: float) -> PlaneLevel:
@@ -198,12 +199,13 @@ class FeederPerception:
             rows = rows[~is_static(rows)]
         return pts[rows]
 
-    def radar(self, t_s: float, rpy: np.ndarray, rpy_rate: np.ndarray, doppler, deck) -> RadarObservation:
+    def radar(self, t_s: float, rpy: np.ndarray, rpy_rate: np.ndarray, doppler, deck,
+              detections_sensor: np.ndarray | None = None) -> RadarObservation:
         R_ls, t_ls = self.sensor_in_level("radar", rpy)
         tip = self.tip_motion(rpy, rpy_rate)
         plane = self.deck_plane("radar", deck, R_ls, t_ls, extra_tilt_sigma_rad=math.hypot(self.mount_sigma_rad["radar"], self.angle_sigma_rad))
         if doppler is None:
-            return RadarObservation(t_s, None, None, t_ls, plane, "no Doppler velocity", *tip)
+            return RadarObservation(t_s, None, None, t_ls, plane, "no Doppler velocity", *tip, detections_sensor, R_ls)
         u = R_ls @ doppler.velocity_sensor
         # The crane's rotation (level frame, less its yaw rate, which turns the frame itself)
         # carries the radar: add it back to get the feeder point's velocity in the level frame.
@@ -211,7 +213,7 @@ class FeederPerception:
         lever = float(np.linalg.norm(t_ls))
         cov = R_ls @ doppler.covariance @ R_ls.T + np.eye(3) * ((lever * self.rate_sigma_radps) ** 2
                                                                 + (float(np.linalg.norm(u)) * self.angle_sigma_rad) ** 2)
-        return RadarObservation(t_s, v, cov, t_ls, plane, "ok", *tip)
+        return RadarObservation(t_s, v, cov, t_ls, plane, "ok", *tip, detections_sensor, R_ls)
 
 
 class Footprint:

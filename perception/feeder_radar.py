@@ -77,36 +77,46 @@ def detection_covariance(points_sensor: np.ndarray, range_sigma_m: float, azimut
     return np.einsum("nki,nkj->nij", axes, axes)
 
 
-def _map_points(pose: np.ndarray, points_level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The level-frame points in the feeder (map) frame at pose (x, y, z, roll, pitch, yaw of
-    the map frame in the level frame), and their derivatives by x, y and yaw, (N, 3, 3)."""
+def _to_map(pose: np.ndarray, points_level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Level-frame points in the feeder (map) frame at pose (x, y, z, roll, pitch, yaw of the
+    map frame in the level frame): R^T (p - t) with R = Rz R_tilt. Also Rz^T (p - t), R_tilt, R."""
     Rz = rpy_matrix((0.0, 0.0, pose[5]))
     R_tilt = rpy_matrix((pose[3], pose[4], 0.0))
     a = (points_level - pose[:3]) @ Rz  # Rz^T (p - t)
-    p_map = a @ R_tilt  # R^T (p - t) with R = Rz R_tilt
+    return a @ R_tilt, a, R_tilt, Rz @ R_tilt
+
+
+def _map_points(pose: np.ndarray, points_level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points in the map frame (see _to_map), their derivatives by x, y and yaw, (N, 3, 3),
+    and R."""
+    p_map, a, R_tilt, R = _to_map(pose, points_level)
     d = np.empty((len(points_level), 3, 3))
-    R = Rz @ R_tilt
     d[:, :, 0], d[:, :, 1] = -R[0], -R[1]
     # by the yaw: R_tilt^T d(Rz^T)/dyaw (p - t) = -R_tilt^T (e_z x a)
     d[:, :, 2] = -np.column_stack([-a[:, 1], a[:, 0], np.zeros(len(a))]) @ R_tilt
     return p_map, d, R
 
 
-def register_radar(surface: Surface, points_level: np.ndarray, cov_level: np.ndarray, pose_guess: np.ndarray,
+def register_radar(surface: Surface, detections_sensor: np.ndarray, R_level_sensor: np.ndarray, t_level_sensor: np.ndarray,
+                   detection_sigma: tuple[float, float, float], pose_guess: np.ndarray,
                    cfg: RadarRegistrationConfig) -> RadarRegistration:
-    """x, y and yaw of the feeder frame (level frame) that put the detections on the model,
-    z, roll and pitch held at the guess's."""
+    """x, y and yaw of the feeder frame (level frame) that put the radar's detections (sensor
+    frame; their range, azimuth and elevation 1-sigma) on the model, z, roll and pitch held at
+    the guess's."""
     pose = np.array(pose_guess, dtype=float)
     k2 = cfg.tukey_sigmas ** 2
+    detections_sensor = detections_sensor[np.isfinite(detections_sensor).all(axis=1)]
+    points_level = detections_sensor @ R_level_sensor.T + t_level_sensor
     # Only detections that can land on the structure are searched: off the deck's band (a
     # deck's vertical normal says nothing of x, y or yaw: two thirds of those on the model)
     # and inside the model's plan outline (not the sea, the own vessel, false alarms).
     xy = surface.points[:, :2]
     lo, hi = xy.min(axis=0) - 1.0, xy.max(axis=0) + 1.0  # 30 us for 27 000 points: no cache to keep in step
-    p_map = _map_points(pose, points_level)[0]
+    p_map = _to_map(pose, points_level)[0]
     keep = ((np.abs(p_map[:, 2]) > cfg.deck_band_m) & (p_map[:, 0] > lo[0]) & (p_map[:, 0] < hi[0])
             & (p_map[:, 1] > lo[1]) & (p_map[:, 1] < hi[1]))
-    points_level, cov_level = points_level[keep], cov_level[keep]
+    points_level = points_level[keep]
+    cov_level = R_level_sensor @ detection_covariance(detections_sensor[keep], *detection_sigma) @ R_level_sensor.T
     info, matched = np.zeros((3, 3)), 0
     for _ in range(cfg.max_iterations):
         p_map, d_map, R = _map_points(pose, points_level)

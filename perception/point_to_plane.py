@@ -67,7 +67,6 @@ class Surface:
         ok = np.flatnonzero(d2 <= max_distance_m * max_distance_m)
         return rows[ok], idx[ok].astype(np.int64), d2[ok]
 
-
     def nearest_two(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per query row (finite rows only): its nearest surface point, the distance to it, and
         the gap to the second nearest (inf on a one-point surface)."""

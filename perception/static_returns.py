@@ -158,8 +158,8 @@ class StaticRays(_Window):
         range bins is summed here, not spread when counting: a beam has one range a frame, so
         the sum counts each frame once, with a fifth of the hashing at every add. `keys`: what
         `add` returned for these points; `rows`: only these of them are tested."""
-        beam_slots, ranges, range_slots = _rows(keys if keys is not None else self.keys(_rows(points_sensor, rows)),
-                                                rows if keys is not None else None)
+        keys = self.keys(_rows(points_sensor, rows)) if keys is None else _rows(keys, rows)
+        beam_slots, ranges, range_slots = keys
         held = self.beam_counts[beam_slots]
         at_range = self.range_counts[range_slots].astype(np.int32)
         if len(self._dilation):

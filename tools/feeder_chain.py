@@ -38,7 +38,7 @@ from boomtip.perception.feeder import (
     RadarObservation,
     centre_line_yaw,
 )
-from boomtip.perception.feeder_radar import RadarOffset, detection_covariance, register_radar
+from boomtip.perception.feeder_radar import RadarOffset, register_radar
 from boomtip.perception.feeder_registration import (
     FeederModel,
     condition_on,
@@ -141,8 +141,7 @@ class FeederChain:
                 obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
             else:
                 obs = self.perception.radar(frame.t_s, rpy, rpy_rate, heave.doppler if heave is not None else None,
-                                            heave.deck_radar if heave is not None else None)
-                obs.detections_sensor = frame.points_sensor
+                                            heave.deck_radar if heave is not None else None, frame.points_sensor)
         if frame.sensor == "lidar":
             # the chain's time per LiDAR frame: this, the steps below, and the deck stage it reuses
             obs.ms = (time.perf_counter() - t_obs) * 1e3 + (heave.times.total(*DECK_STAGES) if heave is not None else 0.0)
@@ -258,9 +257,8 @@ class FeederChain:
         f = self.filter
         if not f.started:
             return
-        if obs.velocity_level is None and obs.plane is None and obs.detections_sensor is None:
-            self.missing.append((obs.t_s, "radar", obs.status))
-            return
+        if obs.velocity_level is None and obs.plane is None:
+            self.missing.append((obs.t_s, "radar", obs.status))  # its detections may still register below
         f.predict(obs.t_s, obs.tip_velocity, self.perception.tip_velocity_sigma, obs.tip_level)
         self._feeder_mru(obs.t_s)
         with times.stage("feeder.radar_update"):
@@ -287,10 +285,8 @@ class FeederChain:
             return
         if lidar_out and self.radar_reg_offset.n < cfg.min_offset_frames:
             return
-        R_ls, t_ls = self.perception.sensor_in_level("radar", self.mru.attitude(obs.t_s)[0])
-        points = obs.detections_sensor[np.isfinite(obs.detections_sensor).all(axis=1)]
-        cov = detection_covariance(points, *self.detection_sigma)
-        reg = register_radar(self.model.surface, points @ R_ls.T + t_ls, R_ls @ cov @ R_ls.T, f.x[:6], cfg)
+        reg = register_radar(self.model.surface, obs.detections_sensor, obs.R_level_sensor, obs.xi_level,
+                             self.detection_sigma, f.x[:6], cfg)
         if reg.status != "ok":
             if lidar_out:
                 self.missing.append((obs.t_s, "radar", reg.status))

@@ -83,7 +83,7 @@ def test_the_registration_finds_x_y_and_yaw_within_its_stated_sigma(feeder_model
     d2, errors = [], []
     for _ in range(40):
         level = _frame(points, truth, rng)
-        reg = register_radar(surface, level, detection_covariance(level, *SIGMA), guess, cfg)
+        reg = register_radar(surface, level, np.eye(3), np.zeros(3), SIGMA, guess, cfg)  # the radar at the level origin
         assert reg.status == "ok" and reg.matched > 300
         e = reg.x_y_yaw - truth[[0, 1, 5]]
         errors.append(e)
@@ -97,7 +97,7 @@ def test_the_registration_finds_x_y_and_yaw_within_its_stated_sigma(feeder_model
 def test_too_few_detections_on_the_model_is_no_registration(feeder_model):
     surface, _ = feeder_model
     far = np.array([[100.0, 100.0, 0.0]] * 50)
-    reg = register_radar(surface, far, detection_covariance(far, *SIGMA), np.array([0, 0, -28.0, 0, 0, 0]),
+    reg = register_radar(surface, far, np.eye(3), np.zeros(3), SIGMA, np.array([0, 0, -28.0, 0, 0, 0]),
                          RadarRegistrationConfig())
     assert reg.status.startswith("0 radar detections") and not reg.info.any()
 
