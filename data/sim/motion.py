@@ -36,6 +36,15 @@ class SineBank:
         arg = t[:, None, None] * self.omega[None] + self.phase[None] + derivative * np.pi / 2
         return np.sum(self.amplitude[None] * self.omega[None] ** derivative * np.sin(arg), axis=2)
 
+    def at(self, t_s: float) -> np.ndarray:
+        """The DOFs at one instant (a frame's pose), (1, 6): `eval([t_s])` in four calls on
+        the (6, K) arrays instead of the broadcasts over times; the same values."""
+        arg = self.omega * t_s
+        arg += self.phase
+        np.sin(arg, out=arg)
+        arg *= self.amplitude
+        return arg.sum(axis=1)[None]
+
 
 class ShiftedSines:
     """A SineBank at t + c_j for fixed offsets c_j (a sweep's column times), frame after
@@ -94,13 +103,26 @@ def rpy_matrices(rpy: np.ndarray) -> np.ndarray:
         return np.array([[[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
                           [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
                           [-sp, cp * sr, cp * cr]]])
-    c, s = np.cos(rpy), np.sin(rpy)
-    cr, cp, cy, sr, sp, sy = c[:, 0], c[:, 1], c[:, 2], s[:, 0], s[:, 1], s[:, 2]
-    R = np.empty((len(rpy), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
-    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
-    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -sp, cp * sr, cp * cr
-    return R
+    # Each angle's cosine and sine contiguous, the nine entries built in a (9, T) array and
+    # turned to (T, 3, 3) in one copy: a sweep's columns, T = 1024, twice a frame.
+    c, s = np.cos(rpy.T), np.sin(rpy.T)
+    cr, cp, cy, sr, sp, sy = c[0], c[1], c[2], s[0], s[1], s[2]
+    cysp, sysp = cy * sp, sy * sp
+    R = np.empty((9, len(rpy)))
+    np.multiply(cy, cp, out=R[0])
+    np.multiply(cysp, sr, out=R[1])
+    R[1] -= sy * cr
+    np.multiply(cysp, cr, out=R[2])
+    R[2] += sy * sr
+    np.multiply(sy, cp, out=R[3])
+    np.multiply(sysp, sr, out=R[4])
+    R[4] += cy * cr
+    np.multiply(sysp, cr, out=R[5])
+    R[5] -= cy * sr
+    np.negative(sp, out=R[6])
+    np.multiply(cp, sr, out=R[7])
+    np.multiply(cp, cr, out=R[8])
+    return np.ascontiguousarray(R.T).reshape(-1, 3, 3)
 
 
 def euler_rates_to_omega_world(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:

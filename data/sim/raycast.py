@@ -54,8 +54,9 @@ class RayCaster:
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             self.face_normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12))
             self.face_normals32.append(self.face_normals[-1].astype(np.float32))
-        # The same, one contiguous array per axis: gathers of one float each are the fast ones.
-        self.face_normals32_by_axis = [np.ascontiguousarray(n.T) for n in self.face_normals32]
+        # The same, one contiguous array per axis (gathers of one float each are the fast ones),
+        # and a zero normal last: a miss's face, -1, reads it, so misses get cos 0 with no mask.
+        self.face_normals32_by_axis = [np.concatenate([n.T, np.zeros((3, 1), np.float32)], axis=1) for n in self.face_normals32]
         # Bounding boxes, padded well beyond float32 rounding of rays out to kilometres.
         lo = np.array([b.vertices.min(axis=0) for b in bodies])
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
@@ -222,18 +223,18 @@ class RayCaster:
             t = ans["t_hit"].numpy()
             if best_t is None:
                 # The first cast, of every ray: its answer is the best so far (Open3D's invalid
-                # id, 2^32 - 1, reads -1 as int32), and the fixed hits before it, few, go back
-                # where they are at least as close.
+                # id, 2^32 - 1, reads -1 as int32, and a miss's incidence reads the zero normal),
+                # and the fixed hits before it, few, go back where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
-                hit = best_face >= 0
-                best_body = np.where(hit, np.int32(b), np.int32(-1))
-                cos_inc = self._incidence(b, best_face, rays, None, scale)  # (misses: any face)
-                cos_inc *= hit
+                best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
+                best_body |= b  # ... then b (-1 stays -1)
+                cos_inc = self._incidence(b, best_face, rays, None, scale)
                 if pending is not None:
-                    t_f, face_f, c_f = fixed_hits[pending]
-                    k_f = self._fixed_rays(pending, face_f)
-                    k_f = k_f[~(np.take(t, k_f) < np.take(t_f, k_f))]
-                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_f[k_f], pending, face_f[k_f], c_f[k_f]
+                    k_f, t_k, face_k, c_k = self._fixed_compact(pending, fixed_hits[pending])
+                    nearer = ~(np.take(t, k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
+                    if not nearer.all():
+                        k_f, t_k, face_k, c_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer]
+                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_k, pending, face_k, c_k
                     pending = None
                 continue
             closer = np.flatnonzero(t < (best_t if ray_k is None else np.take(best_t, ray_k)))
@@ -272,10 +273,15 @@ class RayCaster:
         body32, face32 = self._fixed_body_face(b, face)
         return t.copy(), body32.copy(), face32.copy(), c.copy()
 
-    def _fixed_rays(self, b: int, face: np.ndarray) -> np.ndarray:
-        """The rays with a fixed hit `face` on body b (kept, as `_fixed_body_face`)."""
-        self._fixed_body_face(b, face)
-        return self._fixed_body_cache[b][3]
+    def _fixed_compact(self, b: int, fixed: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """The rays with a fixed hit on body b and their t, face (int32) and cos, kept as
+        `_fixed_body_face`."""
+        self._fixed_body_face(b, fixed[1])
+        cached = self._fixed_body_cache[b]
+        if len(cached) == 3:
+            k = np.flatnonzero(fixed[1] >= 0)
+            cached = self._fixed_body_cache[b] = (*cached, (k, fixed[0][k], cached[2][k], fixed[2][k]))
+        return cached[3]
 
     def _fixed_body_face(self, b: int, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Body index (-1 on a miss) and face per ray of fixed hits `face` on body b, as int32
@@ -283,8 +289,7 @@ class RayCaster:
         come back frame after frame."""
         cached = self._fixed_body_cache.get(b)
         if cached is None or cached[0] is not face:
-            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1).astype(np.int32), face.astype(np.int32),
-                                                  np.flatnonzero(face >= 0))
+            cached = self._fixed_body_cache[b] = (face, np.where(face >= 0, b, -1).astype(np.int32), face.astype(np.int32))
         return cached[1], cached[2]
 
     def cast_in_body_frame(self, b: int, origin_body: np.ndarray, dirs_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

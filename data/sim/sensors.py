@@ -11,7 +11,7 @@ ray-cast hits into what the sensor reports (noise, quantisation, intensity, drop
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -123,6 +123,7 @@ def standard_normal32(rng: np.random.Generator, n: int) -> np.ndarray:
     return out[:n]
 
 
+@lru_cache(maxsize=16)
 def range_window(min_m: float, max_m: float, dtype) -> tuple[np.generic, np.generic]:
     """The window [min_m, max_m] in `dtype`: the least value >= min_m and the greatest <= max_m,
     so that ranges of that dtype compare in it as their float64 values would (float32 ranges
@@ -211,10 +212,11 @@ def lidar_measure(
         np.divide(1.0, gain, out=gain)
         np.clip(gain, 1.0, cfg.weak_return_noise_gain, out=gain)
         gain *= cfg.range_noise_m
-        r = r + gain * noise[n:]
+        gain *= noise[n:]
+        r += gain  # r is this function's own array from here on (a gather or np.where)
     if cfg.range_resolution_m > 0:
-        r = r / cfg.range_resolution_m
-        np.round(r, out=r)
+        np.divide(r, cfg.range_resolution_m, out=r)
+        np.rint(r, out=r)
         r *= cfg.range_resolution_m
     points = np.empty((n, 3))
     for i in range(3):

@@ -76,7 +76,7 @@ class SimScene:
                 ps.append(np.zeros((m, 3)))
             else:
                 if offsets_s is None:
-                    q = motion.bank.eval(t_s)
+                    q = motion.bank.at(float(t_s[0])) if m == 1 else motion.bank.eval(t_s)
                 else:
                     shifted = self._shifted.get(b.name)
                     if shifted is None or shifted.offsets_s is not offsets_s:
@@ -127,6 +127,7 @@ class Simulation(FrameSource):
         self.radar_pattern = radar_pattern(self.world.radar)
         mm = scenario.world.mismatch
         self.clock_offset_s = {"lidar": mm.lidar_clock_offset_s, "radar": mm.radar_clock_offset_s}
+        self._T_crane_sensor: dict[str, np.ndarray] = {}
         self._schedule = self._frame_schedule()
         self.mru = self._mru_log()
         self.feeder_mru = self._feeder_mru_log() if scenario.world.feeder.mru.enabled else None
@@ -165,7 +166,9 @@ class Simulation(FrameSource):
         plus each offset)."""
         w = self.world
         Rs, ps = w.body_poses(times, offsets_s)
-        T_cs = w.T_crane_boomtip @ w.T_boomtip_sensor[sensor]  # the sensor rides on the crane vessel (body 0)
+        T_cs = self._T_crane_sensor.get(sensor)  # the sensor rides on the crane vessel (body 0)
+        if T_cs is None:
+            T_cs = self._T_crane_sensor[sensor] = w.T_crane_boomtip @ w.T_boomtip_sensor[sensor]
         R_crane = Rs[0].reshape(-1, 3)  # (M*3,3): one product, not M small ones
         return (R_crane @ T_cs[:3, :3]).reshape(-1, 3, 3), (R_crane @ T_cs[:3, 3]).reshape(-1, 3) + ps[0], Rs, ps, None
 
