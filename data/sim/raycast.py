@@ -63,6 +63,7 @@ class RayCaster:
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
+        self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
 
     def cast(
         self,
@@ -174,6 +175,7 @@ class RayCaster:
         if m not in (1, len(fans.az_rad)):
             raise ValueError(f"cast_fans: {m} sensor poses for {len(fans.az_rad)} fans (expected 1 or one per fan)")
         best_t = best_body = best_face = cos_inc = None  # set by the first body
+        nearest = np.inf  # a lower bound of best_t: while the box is nearer, no ray is stopped before it
         pending = None  # a first body's fixed hits, copied only if needed (see below)
         for b, scene in enumerate(self.scenes):
             if fixed_hits is not None and b in fixed_hits:
@@ -186,10 +188,12 @@ class RayCaster:
                 t, face, c = fixed_hits[b]
                 closer = np.flatnonzero(t < best_t)
                 best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                nearest = min(nearest, self._fixed_nearest(b, t))
                 continue
             if best_t is None and fans.wide:
                 if pending is not None:
                     best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
+                    nearest = self._fixed_nearest(pending, fixed_hits[pending][0])
                     pending = None
                 else:
                     best_t = np.full(k, np.inf, dtype=np.float32)
@@ -205,8 +209,8 @@ class RayCaster:
             ray_k = fan = None  # every ray, fan by fan
             if fans.wide:
                 ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], axes, o, scale)
-                if b > 0:  # rays already stopped before the box need no cast
-                    dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale)
+                dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale) if b > 0 else None
+                if b > 0 and dist.max() >= nearest:  # rays already stopped before the box need no cast
                     ahead = np.take(best_t, ray_k) > (dist[0] if m == 1 else np.take(dist, fan))
                     ray_k, fan = ray_k[ahead], fan[ahead]
                 if len(ray_k) == 0:
@@ -237,6 +241,7 @@ class RayCaster:
                     best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_k, pending, face_k, c_k
                     pending = None
                 continue
+            nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
             closer = np.flatnonzero(t < (best_t if ray_k is None else np.take(best_t, ray_k)))
             hit_k = closer if ray_k is None else np.take(ray_k, closer)
             best_t[hit_k] = np.take(t, closer)
@@ -272,6 +277,13 @@ class RayCaster:
         t, face, c = fixed
         body32, face32 = self._fixed_body_face(b, face)
         return t.copy(), body32.copy(), face32.copy(), c.copy()
+
+    def _fixed_nearest(self, b: int, t: np.ndarray) -> float:
+        """The least range of fixed hits `t` on body b, kept while the same come back."""
+        cached = self._fixed_nearest_cache.get(b)
+        if cached is None or cached[0] is not t:
+            cached = self._fixed_nearest_cache[b] = (t, float(t.min()))
+        return cached[1]
 
     def _fixed_compact(self, b: int, fixed: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
         """The rays with a fixed hit on body b and their t, face (int32) and cos, kept as
