@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from boomtip.data.sim.motion import ShiftedSines, ShipMotion, euler_rates_to_omega_world
+from boomtip.data.sim.motion import ShiftedSines, ShipMotion, euler_rates_to_omega_world, rpy_matrices
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.world import DOFS, IrregularSea, Motion
 from boomtip.data.sim.scene import feeder_deck_plane_body
@@ -146,6 +146,30 @@ def test_shifted_sines_are_the_bank_at_each_offset(irregular):
     shifted = ShiftedSines(bank, offsets)
     for t in (0.0, 0.37, 612.9):
         np.testing.assert_allclose(shifted.eval(t), bank.eval(t + offsets), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("irregular", [False, True])
+def test_bank_at_one_instant_is_its_evaluation_there(irregular):
+    """The frame's pose path: one instant's DOFs as `eval` gives them (the same sums, which
+    numpy may add in another order over the irregular sea's 65 terms)."""
+    bank = make_motion(irregular=irregular).bank
+    for t in (0.0, 0.37, 612.9):
+        at, direct = bank.at(t), bank.eval(np.array([t]))
+        assert at.shape == direct.shape == (1, 6)
+        if irregular:
+            np.testing.assert_allclose(at, direct, rtol=0, atol=1e-15)
+        else:
+            assert np.array_equal(at, direct)
+
+
+def test_rotation_matrices_of_many_instants_are_each_instants():
+    rng = np.random.default_rng(5)
+    rpy = rng.uniform(-0.4, 0.4, (257, 3))
+    R = rpy_matrices(rpy)
+    assert R.shape == (257, 3, 3) and R.flags.c_contiguous
+    one_by_one = np.concatenate([rpy_matrices(rpy[k:k + 1]) for k in range(len(rpy))])
+    np.testing.assert_allclose(R, one_by_one, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(R, Rotation.from_euler("xyz", rpy).as_matrix(), rtol=0, atol=1e-15)
 
 
 def test_sweep_poses_are_the_poses_at_the_column_times():

@@ -50,6 +50,26 @@ def test_fan_hits_without_fixed_hits(overrides):
     assert_same_hits(sim, [0.0, 0.61], None)
 
 
+def test_grid_fixed_hits_give_way_where_a_cast_body_is_nearer():
+    """The grid merges the fixed hits into its first cast: where the cast body is nearer it
+    wins, elsewhere (ties too) the fixed body does. Fixed hits made up on the crane, half of
+    them nearer and half farther than the feeder's hits on the same rays."""
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=1"]))
+    cast_all, *_ = sim._lidar_hits(0.37, sim._scene_poses, None)
+    on_feeder = np.flatnonzero(cast_all.body == 1)[::7]
+    t = np.full(len(cast_all.range_m), np.inf, dtype=np.float32)
+    face = np.full(len(t), -1, dtype=np.int64)
+    cos = np.zeros(len(t), dtype=np.float32)
+    nearer = on_feeder[::2]
+    t[on_feeder] = cast_all.range_m[on_feeder] * np.float32(1.5)
+    t[nearer] = cast_all.range_m[nearer] * np.float32(0.5)
+    face[on_feeder], cos[on_feeder] = 3, 0.25
+    fixed = {0: (t, face, cos)}
+    hits, *_ = sim._lidar_hits(0.37, sim._scene_poses, fixed)
+    assert np.array_equal(hits.body[on_feeder], np.where(np.isin(on_feeder, nearer), 0, 1))
+    assert_same_hits(sim, [0.37], fixed)
+
+
 def test_fan_hits_match_with_stretched_bodies_and_no_fixed_hits():
     """The hook scene: a moving boom carries the sensor, the rope is scaled along its axis."""
     from boomtip.data.sim.hook_world import HookSimulation
