@@ -38,7 +38,8 @@ class SineBank:
 
     def at(self, t_s: float) -> np.ndarray:
         """The DOFs at one instant (a frame's pose), (1, 6): `eval([t_s])` in four calls on
-        the (6, K) arrays instead of the broadcasts over times; the same values."""
+        the (6, K) arrays instead of the broadcasts over times; the same values, but for the
+        order numpy may add a long sum in (an irregular sea's: within 1e-15)."""
         arg = self.omega * t_s
         arg += self.phase
         np.sin(arg, out=arg)
