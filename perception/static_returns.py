@@ -67,7 +67,10 @@ def packed_voxels(points: np.ndarray, voxel_m: float) -> np.ndarray:
 
 def voxel_hash(packed: np.ndarray) -> np.ndarray:
     """Packed voxels -> table slots: Fibonacci hashing (the top bits of a golden-ratio product)."""
-    return ((packed.astype(np.uint64) * _GOLDEN) >> np.uint64(64 - _TABLE_BITS)).astype(np.int64)
+    # views, not copies: packed keys are non-negative and slots below 2^22, the same bits either way
+    slots = packed.astype(np.int64, copy=False).view(np.uint64) * _GOLDEN
+    slots >>= np.uint64(64 - _TABLE_BITS)
+    return slots.view(np.int64)
 
 
 def _rows(a, rows: np.ndarray | None):
@@ -162,9 +165,8 @@ class StaticRays(_Window):
         beam_slots, ranges, range_slots = keys
         held = self.beam_counts[beam_slots]
         at_range = self.range_counts[range_slots].astype(np.int32)
-        if len(self._dilation):
-            near = self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())]
-            at_range += near.reshape(len(ranges), len(self._dilation)).sum(axis=1, dtype=np.int32)
+        for d in self._dilation:  # a few bins, each vectorised (a sum along a short axis of (N, 4) is slow in numpy)
+            at_range += self.range_counts[voxel_hash(ranges + d)]
         need = max(3, int(np.ceil(self.cfg.ray_min_presence * len(self.frames))))
         return (held >= need) & (at_range >= self.cfg.ray_min_fraction * held)
 
