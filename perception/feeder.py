@@ -185,7 +185,8 @@ class FeederPerception:
         the static returns removed. `is_static(rows)`: the static test of those rows of the
         sample, asked last, of the returns the geometry keeps (a third of a frame: the test's
         gathers at hashed slots are its cost)."""
-        pts = obs.sample_sensor @ obs.R_level_sensor.T + obs.t_level_sensor
+        pts = obs.sample_sensor @ obs.R_level_sensor.T
+        pts += obs.t_level_sensor  # in place: a broadcast add into a new (N, 3) array cost twice the product
         a, b, c = plane_abc
         h = (pts[:, 2] - a * pts[:, 0] - b * pts[:, 1] - c) / math.sqrt(a * a + b * b + 1.0)
         keep = ((h > self.cfg.deck_band_m) & (h < self.cfg.structure_above_m)) | \
@@ -193,8 +194,9 @@ class FeederPerception:
         rows = np.flatnonzero(keep)  # before the footprint: its test costs a dot product per hull face and point
         if footprint is not None and T_map_level is not None:
             p = pts[rows]
-            xy = p[:, :2] @ T_map_level[:2, :2].T + p[:, 2:3] * T_map_level[:2, 2] + T_map_level[:2, 3]
-            rows = rows[footprint.contains(xy)]
+            x_map = p @ T_map_level[0, :3] + T_map_level[0, 3]  # one matrix-vector product a coordinate: a third of
+            y_map = p @ T_map_level[1, :3] + T_map_level[1, 3]  # the (N, 3) x (3, 2) product's time
+            rows = rows[footprint.contains_xy(x_map, y_map)]
         if is_static is not None:
             rows = rows[~is_static(rows)]
         return pts[rows]
@@ -228,7 +230,15 @@ class Footprint:
         self.margin_m = margin_m
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
-        return np.all(xy @ self.equations[:, :2].T + self.equations[:, 2] <= self.margin_m, axis=1)
+        return self.contains_xy(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]))
+
+    def contains_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        # face by face (a dozen), each vectorised over the points: numpy's all() along a short
+        # axis of an (N, F) array was 4 of the test's 4.5 ms on 19 000 points
+        inside = np.ones(len(x), dtype=bool)
+        for nx, ny, c in self.equations:  # loop over the hull's faces, not points
+            inside &= x * nx + y * ny + c <= self.margin_m
+        return inside
 
 
 def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tuple[float, float] = (0.2, 2.5),

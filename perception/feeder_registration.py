@@ -33,7 +33,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from boomtip.perception.geometry import rpy_matrix
-from boomtip.perception.point_to_plane import Surface, icp_point_to_plane
+from boomtip.perception.point_to_plane import Surface, cross_rows, icp_point_to_plane
 
 
 def _o3d():
@@ -124,8 +124,9 @@ def pose_information(points_level: np.ndarray, normals_level: np.ndarray, origin
     """Information (6x6) of the map frame's pose (x, y, z, and small rotations about the level
     axes through its origin) from point-to-plane residuals n.(p - q): a translation dt changes a
     residual by -n.dt, a rotation dw about the origin by -((p - o) x n).dw."""
-    rel = points_level - origin_level
-    J = np.column_stack([normals_level, np.cross(rel, normals_level)])
+    J = np.empty((len(points_level), 6))
+    J[:, :3] = normals_level
+    cross_rows(points_level - origin_level, normals_level, J[:, 3:])
     return J.T @ J / (sigma_m * sigma_m)
 
 
@@ -303,6 +304,6 @@ class FeederModel:
         if not np.all(np.isfinite(T)) or len(res.source_index) < cfg.min_points:
             return Registration6(T_map_level_guess, np.zeros((6, 6)), n, res.fitness, "registration found no overlap", kiss)
         T_level_map = inverse(T)
-        normals_level = self.surface.normals[res.surface_index] @ T_level_map[:3, :3].T
-        info = pose_information(source_level[res.source_index], normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
+        normals_level = self.surface.normals.take(res.surface_index, axis=0) @ T_level_map[:3, :3].T
+        info = pose_information(source_level.take(res.source_index, axis=0), normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
         return Registration6(T.copy(), info / cfg.info_inflation, n, res.fitness, "ok", kiss)

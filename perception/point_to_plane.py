@@ -88,12 +88,21 @@ class _Correspondences:
         self.queried_at = np.full((n, 3), np.nan)  # where each point was when last queried (NaN: never)
         self.index = np.zeros(n, dtype=np.int64)
         self.gap = np.zeros(n)
-        # queries in spatial order (1 m cells of the source's own frame): neighbouring queries walk
-        # the same branches of the index, a third faster than the voxel sampling's hash order
-        finite = np.where(np.isfinite(source), source, 0.0)
-        cell = np.floor(finite - finite.min(axis=0, initial=np.inf)).astype(np.int64) if n else np.zeros((0, 3), np.int64)
-        dims = cell.max(axis=0, initial=0) + 1
-        self.order = np.argsort((cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2], kind="stable")
+        # each point's nearest surface point and its normal, gathered when it is queried: every
+        # call and iteration reads them, and a gather from the whole surface costs cache misses
+        self.nearest_points = np.zeros((n, 3))
+        self.nearest_normals = np.zeros((n, 3))
+        # queries in spatial order (1 m cells of the source's own frame, x-major): neighbouring
+        # queries walk the same branches of the index, a third faster than the voxel sampling's
+        # hash order. Column by column (numpy's reductions along a short axis are slow); the
+        # order within a cell changes no result, so the sort need not be stable.
+        cell_key = np.zeros(n, dtype=np.int64)
+        for axis in range(3):
+            c = source[:, axis]
+            c = np.where(np.isfinite(c), c, 0.0)
+            cell_key <<= 21  # 21 bits an axis: 2 000 km of 1 m cells
+            cell_key |= np.floor(c - c.min(initial=np.inf)).astype(np.int64)
+        self.order = np.argsort(cell_key)
 
     def at(self, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(source index, surface index, squared distance) of the points matched within the
@@ -103,11 +112,17 @@ class _Correspondences:
         moved_m = np.sqrt(np.einsum("ij,ij->i", step, step))
         stale = ~(2.0 * moved_m + 1e-9 < self.gap)  # NaN (never queried): stale
         rows = self.order[stale[self.order]]
-        rows = rows[np.isfinite(np.einsum("ij,ij->i", moved[rows], moved[rows]))]  # Open3D's search fails on a non-finite row
+        at = moved.take(rows, axis=0)  # take: a third of a fancy index's time for rows
+        finite = np.isfinite(np.einsum("ij,ij->i", at, at))  # Open3D's search fails on a non-finite row
+        if not finite.all():
+            rows, at = rows[finite], at[finite]
         if len(rows):
-            self.index[rows], _, self.gap[rows] = self.surface.nearest_two(moved[rows])
-            self.queried_at[rows] = moved[rows]
-        dq = moved - self.surface.points[self.index]
+            index, _, self.gap[rows] = self.surface.nearest_two(at)
+            self.index[rows] = index
+            self.queried_at[rows] = at
+            self.nearest_points[rows] = self.surface.points.take(index, axis=0)
+            self.nearest_normals[rows] = self.surface.normals.take(index, axis=0)
+        dq = moved - self.nearest_points
         d2 = np.einsum("ij,ij->i", dq, dq)
         ok = np.flatnonzero(d2 <= self.max_d2)  # a non-finite row compares False
         return ok, self.index[ok], d2[ok]
@@ -121,8 +136,21 @@ def rotation_zyx(rx: float, ry: float, rz: float) -> np.ndarray:
                      [-sy, cy * sx, cy * cx]])
 
 
+def cross_rows(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """Row-wise a x b into out, numpy's cross's own arithmetic without its per-call reshaping
+    (as long again as the products on a few thousand rows)."""
+    a0, a1, a2, b0, b1, b2 = a[:, 0], a[:, 1], a[:, 2], b[:, 0], b[:, 1], b[:, 2]
+    np.multiply(a1, b2, out=out[:, 0])
+    out[:, 0] -= a2 * b1
+    np.multiply(a2, b0, out=out[:, 1])
+    out[:, 1] -= a0 * b2
+    np.multiply(a0, b1, out=out[:, 2])
+    out[:, 2] -= a1 * b0
+
+
 def _matches(matcher: _Correspondences, source: np.ndarray, T: np.ndarray):
-    moved = source @ T[:3, :3].T + T[:3, 3]
+    moved = source @ T[:3, :3].T
+    moved += T[:3, 3]
     src_i, srf_i, d2 = matcher.at(moved)
     fitness = len(src_i) / len(source) if len(source) else 0.0
     rmse = float(np.sqrt(d2.sum() / len(d2))) if len(d2) else 0.0
@@ -137,13 +165,14 @@ def icp_point_to_plane(surface: Surface, source: np.ndarray, T_guess: np.ndarray
     moved, src_i, srf_i, fitness, rmse = _matches(matcher, source, T)
     it = 0
     while it < max_iterations and len(src_i) >= 6:
-        p, q, n = moved[src_i], surface.points[srf_i], surface.normals[srf_i]
+        p = moved.take(src_i, axis=0)
+        q, n = matcher.nearest_points.take(src_i, axis=0), matcher.nearest_normals.take(src_i, axis=0)
         r = np.einsum("ij,ij->i", p - q, n)
         w = 1.0 - (r / tukey_m) ** 2
         w *= w
         w[np.abs(r) > tukey_m] = 0.0
         J = np.empty((len(r), 6))
-        J[:, :3] = np.cross(p, n)
+        cross_rows(p, n, J[:, :3])
         J[:, 3:] = n
         Jw = J * w[:, None]
         JTJ, JTr = Jw.T @ J, Jw.T @ r

@@ -67,7 +67,20 @@ def packed_voxels(points: np.ndarray, voxel_m: float) -> np.ndarray:
 
 def voxel_hash(packed: np.ndarray) -> np.ndarray:
     """Packed voxels -> table slots: Fibonacci hashing (the top bits of a golden-ratio product)."""
-    return ((packed.astype(np.uint64) * _GOLDEN) >> np.uint64(64 - _TABLE_BITS)).astype(np.int64)
+    # views, not copies: packed keys are non-negative and slots below 2^22, the same bits either way
+    slots = packed.astype(np.int64, copy=False).view(np.uint64) * _GOLDEN
+    slots >>= np.uint64(64 - _TABLE_BITS)
+    return slots.view(np.int64)
+
+
+def _bins(values: np.ndarray, bin_size: float) -> np.ndarray:
+    """floor(values / bin_size) + the offset, as int64, in place on the temporary (every new
+    array of a 128 x 1024 frame's returns is 0.2 MB more to allocate and fault in)."""
+    values /= bin_size
+    np.floor(values, out=values)
+    out = values.astype(np.int64)
+    out += _OFF
+    return out
 
 
 def _rows(a, rows: np.ndarray | None):
@@ -130,11 +143,11 @@ class StaticRays(_Window):
         frame for both counting it and testing it."""
         x, y, z = points_sensor[:, 0], points_sensor[:, 1], points_sensor[:, 2]
         horiz = np.hypot(x, y)
-        az = np.floor(np.arctan2(y, x) / self._bin_rad).astype(np.int64) + _OFF
-        el = np.floor(np.arctan2(z, horiz) / self._bin_rad).astype(np.int64) + _OFF
-        rb = np.floor(np.hypot(horiz, z) / self.cfg.range_bin_m).astype(np.int64) + _OFF
-        beam = (az << 21) | el
-        ranges = (beam << 21) | rb  # 63 bits: az and el within +-2^20 bins, range within 2^20 bins
+        beam = _bins(np.arctan2(y, x), self._bin_rad)  # azimuth
+        beam <<= 21
+        beam |= _bins(np.arctan2(z, horiz), self._bin_rad)  # elevation
+        ranges = beam << 21
+        ranges |= _bins(np.hypot(horiz, z), self.cfg.range_bin_m)  # 63 bits: az and el within +-2^20 bins, range within 2^20
         return voxel_hash(beam), ranges, voxel_hash(ranges)
 
     def _count(self, keys: tuple[np.ndarray, ...], sign: int) -> None:
@@ -160,11 +173,10 @@ class StaticRays(_Window):
         `add` returned for these points; `rows`: only these of them are tested."""
         keys = self.keys(_rows(points_sensor, rows)) if keys is None else _rows(keys, rows)
         beam_slots, ranges, range_slots = keys
-        held = self.beam_counts[beam_slots]
-        at_range = self.range_counts[range_slots].astype(np.int32)
-        if len(self._dilation):
-            near = self.range_counts[voxel_hash((ranges[:, None] + self._dilation[None]).ravel())]
-            at_range += near.reshape(len(ranges), len(self._dilation)).sum(axis=1, dtype=np.int32)
+        held = self.beam_counts.take(beam_slots)
+        at_range = self.range_counts.take(range_slots).astype(np.int32)
+        for d in self._dilation:  # a few bins, each vectorised (a sum along a short axis of (N, 4) is slow in numpy)
+            at_range += self.range_counts.take(voxel_hash(ranges + d))
         need = max(3, int(np.ceil(self.cfg.ray_min_presence * len(self.frames))))
         return (held >= need) & (at_range >= self.cfg.ray_min_fraction * held)
 
