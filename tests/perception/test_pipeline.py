@@ -25,7 +25,7 @@ from boomtip.perception.geometry import (
     rpy_matrix,
     tip_in_sensor,
 )
-from boomtip.perception.pipeline import HeavePipeline
+from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline
 from boomtip.perception.reflectors import ReflectorConfig, detect_reflectors
 from boomtip.perception.timing import StageTimes
 
@@ -217,6 +217,20 @@ def test_pipeline_on_ideal_scenario_is_accurate(short_sim):
     assert np.mean(np.abs(errs["reflectors_lidar"])) < 5e-3
     assert np.mean(np.abs(errs["deck_radar"])) < 5e-3
     assert np.mean(np.abs(errs["doppler_radar_rot"])) < 0.01
+
+
+def test_each_row_times_its_own_stages_and_a_share_of_the_frames_attitude(short_sim):
+    pipe = HeavePipeline(short_sim.meta.installation, short_sim.mru)
+    for f in (short_sim.lidar_frame(3, 0.3), short_sim.radar_frame(6, 0.3)):
+        res = pipe.process(f)
+        rows, ms = res.measurements, res.times.ms
+        assert len(rows) == (2 if f.sensor == "lidar" else 3) and ms["attitude"] > 0
+        for r in rows:
+            assert "attitude" not in STAGES[r.method]
+            assert r.time_ms == pytest.approx(sum(ms.get(s, 0.0) for s in STAGES[r.method]) + ms["attitude"] / len(rows), rel=1e-12)
+        # the frame's rows count the attitude once between them
+        own = sum(sum(ms.get(s, 0.0) for s in STAGES[r.method]) for r in rows)
+        assert sum(r.time_ms for r in rows) - own == pytest.approx(sum(ms[s] for s in FRAME_STAGES), rel=1e-9)
 
 
 @pytest.mark.parametrize("points", [np.zeros((0, 3)), np.full((100, 3), np.nan)])
