@@ -16,7 +16,6 @@ from __future__ import annotations
 import ctypes
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -118,34 +117,16 @@ def doppler_inputs(frame: Frame, pc: PreprocessConfig) -> tuple[np.ndarray, np.n
     rng_m = frame.fields.get("range")
     if rng_m is None:
         rng_m = np.sqrt(np.einsum("ij,ij->i", frame.points_sensor, frame.points_sensor))
-    lo, hi = _range_window(rng_m.dtype, max(pc.min_range_m, 1e-6), pc.max_range_m)
-    keep = rng_m >= lo
-    keep &= rng_m <= hi
+    # The bounds as numpy float64 scalars: a float32 range is compared in float64 (NEP 50), as
+    # after a conversion to float64 (exact), without that conversion's call and array.
+    keep = rng_m >= np.float64(max(pc.min_range_m, 1e-6))
+    keep &= rng_m <= np.float64(pc.max_range_m)
     keep &= np.isfinite(rr)  # NaN compares False
     idx = keep.nonzero()[0]
     if len(idx) == len(keep):  # every detection kept: no gathers
         return frame.points_sensor, rr.astype(np.float64)
     # a few detections beyond the window in most scans: take is ~3x faster than a boolean gather
     return frame.points_sensor.take(idx, axis=0), rr.take(idx).astype(np.float64)
-
-
-@lru_cache(maxsize=8)
-def _range_window(dtype: np.dtype, lo_m: float, hi_m: float) -> tuple[np.generic, np.generic]:
-    """The window's bounds in the ranges' own dtype, such that comparing a range with them gives
-    what comparing it in float64 with the bounds as set would: for float32 ranges, the least
-    float32 not below lo_m and the greatest not above hi_m (x >= lo_m <=> x >= that float32, for
-    any float32 x). In their own type the comparisons run numpy's plain float32 loops, not a
-    float64 loop behind a cast of every range (several times the cost on a few hundred values).
-    Computed once per dtype and window: they are the installation's settings."""
-    if dtype != np.float32:
-        return np.float64(lo_m), np.float64(hi_m)
-    with np.errstate(over="ignore"):  # a bound beyond float32's range rounds to inf, then back below
-        lo, hi = np.float32(lo_m), np.float32(hi_m)
-    if float(lo) < lo_m:
-        lo = np.nextafter(lo, np.float32(np.inf))
-    if float(hi) > hi_m:
-        hi = np.nextafter(hi, np.float32(-np.inf))
-    return lo, hi
 
 
 @dataclass

@@ -28,7 +28,7 @@ from boomtip.perception.geometry import (
     rpy_matrix,
     tip_in_sensor,
 )
-from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline, _range_window
+from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline
 from boomtip.perception.reflectors import ReflectorConfig, detect_reflectors
 from boomtip.perception.timing import StageTimes
 
@@ -267,18 +267,6 @@ def test_each_row_times_its_own_stages_and_a_share_of_the_frames_attitude(short_
         # the frame's rows count the attitude once between them
         own = sum(sum(ms.get(s, 0.0) for s in STAGES[r.method]) for r in rows)
         assert sum(r.time_ms for r in rows) - own == pytest.approx(sum(ms[s] for s in FRAME_STAGES), rel=1e-9)
-
-
-@pytest.mark.parametrize("lo, hi", [(2.0, 150.0), (0.1, 149.99), (1e-6, 1e30), (0.3, 3e39)])
-def test_the_range_window_in_float32_selects_what_float64_bounds_would(lo, hi):
-    lo32, hi32 = _range_window(np.dtype(np.float32), lo, hi)
-    assert lo32.dtype == hi32.dtype == np.float32
-    near = [np.nextafter(np.float32(min(v, 3e38)), np.float32(d)) for v in (lo, hi) for d in (-np.inf, np.inf)]
-    ranges = np.array(near + [np.float32(lo), np.float32(min(hi, 3e38)), 0.0, 75.0, np.nan, np.inf, -np.inf], dtype=np.float32)
-    expected = (ranges >= np.float64(lo)) & (ranges <= np.float64(hi))
-    np.testing.assert_array_equal((ranges >= lo32) & (ranges <= hi32), expected)
-    assert expected.any() and not expected.all()
-    assert _range_window(np.dtype(np.float64), lo, hi) == (lo, hi)
 
 
 @pytest.mark.parametrize("points", [np.zeros((0, 3)), np.full((100, 3), np.nan)])
