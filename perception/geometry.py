@@ -309,16 +309,21 @@ def prediction_sigma(n_points: int, sum_sq_resid: float, centroid: np.ndarray, e
 
 def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray, offset_m: float = 0.0) -> tuple[np.ndarray, float, float]:
     """Least-squares plane (normal towards the sensor), D along the wire from the tip, and D's
-    1-sigma, all from one eigendecomposition of the scatter: the smallest eigenvector is the
-    normal, the other two are the in-plane axes the prediction variance needs. `offset_m`
+    1-sigma, all from the scatter's eigenvalues and its least eigenvector (the normal). `offset_m`
     moves the plane that far away from the sensor (points lying on top of the surface wanted)."""
     n_pts = len(points)
     c = np.add.reduce(points, axis=0) / n_pts  # ndarray.mean's arithmetic, without its wrapper
     X = points - c
-    evals, evecs = eigh3(X.T @ X)  # np.linalg.eigh bit for bit, without its wrapper
-    # Past the eigendecomposition every quantity is 3-long: Python floats, where numpy's per-call
-    # overhead (some twenty calls on 3-vectors, each ~5-20 us in a cold cache) was most of the time.
-    (l0, l1, l2), ((n0, a0, b0), (n1, a1, b1), (n2, a2, b2)) = evals.tolist(), evecs.tolist()
+    A = X.T @ X
+    # The 3x3 eigenproblem in Python floats (least_eigvec3): LAPACK's solver through eigh3 is the
+    # same normal to ~1e-14, but its code is fetched afresh on each frame (~15-35 us of a cold
+    # call); it stays for scatters whose least eigenvalue is not well apart from the next.
+    A_rows = A.tolist()
+    eig = least_eigvec3(A_rows)
+    if eig is None:
+        evals, evecs = eigh3(A)
+        eig = tuple(evals.tolist()), tuple(evecs[:, 0].tolist())
+    (l0, l1, l2), (n0, n1, n2) = eig
     cx, cy, cz = c.tolist()
     d = -(n0 * cx + n1 * cy + n2 * cz)
     if d < 0:
@@ -331,11 +336,41 @@ def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray,
         return plane, D, float("nan")
     # prediction_sigma at the wire's point on the plane. The inliers' squared distances to the
     # plane fitted through their centroid along the least eigenvector sum to its eigenvalue.
+    # The in-plane term q0^2/l1 + q1^2/l2 (q's coordinates on the in-plane eigenvectors) is
+    # q^T B^-1 q for the scatter's in-plane block B, whose inverse is (tr(B) I - B) / det(B)
+    # (Cayley-Hamilton): with q projected on the plane, no in-plane eigenvector is needed.
     s2 = max(l0, 0.0) / (n_pts - 3)
     qx, qy, qz = px + D * wx - cx, py + D * wy - cy, pz + D * wz - cz
-    q0, q1 = qx * a0 + qy * a1 + qz * a2, qx * b0 + qy * b1 + qz * b2
-    var = s2 * (1.0 / n_pts + q0 * q0 / l1 + q1 * q1 / l2)
+    t = qx * n0 + qy * n1 + qz * n2
+    qx, qy, qz = qx - t * n0, qy - t * n1, qz - t * n2
+    q_A_q = quad3(A_rows, (qx, qy, qz))
+    in_plane = ((l1 + l2) * (qx * qx + qy * qy + qz * qz) - q_A_q) / (l1 * l2)
+    var = s2 * (1.0 / n_pts + in_plane)
     return plane, D, math.sqrt(max(var, 0.0))
+
+
+def least_eigvec3(a_rows, min_gap: float = 1e-6) -> tuple[tuple[float, float, float], tuple[float, float, float]] | None:
+    """The eigenvalues (ascending) of a symmetric 3x3 matrix (rows of Python floats) and the unit
+    eigenvector of the least, in floats: the eigenvalues in closed form (sym3_eigvals), the
+    eigenvector as the longest cross product of two rows of A - l0 I (each is normal to both rows,
+    so parallel to the null vector). Accurate when l0 is well apart from l1, as for points
+    spread over a plane; None when l1 - l0 <= min_gap * |l2| (the caller then uses LAPACK)."""
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = a_rows
+    l0, l1, l2 = sym3_eigvals_floats(a00, a01, a02, a11, a12, a22)
+    if not l1 - l0 > min_gap * abs(l2):
+        return None
+    b00, b11, b22 = a00 - l0, a11 - l0, a22 - l0
+    best, best_sq = None, 0.0
+    for c in ((a01 * a12 - a02 * b11, a02 * a01 - b00 * a12, b00 * b11 - a01 * a01),  # row 0 x row 1
+              (a01 * b22 - a02 * a12, a02 * a02 - b00 * b22, b00 * a12 - a01 * a02),  # row 0 x row 2
+              (b11 * b22 - a12 * a12, a12 * a02 - a01 * b22, a01 * a12 - b11 * a02)):  # row 1 x row 2
+        sq = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+        if sq > best_sq:
+            best, best_sq = c, sq
+    if not 0.0 < best_sq < math.inf:
+        return None
+    s = math.sqrt(best_sq)
+    return (l0, l1, l2), (best[0] / s, best[1] / s, best[2] / s)
 
 
 def inv3(a: np.ndarray) -> np.ndarray | None:
@@ -358,6 +393,11 @@ def sym3_eigvals(a: np.ndarray) -> tuple[float, float, float]:
     solution of the characteristic cubic). For one tiny matrix per frame this is ~10x cheaper
     than np.linalg.eigvalsh's LAPACK call and wrappers."""
     (a00, a01, a02), (_, a11, a12), (_, _, a22) = a.tolist()
+    return sym3_eigvals_floats(a00, a01, a02, a11, a12, a22)
+
+
+def sym3_eigvals_floats(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float) -> tuple[float, float, float]:
+    """:func:`sym3_eigvals` from the upper triangle's six Python floats."""
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     q = (a00 + a11 + a22) / 3.0
     if p1 == 0.0:

@@ -5,7 +5,10 @@
 
 The pipeline keeps the only state the methods need across frames: the latest deck plane
 (for the rotation-aware Doppler) and the deck normal's history (for the deck's spin).
-Each stage reports its own time; a row's time_ms is the sum of the stages its method ran.
+Each stage reports its own time; a row's time_ms is the sum of the stages its method ran plus
+an equal share of the frame's attitude stage (FRAME_STAGES: the MRU lookup and level rotation
+that every method of the frame takes as input), so that the frame's rows count it once between
+them, not once each.
 """
 
 from __future__ import annotations
@@ -41,13 +44,17 @@ from boomtip.perception.timing import StageTimes
 METHODS = ("deck_lidar", "deck_radar", "reflectors_lidar", "doppler_radar", "doppler_radar_rot")
 QUANTITY = {"deck_lidar": "D", "deck_radar": "D", "reflectors_lidar": "D", "doppler_radar": "D_dot", "doppler_radar_rot": "D_dot"}
 SENSOR_OF = {"deck_lidar": "lidar", "reflectors_lidar": "lidar", "deck_radar": "radar", "doppler_radar": "radar", "doppler_radar_rot": "radar"}
+# Each method's own stages. The two Doppler methods share one preprocessing and fit, and each
+# counts it in full: it is that method's own maths, which it would run alone.
 STAGES = {
-    "deck_lidar": ("attitude", "deck.preprocess", "deck.planes", "deck.refine", "deck.intersect"),
-    "reflectors_lidar": ("attitude", "reflectors.threshold", "reflectors.markers", "reflectors.plane"),
-    "deck_radar": ("attitude", "radar_deck.preprocess", "radar_deck.planes", "radar_deck.refine", "radar_deck.intersect"),
-    "doppler_radar": ("attitude", "doppler.preprocess", "doppler.fit", "doppler.document"),
-    "doppler_radar_rot": ("attitude", "doppler.preprocess", "doppler.fit", "doppler.rotation"),
+    "deck_lidar": ("deck.preprocess", "deck.planes", "deck.refine", "deck.intersect"),
+    "reflectors_lidar": ("reflectors.threshold", "reflectors.markers", "reflectors.plane"),
+    "deck_radar": ("radar_deck.preprocess", "radar_deck.planes", "radar_deck.refine", "radar_deck.intersect"),
+    "doppler_radar": ("doppler.preprocess", "doppler.fit", "doppler.document"),
+    "doppler_radar_rot": ("doppler.preprocess", "doppler.fit", "doppler.rotation"),
 }
+# The frame's input to all its methods, once per frame: each row carries an equal share of it.
+FRAME_STAGES = ("attitude",)
 SENSOR_IDS = {"lidar": 1, "radar": 2}
 
 
@@ -196,13 +203,14 @@ class HeavePipeline:
 
     def _rows(self, frame: Frame, results: dict[str, tuple[float, float, str]], times: StageTimes) -> list[Measurement]:
         rows = []
+        share_ms = times.total(*FRAME_STAGES) / max(len(results), 1)
         for m, (v, s, status) in results.items():
             if status_ok(status):
                 bad = self._implausible(frame.sensor, QUANTITY[m], v, s)
                 status = bad or status
                 if bad:
                     v, s = np.nan, np.nan
-            rows.append(Measurement(frame.t_s, m, QUANTITY[m], v, s, times.total(*STAGES[m]), status))
+            rows.append(Measurement(frame.t_s, m, QUANTITY[m], v, s, times.total(*STAGES[m]) + share_ms, status))
         return rows
 
     def _implausible(self, sensor: str, quantity: str, value: float, sigma: float) -> str | None:

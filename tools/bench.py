@@ -22,7 +22,7 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
     from boomtip.data.sim.simulator import Simulation
     from boomtip.perception.deck import LIDAR_DECK, detect_deck, lowest_large_plane
     from boomtip.perception.geometry import heave_distance, rotation_level_sensor, tip_in_sensor, wire_dir_sensor
-    from boomtip.perception.pipeline import STAGES, HeavePipeline
+    from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline
     from boomtip.perception.preprocess import PreprocessConfig, open3d_baseline_multi_plane, open3d_baseline_preprocess, preprocess
     from boomtip.perception.timing import StageTimes
 
@@ -87,9 +87,12 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
         doppler_prior = pipe.last_doppler[1] if pipe.last_doppler and t - pipe.last_doppler[0] <= 0.2 else None
         out = pipe.process(fr)
         recorded.append((fr, out, doppler_prior, pipe._deck_prior(t, "lidar", out.reflectors) if sensor == "lidar" else None))
+        # the frame's attitude stage, which each of its rows carries an equal share of
+        share_ms = sum(out.times.ms.get(s, 0.0) for s in FRAME_STAGES) / max(len(out.measurements), 1)
         for m in out.measurements:
             d = per_method.setdefault(m.method, {"apt_ms": [], "err": [], "valid": 0, "frames": 0, "stages": {}})
             d["apt_ms"].append(m.time_ms)
+            d["stages"].setdefault("attitude share", []).append(share_ms)
             for stage in STAGES[m.method]:  # where the APT goes (a stage a frame skipped counts 0)
                 d["stages"].setdefault(stage, []).append(out.times.ms.get(stage, 0.0))
             d["frames"] += 1

@@ -12,8 +12,11 @@ from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, detect_deck
 from boomtip.perception.doppler import doppler_velocity
 from boomtip.perception.geometry import (
     NormalRate,
+    fit_plane_heave,
+    heave_distance,
     heave_rate_document,
     heave_rate_exact,
+    least_eigvec3,
     level_rotation_rows,
     mat3_vec,
     mat3T_vec,
@@ -25,7 +28,7 @@ from boomtip.perception.geometry import (
     rpy_matrix,
     tip_in_sensor,
 )
-from boomtip.perception.pipeline import HeavePipeline
+from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline
 from boomtip.perception.reflectors import ReflectorConfig, detect_reflectors
 from boomtip.perception.timing import StageTimes
 
@@ -129,6 +132,39 @@ def test_plane_sigma_grows_away_from_the_points():
     assert far > 10 * near
 
 
+def test_least_eigvec3_equals_lapacks_and_defers_when_the_least_eigenvalues_are_close():
+    rng = np.random.default_rng(8)
+    for k in range(200):
+        # markers' points on a tilted deck 20-60 m away: a thin scatter, its normal the least eigenvector
+        R = rotation_level_sensor(rng.uniform(-0.3, 0.3, 3), np.eye(4), np.eye(4))
+        p = (rng.uniform([-8, -5, -0.02], [8, 5, 0.02], (rng.integers(20, 300), 3)) @ R.T) + rng.uniform(-60, 60, 3)
+        X = p - p.mean(axis=0)
+        A = X.T @ X
+        evals, evecs = np.linalg.eigh(A)
+        (l0, l1, l2), n = least_eigvec3(A.tolist())
+        np.testing.assert_allclose([l0, l1, l2], evals, rtol=0, atol=1e-12 * evals[2])
+        assert abs(abs(np.dot(n, evecs[:, 0])) - 1.0) < 1e-13 and np.linalg.norm(n) == pytest.approx(1.0, abs=1e-15)
+    assert least_eigvec3(np.diag([2.0, 2.0 + 1e-9, 5.0]).tolist()) is None  # a line, or a near-round scatter
+    assert least_eigvec3(np.zeros((3, 3)).tolist()) is None
+
+
+def test_fit_plane_heave_gives_the_least_squares_plane_and_its_prediction_sigma():
+    rng = np.random.default_rng(9)
+    n_up = np.array([0.05, -0.03, 1.0]) / np.linalg.norm([0.05, -0.03, 1.0])
+    xy = rng.uniform(-6, 6, (150, 2))
+    p = np.column_stack([xy, -40.0 - (n_up[0] * xy[:, 0] + n_up[1] * xy[:, 1]) / n_up[2]]) + rng.normal(0, 0.01, (150, 3))
+    wire, tip = np.array([0.0, 0.0, -1.0]), np.array([0.5, -0.2, 0.3])
+    plane, D, sigma = fit_plane_heave(p, wire, tip, offset_m=0.002)
+    c = p.mean(axis=0)
+    n_svd = np.linalg.svd(p - c)[2][2]
+    n_svd = n_svd if -(n_svd @ c) > 0 else -n_svd
+    np.testing.assert_allclose(plane[:3], n_svd, atol=1e-12)
+    assert plane[3] == pytest.approx(-(n_svd @ c) + 0.002, abs=1e-10)
+    assert D == pytest.approx(heave_distance(plane, wire, tip), abs=1e-10)
+    ref = np.r_[n_svd, -(n_svd @ c)]
+    assert sigma == pytest.approx(plane_sigma_at(p, ref, tip + D * wire), rel=1e-9)  # at the wire's point on the plane
+
+
 def test_rpy_matrix_matches_scipy():
     from scipy.spatial.transform import Rotation
 
@@ -217,6 +253,20 @@ def test_pipeline_on_ideal_scenario_is_accurate(short_sim):
     assert np.mean(np.abs(errs["reflectors_lidar"])) < 5e-3
     assert np.mean(np.abs(errs["deck_radar"])) < 5e-3
     assert np.mean(np.abs(errs["doppler_radar_rot"])) < 0.01
+
+
+def test_each_row_times_its_own_stages_and_a_share_of_the_frames_attitude(short_sim):
+    pipe = HeavePipeline(short_sim.meta.installation, short_sim.mru)
+    for f in (short_sim.lidar_frame(3, 0.3), short_sim.radar_frame(6, 0.3)):
+        res = pipe.process(f)
+        rows, ms = res.measurements, res.times.ms
+        assert len(rows) == (2 if f.sensor == "lidar" else 3) and ms["attitude"] > 0
+        for r in rows:
+            assert "attitude" not in STAGES[r.method]
+            assert r.time_ms == pytest.approx(sum(ms.get(s, 0.0) for s in STAGES[r.method]) + ms["attitude"] / len(rows), rel=1e-12)
+        # the frame's rows count the attitude once between them
+        own = sum(sum(ms.get(s, 0.0) for s in STAGES[r.method]) for r in rows)
+        assert sum(r.time_ms for r in rows) - own == pytest.approx(sum(ms[s] for s in FRAME_STAGES), rel=1e-9)
 
 
 @pytest.mark.parametrize("points", [np.zeros((0, 3)), np.full((100, 3), np.nan)])
