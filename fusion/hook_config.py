@@ -100,6 +100,11 @@ class HookFilterConfig(BaseModel):
     # by the model's linear part. 1 / predict_rate_hz (or less): a sigma-point step and an
     # update per sample (the filter before).
     ukf_window_s: float = Field(0.025, ge=0.0)
+    # UKF with the midpoint rule and a window: "linearised": the second stage's accelerations
+    # are the first's plus the model's Jacobian at the mean (the window's, for its outputs) times
+    # the half step's displacement (one model evaluation on the sigma points per window instead
+    # of two; fusion/models/batched_model.py); "model": the second stage on the model (before)
+    ukf_midpoint: Literal["model", "linearised"] = "linearised"
     ukf_alpha: float = 1e-3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0

@@ -41,7 +41,12 @@ from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman_steps import FastMerweSigmaPoints, KalmanState, kalman_correction
 from boomtip.fusion.hook_window import PredictionWindow
 from boomtip.fusion.models.autodiff import accel_jacobian
-from boomtip.fusion.models.batched_model import midpoint_sigma_points, rk4_sigma_points, split_accelerations
+from boomtip.fusion.models.batched_model import (
+    midpoint_linearised_sigma_points,
+    midpoint_sigma_points,
+    rk4_sigma_points,
+    split_accelerations,
+)
 from boomtip.fusion.models.crane_pendulum import (
     HOOK_IX,
     IA,
@@ -135,6 +140,11 @@ class HookKalmanCore(PredictionWindow):
                 self._step_sigma = rk4_sigma_points if generated else rk4_batch
             else:
                 self._step_sigma = midpoint_sigma_points if generated else midpoint_batch
+            # the second stage linearised at the mean (HookFilterConfig.ukf_midpoint) with a
+            # window (whose Jacobian it takes; a Jacobian per 5 ms step would cost more than it saves)
+            self._ukf_linear_stage = (self.windowed and self.cfg.integrator == "midpoint"
+                                      and self.cfg.ukf_midpoint == "linearised")
+            self._ukf_core = not generated
         self._step_float = rk4_float if self.cfg.integrator == "rk4" else midpoint_float
 
     # ------------------------------------------------------------------ state access
@@ -272,7 +282,11 @@ class HookKalmanCore(PredictionWindow):
         else:
             # sigma points from (x, P), one batched step, unscented transform
             sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
-            Xf = self._step_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
+            if self._ukf_linear_stage:  # the Jacobian's rows at the mean (the window's A)
+                J = self._window_linearisation().take(self._acc_rows, 0)
+                Xf = midpoint_linearised_sigma_points(self._prm, self.flex, sig.T, dt, J, self._ukf_core)
+            else:
+                Xf = self._step_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
             x = Xf @ self._Wm
             D = Xf - x[:, None]
             kf.x = x

@@ -109,14 +109,20 @@ class PredictionWindow:
             c = self._lin_cache[(kind,)] = (np.array(idx, np.intp), np.diag(r))
         return c
 
-    def _linear_step(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
-        """(F, c) of the step x' = F x + c over tau of the model linearised at the window's start
-        x0 (the estimate at self.t): A = df/dx there, F = I + A tau + (A tau)^2 / 2 and
-        f(x) ~ A x + (f(x0) - A x0), as the EKF's mean (HookFilterConfig.ekf_mean)."""
+    def _window_linearisation(self) -> np.ndarray:
+        """A = df/dx at the estimate at self.t (the window's start), computed once per window
+        with the model's derivative there (self._f_offset)."""
         kf = self._kf
         if self._lin_x is not kf.x:
             self._A_win, self._f_offset = self._linearisation(kf.x)
             self._lin_x, self._lin_steps = kf.x, {}
+        return self._A_win
+
+    def _linear_step(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """(F, c) of the step x' = F x + c over tau of the model linearised at the window's start
+        x0 (the estimate at self.t): A = df/dx there, F = I + A tau + (A tau)^2 / 2 and
+        f(x) ~ A x + (f(x0) - A x0), as the EKF's mean (HookFilterConfig.ekf_mean)."""
+        self._window_linearisation()
         key = round(tau, 12)
         st = self._lin_steps.get(key)
         if st is None:
