@@ -112,11 +112,12 @@ class HookKalmanCore(PredictionWindow):
                        (self._me_idx[4:].copy(), self._R_enc), (self._me_idx[4:6].copy(), self._R_enc[:2])]
         self._q_cache: dict[float, np.ndarray] = {}
         self._q_step_cache: dict[float, np.ndarray] = {}
-        # the UKF's prediction window (HookFilterConfig.ukf_window_s; fusion/hook_window.py)
-        self._init_window(self.cfg.ukf_window_s if kind == "ukf" else 0.0)
+        # the linearisation (EKF: the covariance and the mean; UKF: its window) and its time
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
         self._jac_interval = float(self.cfg.jacobian_interval_s)
+        # the UKF's prediction window (HookFilterConfig.ukf_window_s; fusion/hook_window.py)
+        self._init_window(self.cfg.ukf_window_s if kind == "ukf" else 0.0)
         self._F: np.ndarray | None = None  # F for (self._A, self._F_key = round(dt, 12))
         self._Fh: np.ndarray | None = None  # F / 2
         self._F_key: float | None = None

@@ -43,10 +43,10 @@ class PredictionWindow:
         # less A x there (non-zero in the accelerations' rows), and per step length tau the
         # (F, c) of x' = F x + c
         self._acc_rows = np.array([IAD, IBD, IFD] if self.flex else [IAD, IBD], np.intp)
-        self._lin_x: np.ndarray | None = None
-        self._A_win: np.ndarray | None = None
         self._f_offset = np.zeros(self.n)
+        self._lin_x: np.ndarray | None = None  # the estimate A was taken at
         self._lin_steps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self._window_q: dict[tuple, np.ndarray] = {}  # the window's Q per (steps, step) for this A
         # the outputs inside a window: (x, P, t, samples applied) and the window start's x
         self._int: tuple[np.ndarray, np.ndarray, float, int] | None = None
         self._int_base: np.ndarray | None = None
@@ -99,7 +99,14 @@ class PredictionWindow:
         Qh = self._q_step_cache.get(round(h, 12))
         if Qh is None:
             Qh = self._step_noise(h)
-        return Qh if m == 1 else accumulated_noise(Qh, self._linear_step(h)[0], m)
+        if m == 1:
+            return Qh
+        F = self._linear_step(h)[0]  # (first: the linearisation, which clears the cache when new)
+        key = (m, round(h, 12))
+        Q = self._window_q.get(key)
+        if Q is None:
+            Q = self._window_q[key] = accumulated_noise(Qh, F, m)
+        return Q
 
     def _selection(self, kind: int) -> tuple[np.ndarray, np.ndarray]:
         """(measured state indices, R) of a sample kind (an entry of ``self._kinds``)."""
@@ -110,13 +117,15 @@ class PredictionWindow:
         return c
 
     def _window_linearisation(self) -> np.ndarray:
-        """A = df/dx at the estimate at self.t (the window's start), computed once per window
-        with the model's derivative there (self._f_offset)."""
-        kf = self._kf
-        if self._lin_x is not kf.x:
-            self._A_win, self._f_offset = self._linearisation(kf.x)
-            self._lin_x, self._lin_steps = kf.x, {}
-        return self._A_win
+        """A = df/dx and the model's derivative (self._f_offset) at the estimate at a window's
+        start, refreshed at the first window start at least ``jacobian_interval_s`` after the
+        last (0: at every window), as the EKF's."""
+        x = self._kf.x
+        if self._A is None or (self._lin_x is not x and self.t - self._A_t >= self._jac_interval - 1e-9):
+            self._A, self._f_offset = self._linearisation(x)
+            self._A_t, self._lin_x = self.t, x
+            self._lin_steps, self._window_q = {}, {}
+        return self._A
 
     def _linear_step(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
         """(F, c) of the step x' = F x + c over tau of the model linearised at the window's start
@@ -126,7 +135,7 @@ class PredictionWindow:
         key = round(tau, 12)
         st = self._lin_steps.get(key)
         if st is None:
-            Ad = self._A_win * tau
+            Ad = self._A * tau
             st = self._lin_steps[key] = (self._I + Ad + 0.5 * (Ad @ Ad),
                                          tau * self._f_offset + (0.5 * tau) * (Ad @ self._f_offset))
         return st
