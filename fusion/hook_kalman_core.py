@@ -38,7 +38,7 @@ import numpy as np
 
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
-from boomtip.fusion.hook_kalman_steps import FastMerweSigmaPoints, KalmanState, kalman_correction
+from boomtip.fusion.hook_kalman_steps import FastMerweSigmaPoints, KalmanState, selection_correction
 from boomtip.fusion.hook_window import PredictionWindow
 from boomtip.fusion.models.autodiff import accel_jacobian
 from boomtip.fusion.models.batched_model import (
@@ -70,7 +70,7 @@ from boomtip.fusion.models.crane_pendulum import (
 )
 from boomtip.fusion.models.jacobian import continuous_jacobian, jacobian_and_accelerations
 
-__all__ = ["HookKalmanCore", "kalman_correction"]
+__all__ = ["HookKalmanCore"]
 
 
 class HookKalmanCore(PredictionWindow):
@@ -118,15 +118,17 @@ class HookKalmanCore(PredictionWindow):
         self._jac_interval = float(self.cfg.jacobian_interval_s)
         # the UKF's prediction window (HookFilterConfig.ukf_window_s; fusion/hook_window.py)
         self._init_window(self.cfg.ukf_window_s if kind == "ukf" else 0.0)
-        self._F: np.ndarray | None = None  # F for (self._A, self._F_key = round(dt, 12))
-        self._Fh: np.ndarray | None = None  # F / 2
+        # the EKF's step for (self._A, self._F_key = round(dt, 12)): F^T, blockdiag(F / 2, 1) and
+        # [Q; c^T] for the stacked estimate (hook_kalman_steps.KalmanState)
+        self._FT: np.ndarray | None = None
+        self._Fh_stacked: np.ndarray | None = None
+        self._QC: np.ndarray | None = None
         self._F_key: float | None = None
         self._lin_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.n_jacobians = 0
         # EKF mean by the Jacobian (HookFilterConfig.ekf_mean): the step's affine term for (A,
         # dt) from the model's derivative at A's state (self._f_offset, as the window's)
         self._ekf_affine = kind == "ekf" and self.cfg.ekf_mean == "jacobian"
-        self._c_step = np.zeros(n)
         if kind == "ekf" and self.cfg.jacobian == "autodiff":
             accel_jacobian(self._prm, self.flex)  # generate the code now (once per params)
         self._kf = KalmanState(n)
@@ -168,8 +170,7 @@ class HookKalmanCore(PredictionWindow):
         x0 = np.asarray(x0, float)[: self.n].copy()
         if len(x0) != self.n:
             raise ValueError(f"x0 must have {self.n} entries")
-        self._kf.x = x0
-        self._kf.P = self._default_P0() if P0 is None else np.array(P0, float)
+        self._kf.set(x0, self._default_P0() if P0 is None else np.array(P0, float))
         self._A = None
         self._pend_t, self._pend_kind, self._pend_z = [], [], []
         self.t = float(t0)
@@ -261,6 +262,7 @@ class HookKalmanCore(PredictionWindow):
                 Q = self._step_noise(dt)
         # H = half the propagated covariance (the factor 1/2 is exact): P = H + H^T + Q is
         # the symmetrised P
+        n = self.n
         if self.kind == "ekf":
             if self._A is None or self.t - self._A_t >= self._jac_interval - 1e-9:
                 # f(x) ~ A x + (f(x0) - A x0) (the offset: only the accelerations' rows)
@@ -270,16 +272,24 @@ class HookKalmanCore(PredictionWindow):
             if key != self._F_key:  # F depends on (A, dt) only: rebuilt when either changes
                 Ad = self._A * dt
                 F = self._I + Ad + 0.5 * (Ad @ Ad)
-                self._F, self._Fh, self._F_key = F, 0.5 * F, key
-                if self._ekf_affine:  # x' = F x + (dt + A dt^2 / 2) (f(x0) - A x0)
-                    self._c_step = dt * self._f_offset + (0.5 * dt) * (Ad @ self._f_offset)
-            if self._ekf_affine:
-                x = self._F @ kf.x
-                x += self._c_step
-                kf.x = x
-            else:
-                kf.x = np.array(self._step_float(self._prm, self.flex, kf.x.tolist(), dt))
-            H = (self._Fh @ kf.P) @ self._F.T
+                Fh = np.zeros((n + 1, n + 1))
+                Fh[:n, :n] = 0.5 * F
+                Fh[n, n] = 1.0
+                QC = np.empty((n + 1, n))
+                QC[:n] = Q
+                # x' = F x + (dt + A dt^2 / 2) (f(x0) - A x0)
+                QC[n] = dt * self._f_offset + (0.5 * dt) * (Ad @ self._f_offset) if self._ekf_affine else 0.0
+                self._FT, self._Fh_stacked, self._QC, self._F_key = F.T, Fh, QC, key
+            # rows: H = F P F^T / 2 and (F x)^T; then P = H + H^T + Q, x' = F x + c
+            M = self._Fh_stacked @ (kf.M @ self._FT)
+            P = M[:n]
+            P += P.T
+            M += self._QC
+            if not self._ekf_affine:
+                M[n] = self._step_float(self._prm, self.flex, kf.x.tolist(), dt)
+            kf.M = M
+            self.t += dt
+            return
         else:
             # sigma points from (x, P), one batched step, unscented transform
             sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
@@ -290,11 +300,13 @@ class HookKalmanCore(PredictionWindow):
                 Xf = self._step_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
             x = Xf @ self._Wm
             D = Xf - x[:, None]
-            kf.x = x
             H = (D * self._Wc_half) @ D.T
-        P = H + H.T
+        M = np.empty((n + 1, n))
+        P = M[:n]
+        np.add(H, H.T, out=P)
         P += Q
-        kf.P = P
+        M[n] = x
+        kf.M = M
         self.t += dt
 
     def advance_to(self, t: float) -> None:
@@ -326,8 +338,6 @@ class HookKalmanCore(PredictionWindow):
 
     def _selection_update(self, ii: np.ndarray, R: np.ndarray, z) -> None:
         """:meth:`_linear_update` with the index array and the R matrix prepared."""
-        kf = self._kf
-        x, P = kf.x, kf.P
         z = np.asarray(z, dtype=float)
         # (z @ z is NaN or inf with any NaN or inf sample: one C call, the cheapest test at 200 Hz)
         if not math.isfinite(z @ z) and not np.all(np.isfinite(z)):  # a NaN sample updates nothing
@@ -335,8 +345,7 @@ class HookKalmanCore(PredictionWindow):
             if not keep.any():
                 return
             ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
-        W = P.take(ii, 1)  # P H^T, (n, k)
-        kf.x, kf.P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
+        self._kf.M = selection_correction(self._kf.M, ii, R, z)
 
     def _sample(self, kind: int, z: np.ndarray, t: float | None) -> None:
         """A sample of the crane's sensors (kind: an entry of ``self._kinds``) at time t (None:

@@ -15,6 +15,7 @@ from boomtip.data.sim.hook_measurements import measurements_from_truth
 from boomtip.data.sim.vessel_waves import VesselWaves
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
+from boomtip.fusion.hook_kalman_steps import stacked_correction
 from boomtip.fusion.hook_run import run_hook_filter
 from boomtip.fusion.hook_tracker import HookTracker
 from boomtip.fusion.models.autodiff import accel_jacobian
@@ -354,6 +355,32 @@ def test_ukf_linearised_midpoint_equals_the_two_stage_ukf(truth):
         nees = np.einsum("ni,nij,nj->n", e_p, np.linalg.inv(run.cov_p[sel]), e_p).mean()
         stats.append(np.concatenate([rmse_per_axis(e_p, 0), rmse_per_axis(e_v, 0), [nees]]))
     np.testing.assert_allclose(stats[0], stats[1], rtol=2e-3)
+
+
+def test_stacked_correction_equals_the_textbook_update():
+    """The correction of the stacked estimate [P; x^T] (one product for the mean and the
+    covariance) against K = P H^T S^-1, x + K y, P - K S K^T, y^T S^-1 y; and with an S that is
+    not positive definite, the plain formulas."""
+    rng = np.random.default_rng(4)
+    n, k = 21, 3
+    L = rng.normal(0, 0.1, (n, n))
+    P = L @ L.T + 1e-3 * np.eye(n)
+    x, H, y = rng.normal(0, 0.1, n), rng.normal(0, 1.0, (k, n)), rng.normal(0, 0.05, k)
+    S = H @ P @ H.T + 1e-4 * np.eye(k)
+    M = np.vstack([P, x])
+    C = np.vstack([P @ H.T, -y])
+    K = P @ H.T @ np.linalg.inv(S)
+    M_new, nis = stacked_correction(M, C, S, True)
+    np.testing.assert_allclose(M_new[n], x + K @ y, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(M_new[:n], P - K @ S @ K.T, rtol=1e-10, atol=1e-14)
+    assert nis == pytest.approx(float(y @ np.linalg.solve(S, y)), rel=1e-12)
+    np.testing.assert_array_equal(M, np.vstack([P, x]))  # M itself is left as it was
+    S_bad = -S  # (not positive definite: the Cholesky factor fails)
+    K_bad = P @ H.T @ np.linalg.inv(S_bad)
+    M_bad, nis_bad = stacked_correction(M, C, S_bad, True)
+    np.testing.assert_allclose(M_bad[n], x + K_bad @ y, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(M_bad[:n], P - K_bad @ (H @ P), rtol=1e-10, atol=1e-14)
+    assert nis_bad == pytest.approx(float(y @ np.linalg.solve(S_bad, y)), rel=1e-12)
 
 
 def test_linear_update_equals_sequential_scalar_updates():
