@@ -6,7 +6,7 @@ rope direction).
 EKF (the equations of filterpy's ``ExtendedKalmanFilter``, written out: its per-call
 overhead dominated the 200 Hz loop): ``P = F P F^T + Q`` with ``F = I + A dt + (A dt)^2 / 2``
 and the continuous Jacobian ``A`` of the equations of motion (fusion/models/jacobian.py),
-refreshed every ``jacobian_interval_s`` (40 Hz; ``0`` = every step; ``F`` is rebuilt only when
+refreshed every ``jacobian_interval_s`` (20 Hz; ``0`` = every step; ``F`` is rebuilt only when
 ``A`` or ``dt`` changes); the mean ``x' = F x + c`` about the model's derivative at A's state
 (``ekf_mean="jacobian"``: one model evaluation per A instead of two per step; the hook within
 micrometres) or by the integrator on the model (``"model"``).
@@ -14,7 +14,8 @@ UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points w
 Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
 batched (vectorised) step (fusion/models/batched_model.py: the tip's kinematics once per
 step for the step's input times) and recomputed from (x, P) before every LiDAR update.
-The sigma points step once per ``ukf_window_s`` (25 ms, five MRU samples; fusion/hook_window.py).
+The sigma points step once per ``ukf_window_s`` (25 ms, five MRU samples; fusion/hook_window.py),
+by the midpoint rule with its second stage linearised at the mean (``ukf_midpoint``).
 The integrator (``HookFilterConfig.integrator``): the explicit midpoint rule by default, two
 evaluations of the crane model per step (the UKF's window, the EKF's model mean) instead of
 RK4's four (document 002 4.4); at 5 ms the estimates agree to micrometres (the pendulum's and the deflection's periods are
@@ -22,8 +23,8 @@ seconds; BENCHMARKS.md, tests/fusion).  The
 linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
 linear h the unscented transform gives the same result).  Every correction is
 ``x + K y``, ``P - K S K^T`` through the Cholesky factor of ``S`` (filterpy's EKF uses the
-Joseph form, equal for the optimal gain).  P is symmetrised after every prediction (the
-corrections are symmetric by construction).
+Joseph form, equal for the optimal gain), on the estimate stacked as [P; x^T]
+(fusion/hook_kalman_steps.py).  P is symmetrised after every prediction.
 
 Encoders (100 Hz) measure slew, luff and hoist length (document 002 measures only slew and
 luff); the MRU (200 Hz) roll, pitch and their rates.

@@ -5,10 +5,10 @@ The sigma points step once per window (25 ms, five MRU samples). The MRU and enc
 a window wait for its end and are applied there as one linear update, each row its chain's
 state extrapolated back to the sample's time (fusion/models/linear_chains.py); a LiDAR frame
 closes the window at its time. The window's Q is the noise of its 5 ms steps carried to its end
-by the model linearised (A = df/dx) at its start: the vessel's and the joints' noise moves the
-sway within the window (the relative sway rate follows the roll rate at once). The outputs
-inside a window are its start with its samples so far applied one by one, carried by that
-linearisation. The same estimates as a sigma-point step per sample to 0.1 mm of the hook
+by the model linearised (A = df/dx, taken at a window's start every ``jacobian_interval_s``):
+the vessel's and the joints' noise moves the sway within the window (the relative sway rate
+follows the roll rate at once). The outputs inside a window are its start with its samples so
+far applied one by one, carried by that linearisation. The same estimates as a sigma-point step per sample to 0.1 mm of the hook
 (tests/fusion), at a fifth of the model's cost.
 """
 
