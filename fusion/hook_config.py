@@ -78,9 +78,11 @@ class HookFilterConfig(BaseModel):
     # "complex_step" are both exact to machine precision (they agree to ~1e-15); autodiff is
     # ~5x cheaper.  "numeric": central differences (benchmark variant).
     jacobian: Literal["autodiff", "complex_step", "numeric"] = "autodiff"
-    # EKF: re-evaluate the continuous Jacobian A at most this often (F is rebuilt from the
-    # cached A with the actual dt at every step); 0 = at every prediction.
-    jacobian_interval_s: float = 0.025
+    # re-evaluate the continuous Jacobian A (and the model's derivative there) at most this
+    # often: EKF at a prediction, F rebuilt from the cached A when dt changes; UKF at a window's
+    # start, for its outputs, its Q and its midpoint. 0 = at every prediction (every window).
+    # 50 ms: the hook within 0.05 mm of 25 ms's, the same RMSE and NEES (BENCHMARKS.md)
+    jacobian_interval_s: float = 0.05
     # UKF sigma-point propagation: "generated" (fusion/models/batched_model.py, the tip's
     # kinematics once per step) or "core" (the crane model's core on arrays, once per stage:
     # benchmark variant); the same operations per element, the same result
@@ -100,6 +102,11 @@ class HookFilterConfig(BaseModel):
     # by the model's linear part. 1 / predict_rate_hz (or less): a sigma-point step and an
     # update per sample (the filter before).
     ukf_window_s: float = Field(0.025, ge=0.0)
+    # UKF with the midpoint rule and a window: "linearised": the second stage's accelerations
+    # are the first's plus the model's Jacobian at the mean (the window's, for its outputs) times
+    # the half step's displacement (one model evaluation on the sigma points per window instead
+    # of two; fusion/models/batched_model.py); "model": the second stage on the model (before)
+    ukf_midpoint: Literal["model", "linearised"] = "linearised"
     ukf_alpha: float = 1e-3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0

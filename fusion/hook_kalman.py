@@ -28,7 +28,8 @@ from scipy.stats import chi2
 
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
-from boomtip.fusion.hook_kalman_core import HookKalmanCore, kalman_correction
+from boomtip.fusion.hook_kalman_core import HookKalmanCore
+from boomtip.fusion.hook_kalman_steps import stacked_correction
 from boomtip.fusion.models.crane_pendulum import (
     HOOK_COLS,
     IA,
@@ -77,16 +78,19 @@ class HookFilter(HookKalmanCore):
         self.nis_history: list[float] = []
 
     def _lidar_terms(self, z, R):
-        """Innovation y, its covariance S and what the update needs (EKF: P H^T; UKF: the
-        sigma points and their measurements) at the current (x, P)."""
+        """(C, S) of the correction (hook_kalman_steps.stacked_correction) at the current
+        estimate: C's rows the cross covariance (EKF: P H^T; UKF: of the sigma points and their
+        measurements) and the negated innovation, S the innovation's covariance."""
         kf = self._kf
-        x, P = kf.x, kf.P
+        x, n = kf.x, self.n
         if self.kind == "ekf":
             p, Hs = lidar_h_jac(x)  # Hs: 3 x 6, w.r.t. HOOK_COLS
-            PHT = P.take(_HOOK_COLS_A, 1) @ Hs.T  # (n, 3)
-            S = Hs @ PHT.take(_HOOK_COLS_A, 0) + R
-            return z - p, S, PHT
-        sig = self._pts.sigma_points(x, P)  # (2n+1, n)
+            C = kf.M.take(_HOOK_COLS_A, 1) @ Hs.T  # rows P H^T (n, 3), then (the mean's) replaced
+            C[n] = p - z
+            S = Hs @ C.take(_HOOK_COLS_A, 0)
+            S += R
+            return C, S
+        sig = self._pts.sigma_points(x, kf.P)  # (2n+1, n)
         a, b, l = sig[:, IA], sig[:, IB], sig[:, IL]
         ca = np.cos(a)
         Z = np.stack([-l * np.sin(a), l * ca * np.sin(b), -l * ca * np.cos(b)], 1)
@@ -94,14 +98,16 @@ class HookFilter(HookKalmanCore):
         D = Z - zp
         Wc = self._Wc
         S = (D.T * Wc) @ D + R
-        Pxz = ((sig - x).T * Wc) @ D  # cross covariance (n, 3)
-        return z - zp, S, Pxz
+        C = np.empty((n + 1, 3))
+        np.matmul((sig - x).T * Wc, D, out=C[:n])  # cross covariance (n, 3)
+        C[n] = zp - z
+        return C, S
 
     def lidar_innovation(self, z, R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(innovation y, its covariance S) of a LiDAR fix before any update."""
         self._flush()
-        y, S, _ = self._lidar_terms(np.asarray(z, float), self._R_lidar if R is None else R)
-        return y, S
+        C, S = self._lidar_terms(np.asarray(z, float), self._R_lidar if R is None else R)
+        return -C[self.n], S
 
     def update_lidar(self, p_rel_tip_world, t: float | None = None, sigma_m: float | None = None,
                      cov_m2: np.ndarray | None = None) -> bool:
@@ -124,9 +130,9 @@ class HookFilter(HookKalmanCore):
             R = np.eye(3) * sigma_m**2
         else:
             R = self._R_lidar
-        y, S, PHT = self._lidar_terms(z, R)
+        C, S = self._lidar_terms(z, R)
         kf = self._kf
-        x_new, P_new, nis = kalman_correction(kf.x, kf.P, PHT, S, y, True)
+        M_new, nis = stacked_correction(kf.M, C, S, True)
         self.last_nis = nis
         if nis > self._gate:
             self._consecutive_rejections += 1
@@ -134,14 +140,14 @@ class HookFilter(HookKalmanCore):
                 self.n_lidar_rejected += 1
                 return False
             self._reacquire(z)
-            y, S, PHT = self._lidar_terms(z, R)  # x, P changed
-            x_new, P_new = kalman_correction(kf.x, kf.P, PHT, S, y)
+            C, S = self._lidar_terms(z, R)  # x, P changed
+            M_new = stacked_correction(kf.M, C, S)
         else:
             self.nis_history.append(nis)
         self._consecutive_rejections = self._consecutive_rope_rejections = 0
         # K = P H^T S^-1 (EKF) or Pxz S^-1 (UKF); P - K S K^T (= filterpy's Joseph form
-        # with the optimal gain, and its UKF update); symmetric by construction
-        kf.x, kf.P = x_new, P_new
+        # with the optimal gain, and its UKF update)
+        kf.M = M_new
         self.n_lidar_accepted += 1
         return True
 
@@ -171,26 +177,29 @@ class HookFilter(HookKalmanCore):
         ii = _SWAY_AB
 
         def terms():
-            y = z - kf.x.take(ii)
+            C = kf.M.take(ii, 1)  # rows P[:, ii], x[ii]
+            y = z - C[-1]
             y[1] = (y[1] + math.pi) % (2 * math.pi) - math.pi
-            W = kf.P.take(ii, 1)
-            return W, W.take(ii, 0) + R, y
+            C[-1] = -y
+            S = C.take(ii, 0)
+            S += R
+            return C, S
 
-        W, S, y = terms()
-        x_new, P_new, nis = kalman_correction(kf.x, kf.P, W, S, y, True)
+        C, S = terms()
+        M_new, nis = stacked_correction(kf.M, C, S, True)
         if not nis <= self._gate_rope:  # (a NaN NIS is a rejection too)
             self._consecutive_rope_rejections += 1
             if self._consecutive_rope_rejections < self.cfg.reacquire_after_rejections:
                 self.n_rope_rejected += 1
                 return False
             self._reacquire(np.asarray(direction, float))
-            W, S, y = terms()
-            x_new, P_new = kalman_correction(kf.x, kf.P, W, S, y)
+            C, S = terms()
+            M_new = stacked_correction(kf.M, C, S)
         # Any accepted sway measurement clears both rejection runs: a rope fit locked on a wrong
         # line (a tagline) must not re-initialise the sway while the block fixes agree with it,
         # nor the block fixes while the rope does.
         self._consecutive_rope_rejections = self._consecutive_rejections = 0
-        kf.x, kf.P = x_new, P_new
+        kf.M = M_new
         self.n_rope_accepted += 1
         return True
 
@@ -206,6 +215,6 @@ class HookFilter(HookKalmanCore):
             P[i, :] = 0.0
             P[:, i] = 0.0
             P[i, i] = P0[i, i]
-        kf.x, kf.P = x, P
+        kf.set(x, P)
         self._A = None
         self.n_reacquired += 1

@@ -6,7 +6,7 @@ rope direction).
 EKF (the equations of filterpy's ``ExtendedKalmanFilter``, written out: its per-call
 overhead dominated the 200 Hz loop): ``P = F P F^T + Q`` with ``F = I + A dt + (A dt)^2 / 2``
 and the continuous Jacobian ``A`` of the equations of motion (fusion/models/jacobian.py),
-refreshed every ``jacobian_interval_s`` (40 Hz; ``0`` = every step; ``F`` is rebuilt only when
+refreshed every ``jacobian_interval_s`` (20 Hz; ``0`` = every step; ``F`` is rebuilt only when
 ``A`` or ``dt`` changes); the mean ``x' = F x + c`` about the model's derivative at A's state
 (``ekf_mean="jacobian"``: one model evaluation per A instead of two per step; the hook within
 micrometres) or by the integrator on the model (``"model"``).
@@ -14,7 +14,8 @@ UKF (the equations of filterpy's ``UnscentedKalmanFilter``, Merwe sigma points w
 Simulink's defaults alpha=1e-3, beta=2, kappa=0): the sigma points are propagated by one
 batched (vectorised) step (fusion/models/batched_model.py: the tip's kinematics once per
 step for the step's input times) and recomputed from (x, P) before every LiDAR update.
-The sigma points step once per ``ukf_window_s`` (25 ms, five MRU samples; fusion/hook_window.py).
+The sigma points step once per ``ukf_window_s`` (25 ms, five MRU samples; fusion/hook_window.py),
+by the midpoint rule with its second stage linearised at the mean (``ukf_midpoint``).
 The integrator (``HookFilterConfig.integrator``): the explicit midpoint rule by default, two
 evaluations of the crane model per step (the UKF's window, the EKF's model mean) instead of
 RK4's four (document 002 4.4); at 5 ms the estimates agree to micrometres (the pendulum's and the deflection's periods are
@@ -22,8 +23,8 @@ seconds; BENCHMARKS.md, tests/fusion).  The
 linear sensors (encoders, MRU) use the exact linear Kalman update in both filters (for a
 linear h the unscented transform gives the same result).  Every correction is
 ``x + K y``, ``P - K S K^T`` through the Cholesky factor of ``S`` (filterpy's EKF uses the
-Joseph form, equal for the optimal gain).  P is symmetrised after every prediction (the
-corrections are symmetric by construction).
+Joseph form, equal for the optimal gain), on the estimate stacked as [P; x^T]
+(fusion/hook_kalman_steps.py).  P is symmetrised after every prediction.
 
 Encoders (100 Hz) measure slew, luff and hoist length (document 002 measures only slew and
 luff); the MRU (200 Hz) roll, pitch and their rates.
@@ -38,10 +39,15 @@ import numpy as np
 
 from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
-from boomtip.fusion.hook_kalman_steps import FastMerweSigmaPoints, KalmanState, kalman_correction
+from boomtip.fusion.hook_kalman_steps import FastMerweSigmaPoints, KalmanState, selection_correction
 from boomtip.fusion.hook_window import PredictionWindow
 from boomtip.fusion.models.autodiff import accel_jacobian
-from boomtip.fusion.models.batched_model import midpoint_sigma_points, rk4_sigma_points, split_accelerations
+from boomtip.fusion.models.batched_model import (
+    midpoint_linearised_sigma_points,
+    midpoint_sigma_points,
+    rk4_sigma_points,
+    split_accelerations,
+)
 from boomtip.fusion.models.crane_pendulum import (
     HOOK_IX,
     IA,
@@ -65,7 +71,7 @@ from boomtip.fusion.models.crane_pendulum import (
 )
 from boomtip.fusion.models.jacobian import continuous_jacobian, jacobian_and_accelerations
 
-__all__ = ["HookKalmanCore", "kalman_correction"]
+__all__ = ["HookKalmanCore"]
 
 
 class HookKalmanCore(PredictionWindow):
@@ -107,20 +113,23 @@ class HookKalmanCore(PredictionWindow):
                        (self._me_idx[4:].copy(), self._R_enc), (self._me_idx[4:6].copy(), self._R_enc[:2])]
         self._q_cache: dict[float, np.ndarray] = {}
         self._q_step_cache: dict[float, np.ndarray] = {}
-        # the UKF's prediction window (HookFilterConfig.ukf_window_s; fusion/hook_window.py)
-        self._init_window(self.cfg.ukf_window_s if kind == "ukf" else 0.0)
+        # the linearisation (EKF: the covariance and the mean; UKF: its window) and its time
         self._A: np.ndarray | None = None
         self._A_t = -math.inf
         self._jac_interval = float(self.cfg.jacobian_interval_s)
-        self._F: np.ndarray | None = None  # F for (self._A, self._F_key = round(dt, 12))
-        self._Fh: np.ndarray | None = None  # F / 2
+        # the UKF's prediction window (HookFilterConfig.ukf_window_s; fusion/hook_window.py)
+        self._init_window(self.cfg.ukf_window_s if kind == "ukf" else 0.0)
+        # the EKF's step for (self._A, self._F_key = round(dt, 12)): F^T, blockdiag(F / 2, 1) and
+        # [Q; c^T] for the stacked estimate (hook_kalman_steps.KalmanState)
+        self._FT: np.ndarray | None = None
+        self._Fh_stacked: np.ndarray | None = None
+        self._QC: np.ndarray | None = None
         self._F_key: float | None = None
         self._lin_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.n_jacobians = 0
         # EKF mean by the Jacobian (HookFilterConfig.ekf_mean): the step's affine term for (A,
         # dt) from the model's derivative at A's state (self._f_offset, as the window's)
         self._ekf_affine = kind == "ekf" and self.cfg.ekf_mean == "jacobian"
-        self._c_step = np.zeros(n)
         if kind == "ekf" and self.cfg.jacobian == "autodiff":
             accel_jacobian(self._prm, self.flex)  # generate the code now (once per params)
         self._kf = KalmanState(n)
@@ -135,6 +144,11 @@ class HookKalmanCore(PredictionWindow):
                 self._step_sigma = rk4_sigma_points if generated else rk4_batch
             else:
                 self._step_sigma = midpoint_sigma_points if generated else midpoint_batch
+            # the second stage linearised at the mean (HookFilterConfig.ukf_midpoint) with a
+            # window (whose Jacobian it takes; a Jacobian per 5 ms step would cost more than it saves)
+            self._ukf_linear_stage = (self.windowed and self.cfg.integrator == "midpoint"
+                                      and self.cfg.ukf_midpoint == "linearised")
+            self._ukf_core = not generated
         self._step_float = rk4_float if self.cfg.integrator == "rk4" else midpoint_float
 
     # ------------------------------------------------------------------ state access
@@ -157,8 +171,7 @@ class HookKalmanCore(PredictionWindow):
         x0 = np.asarray(x0, float)[: self.n].copy()
         if len(x0) != self.n:
             raise ValueError(f"x0 must have {self.n} entries")
-        self._kf.x = x0
-        self._kf.P = self._default_P0() if P0 is None else np.array(P0, float)
+        self._kf.set(x0, self._default_P0() if P0 is None else np.array(P0, float))
         self._A = None
         self._pend_t, self._pend_kind, self._pend_z = [], [], []
         self.t = float(t0)
@@ -250,6 +263,7 @@ class HookKalmanCore(PredictionWindow):
                 Q = self._step_noise(dt)
         # H = half the propagated covariance (the factor 1/2 is exact): P = H + H^T + Q is
         # the symmetrised P
+        n = self.n
         if self.kind == "ekf":
             if self._A is None or self.t - self._A_t >= self._jac_interval - 1e-9:
                 # f(x) ~ A x + (f(x0) - A x0) (the offset: only the accelerations' rows)
@@ -259,27 +273,41 @@ class HookKalmanCore(PredictionWindow):
             if key != self._F_key:  # F depends on (A, dt) only: rebuilt when either changes
                 Ad = self._A * dt
                 F = self._I + Ad + 0.5 * (Ad @ Ad)
-                self._F, self._Fh, self._F_key = F, 0.5 * F, key
-                if self._ekf_affine:  # x' = F x + (dt + A dt^2 / 2) (f(x0) - A x0)
-                    self._c_step = dt * self._f_offset + (0.5 * dt) * (Ad @ self._f_offset)
-            if self._ekf_affine:
-                x = self._F @ kf.x
-                x += self._c_step
-                kf.x = x
-            else:
-                kf.x = np.array(self._step_float(self._prm, self.flex, kf.x.tolist(), dt))
-            H = (self._Fh @ kf.P) @ self._F.T
+                Fh = np.zeros((n + 1, n + 1))
+                Fh[:n, :n] = 0.5 * F
+                Fh[n, n] = 1.0
+                QC = np.empty((n + 1, n))
+                QC[:n] = Q
+                # x' = F x + (dt + A dt^2 / 2) (f(x0) - A x0)
+                QC[n] = dt * self._f_offset + (0.5 * dt) * (Ad @ self._f_offset) if self._ekf_affine else 0.0
+                self._FT, self._Fh_stacked, self._QC, self._F_key = F.T, Fh, QC, key
+            # rows: H = F P F^T / 2 and (F x)^T; then P = H + H^T + Q, x' = F x + c
+            M = self._Fh_stacked @ (kf.M @ self._FT)
+            P = M[:n]
+            P += P.T
+            M += self._QC
+            if not self._ekf_affine:
+                M[n] = self._step_float(self._prm, self.flex, kf.x.tolist(), dt)
+            kf.M = M
+            self.t += dt
+            return
         else:
             # sigma points from (x, P), one batched step, unscented transform
             sig = self._pts.sigma_points(kf.x, kf.P)  # (2n+1, n)
-            Xf = self._step_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
+            if self._ukf_linear_stage:  # the Jacobian's rows at the mean (the window's A)
+                J = self._window_linearisation().take(self._acc_rows, 0)
+                Xf = midpoint_linearised_sigma_points(self._prm, self.flex, sig.T, dt, J, self._ukf_core)
+            else:
+                Xf = self._step_sigma(self._prm, self.flex, sig.T, dt)  # (n, 2n+1)
             x = Xf @ self._Wm
             D = Xf - x[:, None]
-            kf.x = x
             H = (D * self._Wc_half) @ D.T
-        P = H + H.T
+        M = np.empty((n + 1, n))
+        P = M[:n]
+        np.add(H, H.T, out=P)
         P += Q
-        kf.P = P
+        M[n] = x
+        kf.M = M
         self.t += dt
 
     def advance_to(self, t: float) -> None:
@@ -311,8 +339,6 @@ class HookKalmanCore(PredictionWindow):
 
     def _selection_update(self, ii: np.ndarray, R: np.ndarray, z) -> None:
         """:meth:`_linear_update` with the index array and the R matrix prepared."""
-        kf = self._kf
-        x, P = kf.x, kf.P
         z = np.asarray(z, dtype=float)
         # (z @ z is NaN or inf with any NaN or inf sample: one C call, the cheapest test at 200 Hz)
         if not math.isfinite(z @ z) and not np.all(np.isfinite(z)):  # a NaN sample updates nothing
@@ -320,8 +346,7 @@ class HookKalmanCore(PredictionWindow):
             if not keep.any():
                 return
             ii, R, z = ii[keep], R[np.ix_(keep, keep)], z[keep]
-        W = P.take(ii, 1)  # P H^T, (n, k)
-        kf.x, kf.P = kalman_correction(x, P, W, W.take(ii, 0) + R, z - x.take(ii))
+        self._kf.M = selection_correction(self._kf.M, ii, R, z)
 
     def _sample(self, kind: int, z: np.ndarray, t: float | None) -> None:
         """A sample of the crane's sensors (kind: an entry of ``self._kinds``) at time t (None:

@@ -17,13 +17,14 @@ from boomtip.data.crane_model import pendulum_accelerations_core
 from boomtip.fusion.models.autodiff import accel_jacobian
 from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD, KIN_CHAINS
 
-__all__ = ["continuous_jacobian", "jacobian_and_accelerations"]
+__all__ = ["constant_part", "continuous_jacobian", "jacobian_and_accelerations"]
 
 _CS_H = 1e-30  # complex step
 
 
 @cache
-def _constant_part(n: int, flex: bool) -> np.ndarray:
+def constant_part(n: int, flex: bool) -> np.ndarray:
+    """The Jacobian's state-independent rows (the chains, the angles' rates); read-only."""
     A0 = np.zeros((n, n))
     for i in (IA, IB):
         A0[i, i + 1] = 1.0
@@ -63,7 +64,7 @@ def jacobian_and_accelerations(prm: tuple, flex: bool, x: np.ndarray, method: st
     rows = _rows(flex)
     k = len(rows)
     out = np.array(jac(x.tolist()))
-    A = _constant_part(n, flex).copy()
+    A = constant_part(n, flex).copy()
     A[rows] = out[: k * n].reshape(k, n)
     return A, out[k * n:]
 
@@ -71,7 +72,7 @@ def jacobian_and_accelerations(prm: tuple, flex: bool, x: np.ndarray, method: st
 def continuous_jacobian(prm: tuple, flex: bool, x: np.ndarray, method: str) -> np.ndarray:
     """A (n, n) at the state x; ``prm`` is ``CraneParams.as_tuple()``."""
     n = 21 if flex else 19
-    A = _constant_part(n, flex).copy()
+    A = constant_part(n, flex).copy()
     rows = (IAD, IBD, IFD) if flex else (IAD, IBD)
     if method == "autodiff":
         jac = accel_jacobian(prm, flex)
