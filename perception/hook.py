@@ -292,10 +292,12 @@ def _detect_by_model_fit(pts: np.ndarray, p_prior: np.ndarray, hoist_length_m: f
             sc = score_pose(pn, t, yaw, model, cfg)
         sigma_across = float("nan")
         n_model = int(np.count_nonzero(sc.inliers))
+        mesh_d = None  # (the pose scored, its points' distances to the full mesh), when computed
         if cfg.ray_refine and n_model >= cfg.min_fit_points:
             s = np.zeros(3) if sensor_position_m is None else np.asarray(sensor_position_m, dtype=np.float64)
             blk = np.zeros(n_all, dtype=bool)
-            blk[gate[near[model.mesh_distance((pn - t) @ sc.R) < cfg.mask_distance_m]]] = True
+            mesh_d = (sc, model.mesh_distance((pn - t) @ sc.R))
+            blk[gate[near[mesh_d[1] < cfg.mask_distance_m]]] = True
             half1 = float(np.clip(cfg.ray_window_steps * step_m, cfg.ray_window_min_m, cfg.ray_window_max_m))
             reach = max(half1, float(np.abs(np.asarray(AMBIGUOUS_SHIFTS_M)).max()))  # window or a shift
             rays = ray_evidence(pts, blk, t, yaw, s, reach, model, cfg, rng)
@@ -305,9 +307,13 @@ def _detect_by_model_fit(pts: np.ndarray, p_prior: np.ndarray, hoist_length_m: f
                 sc = score_pose(pn, t, yaw, model, cfg)
             if n_model <= cfg.ray_refine_max_points:
                 t, yaw, sigma_across = ray_refine(rays, t, yaw, half1, model, cfg, pick_prior)
-            sc = score_pose(pn, t, yaw, model, cfg)
+            if t is not sc.t or yaw != sc.yaw:  # (a pose the rays kept is scored already)
+                sc = score_pose(pn, t, yaw, model, cfg)
         fit = sc
-        on_block = model.mesh_distance((pn - fit.t) @ fit.R) < cfg.mask_distance_m
+        if mesh_d is not None and mesh_d[0] is fit:
+            on_block = mesh_d[1] < cfg.mask_distance_m
+        else:
+            on_block = model.mesh_distance((pn - fit.t) @ fit.R) < cfg.mask_distance_m
     mask = np.zeros(n_all, dtype=bool)
     mask[gate[near[on_block]]] = True
     n_in = int(np.count_nonzero(fit.inliers))

@@ -104,6 +104,7 @@ def icp_4dof_starts(p: np.ndarray, T0: np.ndarray, yaw0: np.ndarray, model: Bloc
     T, yaw = np.array(T0, float).reshape(-1, 3), np.array(yaw0, float).reshape(-1)
     pts = model.points
     active = np.arange(len(T))
+    Rz_active = rotations_z(yaw)  # the active starts' yaw rotations (each iteration's new yaws' are the next one's)
     for it in range(cfg.icp_iterations if max_iterations is None else max_iterations):
         if not len(active):
             break
@@ -111,7 +112,7 @@ def icp_4dof_starts(p: np.ndarray, T0: np.ndarray, yaw0: np.ndarray, model: Bloc
         thr = cfg.icp_max_correspondence_m if coarse else cfg.icp_final_correspondence_m
         t = T[active]
         Ru = _hanging_rotations(t)
-        Rz = rotations_z(yaw[active])
+        Rz = Rz_active
         # model frame: Rz^T Ru^T (p - t), as in icp_4dof
         q = p @ (Ru @ Rz) - ((t[:, None, :] @ Ru) @ Rz)
         d, idx = model.nearest_grid(q.reshape(-1, 3))
@@ -130,11 +131,13 @@ def icp_4dof_starts(p: np.ndarray, T0: np.ndarray, yaw0: np.ndarray, model: Bloc
         # 2-D Procrustes per start: the cross-covariance of the centred xy coordinates
         H = np.einsum("sni,snj->sij", np.where(w[:, :, :2], m[:, :, :2] - mc[:, None, :2], 0.0), x[:, :, :2] - xc[:, None, :2])
         yaw_new = np.arctan2(H[:, 0, 1] - H[:, 1, 0], H[:, 0, 0] + H[:, 1, 1])
-        t_new = np.einsum("sij,sj->si", Ru, xc - np.einsum("sij,sj->si", rotations_z(yaw_new), mc))
+        Rz_active = rotations_z(yaw_new)
+        t_new = np.einsum("sij,sj->si", Ru, xc - np.einsum("sij,sj->si", Rz_active, mc))
         dt = t_new - t
         T[active], yaw[active] = t_new, yaw_new
         if not coarse:
-            active = active[np.sqrt(np.einsum("ij,ij->i", dt, dt)) >= cfg.icp_tolerance_m]
+            going = np.sqrt(np.einsum("ij,ij->i", dt, dt)) >= cfg.icp_tolerance_m
+            active, Rz_active = active[going], Rz_active[going]
     return T, yaw
 
 

@@ -79,3 +79,13 @@ def test_the_run_reports_the_bias_and_the_chain_takes_it_from_the_installation()
     expect = math.radians(math.hypot(inst.lidar.mount.accuracy_deg, inst.mru.bias_accuracy_deg))
     assert expect > 0 and chain.filter_cfg.levelling_bias_sigma_rad == pytest.approx(expect)
     assert HookChain(sim, Processing(hook={"filter": {"levelling_bias_sigma_rad": 0.0}})).filter_cfg.levelling_bias_sigma_rad == 0.0
+
+
+def test_merged_events_are_compact_arrays_in_time_then_sensor_order():
+    from boomtip.fusion.hook_run import merged_events
+
+    t, s, i = merged_events(([0.0, 0.01, 0.02], [0.01, 0.03], [0.01]), 0.0, 0.025)
+    assert t.tolist() == [0.01, 0.01, 0.01, 0.02]  # (0, 0.025]: the first MRU sample and the last encoder out
+    assert s.tolist() == [0, 1, 2, 0]  # equal times: MRU, encoders, LiDAR
+    assert i.tolist() == [1, 0, 0, 2]
+    assert (t.dtype, s.dtype, i.dtype) == (np.float64, np.int8, np.int32)
