@@ -44,7 +44,7 @@ class PredictionWindow:
         # (F, c) of x' = F x + c
         self._acc_rows = np.array([IAD, IBD, IFD] if self.flex else [IAD, IBD], np.intp)
         self._f_offset = np.zeros(self.n)
-        self._lin_x: np.ndarray | None = None  # the estimate A was taken at
+        self._lin_M: np.ndarray | None = None  # the stacked estimate A was taken at
         self._lin_steps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._window_q: dict[tuple, np.ndarray] = {}  # the window's Q per (steps, step) for this A
         # the outputs inside a window: (x, P, t, samples applied) and the window start's x
@@ -120,10 +120,10 @@ class PredictionWindow:
         """A = df/dx and the model's derivative (self._f_offset) at the estimate at a window's
         start, refreshed at the first window start at least ``jacobian_interval_s`` after the
         last (0: at every window), as the EKF's."""
-        x = self._kf.x
-        if self._A is None or (self._lin_x is not x and self.t - self._A_t >= self._jac_interval - 1e-9):
-            self._A, self._f_offset = self._linearisation(x)
-            self._A_t, self._lin_x = self.t, x
+        M = self._kf.M  # replaced, never changed in place: its identity marks the estimate (x is a new view each read)
+        if self._A is None or (self._lin_M is not M and self.t - self._A_t >= self._jac_interval - 1e-9):
+            self._A, self._f_offset = self._linearisation(self._kf.x)
+            self._A_t, self._lin_M = self.t, M
             self._lin_steps, self._window_q = {}, {}
         return self._A
 
