@@ -187,7 +187,7 @@ def icp_refined(surface: Surface, source_level: np.ndarray, T_guess: np.ndarray,
         fine = icp_point_to_plane(surface, source_level, res.T, cfg.max_correspondence_m, cfg.merge_tukey_m, cfg.relative_change, cfg.max_iterations)
         if np.all(np.isfinite(fine.T)) and len(fine.source_index) >= min(cfg.min_points, len(res.source_index)):
             return fine
-    return res  # the refinement lost the frame (too few returns within the narrow kernel): the wide fit stands
+    return res  # the refinement lost the frame (a non-finite pose, or moved off the model): the wide fit stands
 
 
 def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig) -> list[np.ndarray]:
