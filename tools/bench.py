@@ -88,7 +88,7 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
         out = pipe.process(fr)
         recorded.append((fr, out, doppler_prior, pipe._deck_prior(t, "lidar", out.reflectors) if sensor == "lidar" else None))
         # the frame's attitude stage, which each of its rows carries an equal share of
-        share_ms = sum(out.times.ms.get(s, 0.0) for s in FRAME_STAGES) / max(len(out.measurements), 1)
+        share_ms = out.times.total(*FRAME_STAGES) / max(len(out.measurements), 1)
         for m in out.measurements:
             d = per_method.setdefault(m.method, {"apt_ms": [], "err": [], "valid": 0, "frames": 0, "stages": {}})
             d["apt_ms"].append(m.time_ms)
