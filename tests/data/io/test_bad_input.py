@@ -159,13 +159,14 @@ def test_sigterm_leaves_no_staging_folder(tmp_path):
     import time
 
     out = tmp_path / "rec"
-    proc = subprocess.Popen([sys.executable, "-m", "boomtip.tools.cli", "simulate", "-s", "sts-loaded", "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "boomtip.tools.cli", "simulate", "-s", "sts-loaded", "--out", str(out),
+                             "--duration", "600"],  # long enough that the signal always lands mid-run
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.time() + 60
+    deadline = time.time() + 240  # the import and the scene's set-up on a loaded 2-core CI machine
     while time.time() < deadline and not list(tmp_path.glob(".rec.partial-*")):
         time.sleep(0.1)
     assert list(tmp_path.glob(".rec.partial-*")), "the run never started writing"
     proc.send_signal(signal.SIGTERM)
-    proc.wait(timeout=60)
+    proc.wait(timeout=240)
     assert proc.returncode != 0
     assert not list(tmp_path.glob(".rec.partial-*")) and not out.exists()
