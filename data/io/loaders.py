@@ -125,6 +125,7 @@ class Selection(FrameSource):
         src_end = t0 + source.duration_s
         self.meta = replace(source.meta, t_start_s=self.start_s, duration_s=max(min(self.end_s, src_end) - self.start_s, 0.0))
         self.mru, self.truth, self.encoders = source.mru, source.truth, source.encoders
+        self.feeder_mru = source.feeder_mru
         share = self.meta.duration_s / max(source.duration_s, 1e-9)
         self._len = max(1, int(len(source) * share) // every)
 

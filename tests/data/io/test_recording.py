@@ -435,6 +435,14 @@ def test_feeder_mru_round_trips_with_its_gap(feeder_mru_rec):
     assert yaw_bias == pytest.approx(0.5, abs=0.01)
 
 
+
+def test_a_selection_of_frames_keeps_the_feeder_mru(feeder_mru_rec):
+    from boomtip.data.io.loaders import open_source
+
+    part = open_source(feeder_mru_rec[1], start_s=0.1, duration_s=0.3, every=2)
+    assert part.feeder_mru is not None  # --start / --duration / --every used to drop it, silently
+    np.testing.assert_array_equal(part.feeder_mru.t_s, Recording(feeder_mru_rec[1]).feeder_mru.t_s)
+
 def test_a_bad_feeder_mru_csv_names_the_file_and_line(feeder_mru_rec, tmp_path):
     dst = tmp_path / "copy"
     shutil.copytree(feeder_mru_rec[1], dst)
