@@ -23,16 +23,20 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     from boomtip.perception.feeder_registration import inverse, pose_matrix, pose_vector
     from boomtip.tools.feeder_outputs import feeder_kpis
     from boomtip.tools.feeder_truth import feeder_origin_body, feeder_pose_truth
-    from boomtip.tools.runner import build_chain, processing_for
+    from boomtip.tools.feeder_outputs import WARMUP_S
+    from boomtip.tools.runner import ChainError, build_chain, processing_for
     from boomtip.tools.ship_chain import ShipChain
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
+    if duration_s <= WARMUP_S + 1.0:
+        raise ChainError(f"--duration {duration_s:g}: expected more than {WARMUP_S + 1.0:g} s (the first {WARMUP_S:g} s "
+                         "are the filter's warm-up and are not scored)")
     s = load_scenario(scenario, [f"duration_s={duration_s}", *(overrides or [])])
     sim = simulation_for(s)
     chain = build_chain(sim, processing_for(sim))
     if not isinstance(chain, ShipChain):
-        raise ValueError(f"{scenario}: the feeder chain does not run here (no LiDAR, or a hook scenario)")
+        raise ChainError(f"{scenario}: the feeder chain does not run here (no LiDAR, or a hook scenario)")
     cfg = KISSConfig()
     cfg.mapping.voxel_size = cfg.data.max_range / 100.0
     cfg.data.deskew = False
@@ -61,6 +65,9 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     fres = result.feeder
     p_tip = sim.meta.installation.T_crane_boomtip()[:3, 3]
     kp = feeder_kpis(fres, sim.truth, p_tip)
+    if "rmse_pos_m" not in kp or not kiss_T:
+        raise ChainError(f"{scenario}: no feeder estimate to score after the {WARMUP_S:g} s warm-up "
+                         f"({len(fres.missing)} frames missing; first reason: {fres.missing[0][2] if fres.missing else 'none'})")
     # kiss-icp's feeder pose: level <- sensor(t) <- sensor(0) <- feeder, anchored on the truth at its first frame
     t_k = np.array(kiss_t)
     truth_k = feeder_pose_truth(sim.truth, t_k, feeder_origin_body(sim.truth, fres.t_definition_s, p_tip), p_tip)

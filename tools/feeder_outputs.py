@@ -82,13 +82,21 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
         out["feeder_mru"] = res.feeder_mru
     if res.notes:
         out["notes"] = res.notes
-    if truth is None or len(res.t_s) == 0 or not {"feeder_x", "crane_x"} <= set(truth.columns):
+    if len(res.t_s) == 0:
+        return out
+    warm = res.t_s >= res.t_s[0] + WARMUP_S
+    has_truth = truth is not None and {"feeder_x", "crane_x"} <= set(truth.columns)
+    if heave_D is not None:
+        side = D_side_by_side(res, heave_D, warm, truth.at("D", res.t_s) if has_truth else None)
+        if side:
+            out["D_side_by_side"] = side
+    if not has_truth:
         return out
     pose_t, rate_t = truth_of(res, truth, p_tip_crane_m)
     e_pose = res.pose - pose_t
     e_pose[:, 3:] = (e_pose[:, 3:] + np.pi) % (2 * np.pi) - np.pi
     e_rate = res.rates - rate_t
-    scored = (res.t_s >= res.t_s[0] + WARMUP_S) & np.all(np.isfinite(pose_t), axis=1)
+    scored = warm & np.all(np.isfinite(pose_t), axis=1)
     inside = np.zeros(len(res.t_s), dtype=bool)
     for a, b in windows:
         inside |= (res.t_s >= a) & (res.t_s < b)
@@ -97,16 +105,24 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
     if windows:
         out["outage"] = _figures(e_pose[scored & inside], e_rate[scored & inside], res.var[scored & inside])
         out["outside_outage"] = _figures(e_pose[scored & ~inside], e_rate[scored & ~inside], res.var[scored & ~inside])
-    if heave_D is not None:  # the feeder's D (the deck below the tip) beside the heave chain's fused D
-        t_h, D_h = heave_D
-        D_f = feeder_D(res)
-        D_true = truth.at("D", res.t_s)
-        D_fused = np.interp(res.t_s, t_h, D_h, left=np.nan, right=np.nan)
-        ok = scored & np.isfinite(D_true) & np.isfinite(D_fused)
-        if ok.any():
-            out["D_side_by_side"] = {"feeder_rmse_m": round(float(np.sqrt(np.mean((D_f[ok] - D_true[ok]) ** 2))), 5),
-                                     "heave_fused_rmse_m": round(float(np.sqrt(np.mean((D_fused[ok] - D_true[ok]) ** 2))), 5),
-                                     "feeder_minus_fused_rms_m": round(float(np.sqrt(np.mean((D_f[ok] - D_fused[ok]) ** 2))), 5)}
+    return out
+
+
+def D_side_by_side(res: FeederResult, heave_D: tuple, warm: np.ndarray, D_true: np.ndarray | None) -> dict:
+    """The feeder's D (the deck below the tip) beside the heave chain's fused D: their RMS
+    difference needs no truth; each one's error does."""
+    t_h, D_h = heave_D
+    D_f = feeder_D(res)
+    D_fused = np.interp(res.t_s, t_h, D_h, left=np.nan, right=np.nan)
+    ok = warm & np.isfinite(D_fused) & np.isfinite(D_f)
+    if D_true is not None:
+        ok &= np.isfinite(D_true)
+    if not ok.any():
+        return {}
+    rms = lambda e: round(float(np.sqrt(np.mean(e ** 2))), 5)
+    out = {"feeder_minus_fused_rms_m": rms(D_f[ok] - D_fused[ok])}
+    if D_true is not None:
+        out = {"feeder_rmse_m": rms(D_f[ok] - D_true[ok]), "heave_fused_rmse_m": rms(D_fused[ok] - D_true[ok]), **out}
     return out
 
 
@@ -128,6 +144,7 @@ def report_section(kpis: dict, windows=()) -> str:
         why = "No scored sample (the run is shorter than the warm-up, or the estimate never started)" \
             if f.get("samples") == 0 else "No feeder truth to score against"
         lines.append(f"{why}. APT {f.get('apt_ms', float('nan')):.2f} ms per LiDAR frame.")
+        lines += _D_side_by_side_lines(f)
         return "\n".join(lines) + "\n"
     lines.append("| period | position RMS x/y/z [mm] | position max [mm] | angle RMS r/p/y [deg] | angle max [deg] | NEES (6) |")
     lines.append("|---|---|---|---|---|---|")
@@ -167,11 +184,18 @@ def report_section(kpis: dict, windows=()) -> str:
                      f"{m['heading_offset_deg']:.3f} deg (1-sigma {m['heading_offset_sigma_deg']:.3f}), its yaw in the map "
                      f"{m['body_yaw_in_map_deg']:.3f} deg (1-sigma {m['body_yaw_sigma_deg']:.3f}), its tilt from the deck "
                      f"normal {m['body_tilt_deg'][0]:.4f} / {m['body_tilt_deg'][1]:.4f} deg; {m['gaps']} frames fell in its gaps.")
-    if "D_side_by_side" in f:
-        d = f["D_side_by_side"]
-        lines.append(f"D from this estimate: RMSE {1000 * d['feeder_rmse_m']:.2f} mm; the heave chain's fused D: "
-                     f"{1000 * d['heave_fused_rmse_m']:.2f} mm; their difference {1000 * d['feeder_minus_fused_rms_m']:.2f} mm RMS.")
+    lines += _D_side_by_side_lines(f)
     return "\n".join(lines) + "\n"
+
+
+def _D_side_by_side_lines(f: dict) -> list[str]:
+    d = f.get("D_side_by_side", {})
+    if "feeder_rmse_m" in d:
+        return [f"D from this estimate: RMSE {1000 * d['feeder_rmse_m']:.2f} mm; the heave chain's fused D: "
+                f"{1000 * d['heave_fused_rmse_m']:.2f} mm; their difference {1000 * d['feeder_minus_fused_rms_m']:.2f} mm RMS."]
+    if d:
+        return ["", f"D from this estimate and the heave chain's fused D: {1000 * d['feeder_minus_fused_rms_m']:.2f} mm RMS apart (no truth)."]
+    return []
 
 
 def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray) -> Path | None:

@@ -75,6 +75,18 @@ def test_a_run_shorter_than_the_warmup_still_ends(tmp_path):
     assert len(res.result.feeder.t_s) > 20  # the frames held back are processed at the end
 
 
+def test_without_truth_the_two_Ds_are_still_compared(short_run):
+    from boomtip.tools.feeder_outputs import feeder_kpis, report_section
+
+    res = short_run[1]
+    fused = res.result.heave.estimates["fused"]
+    k = feeder_kpis(res.result.feeder, None, np.zeros(3), heave_D=(fused.t_s, fused.x[:, 0]))
+    with_truth = res.kpis["feeder"]["D_side_by_side"]
+    assert "rmse_pos_m" not in k and set(k["D_side_by_side"]) == {"feeder_minus_fused_rms_m"}
+    assert k["D_side_by_side"]["feeder_minus_fused_rms_m"] == pytest.approx(with_truth["feeder_minus_fused_rms_m"], rel=0.05)
+    assert "RMS apart (no truth)" in report_section({"feeder": k})
+
+
 def test_the_levelling_calibration_takes_out_the_rigs_tilt(tmp_path):
     """40 s: the calibration applies (after 30 s of decks) and roll and pitch drop from the
     rig's 0.03 deg levelling error to a few thousandths."""
@@ -135,3 +147,17 @@ def test_the_radars_detections_hold_x_y_and_yaw_through_a_lidar_outage(tmp_path)
     f = res.result.feeder
     late = np.sqrt(f.var[(f.t_s > 27.0) & (f.t_s < 28.0), :2].mean(axis=0))
     assert late[0] < 0.07 and late[1] < 0.1
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["--duration", "3"], "expected more than 6 s"),
+    (["-s", "hook-2", "--duration", "8"], "the feeder chain does not run here"),
+    (["--duration", "8", "--set", "lidar.enabled=false"], "the feeder chain does not run here"),
+])
+def test_bench_feeder_says_what_it_cannot_score(args, expected):
+    from typer.testing import CliRunner
+
+    from boomtip.tools.cli import app
+
+    r = CliRunner().invoke(app, ["bench", "feeder", *args])
+    assert r.exit_code == 2 and expected in r.output and "Traceback" not in r.output
