@@ -29,7 +29,7 @@ from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.processing import Processing
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
-from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading
+from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
 from boomtip.fusion.models.relative_motion import deck_plane, rotation
 from boomtip.perception.feeder import (
     FeederPerception,
@@ -346,6 +346,9 @@ class FeederChain:
         if self.normals:
             tilt = tilt_from_normals(np.array([n[0] for n in self.normals]), np.array([n[1] for n in self.normals]),
                                      self.cfg.calibration_min_s)
+            tilt, why = within_the_survey(tilt, self.perception.mount_sigma_rad["lidar"])
+            if why is not None:
+                notes.append("feeder: levelling not calibrated: " + why)
             tilt = with_heading(tilt, np.array(self.hull_yaws))
         if not self.filter.started:
             return FeederResult(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12)), float("nan"), tilt, None,
@@ -353,7 +356,7 @@ class FeederChain:
         if tilt is not None and tilt.rz_sigma_rad is None:
             notes.append("feeder: no straight edge of the own hull among the static returns: the LiDAR mount's rotation "
                          "about the vertical is the survey's")
-        if tilt is None:
+        if tilt is None and not any("levelling not calibrated" in n for n in notes):
             notes.append(f"feeder: levelling not calibrated (under {self.cfg.calibration_min_s:g} s of deck planes): "
                          "the surveyed mount and the MRU are taken as they are")
         C_final = correction(tilt)

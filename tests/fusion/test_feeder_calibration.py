@@ -117,3 +117,21 @@ def test_averaged_rates_cut_the_noise_and_keep_the_wave():
     assert np.std(err[:, :2]) == pytest.approx(math.radians(0.025) / math.sqrt(21), rel=0.1)
     assert abs(np.mean(err[:, :2])) < 1e-5  # no lag: the window is centred
     assert averaged_rates(log, 0.0)[1] == 1
+
+
+def test_a_mean_tilt_beyond_the_survey_is_the_feeders_list_not_the_mount():
+    """A feeder listing 0.5 deg averages to 0.5 deg, which the deck cannot tell from a mount
+    error; the survey (0.036 deg 1-sigma here) says the mount is not that far off."""
+    from boomtip.fusion.level_calibration import within_the_survey
+
+    t = np.arange(0.0, 60.0, 0.1)
+    prior = math.radians(math.hypot(0.03, 0.02))
+    mount = tilt_from_normals(t, _normals(math.radians(0.04), math.radians(-0.035), t), min_span_s=30.0)
+    kept, why = within_the_survey(mount, prior)
+    assert kept is mount and why is None
+    listing = tilt_from_normals(t, _normals(math.radians(0.5), 0.0, t), min_span_s=30.0)
+    kept, why = within_the_survey(listing, prior)
+    assert kept is None and "list or trim" in why and "0.500 deg" in why
+    assert within_the_survey(None, prior) == (None, None)
+    edge = Tilt(4.0 * prior * 0.99, 0.0, 0.0, 60.0)  # just inside 4 sigma is still the mount's
+    assert within_the_survey(edge, prior)[0] is edge
