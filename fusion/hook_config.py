@@ -82,7 +82,7 @@ class HookFilterConfig(BaseModel):
     # often: EKF at a prediction, F rebuilt from the cached A when dt changes; UKF at a window's
     # start, for its outputs, its Q and its midpoint. 0 = at every prediction (every window).
     # 50 ms: the hook within 0.05 mm of 25 ms's, the same RMSE and NEES (BENCHMARKS.md)
-    jacobian_interval_s: float = 0.05
+    jacobian_interval_s: float = Field(0.05, ge=0.0)
     # UKF sigma-point propagation: "generated" (fusion/models/batched_model.py, the tip's
     # kinematics once per step) or "core" (the crane model's core on arrays, once per stage:
     # benchmark variant); the same operations per element, the same result

@@ -43,13 +43,13 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
     from boomtip.tools import hook_chain as chain_module
     from boomtip.tools import hook_workers as workers
     from boomtip.tools.hook_store import EstimateStore
-    from boomtip.tools.runner import build_chain, outage_windows, processing_for, run_labels
+    from boomtip.tools.runner import ChainError, build_chain, outage_windows, processing_for, run_labels
 
     s = load_scenario(program, [f"duration_s={duration_s}", *(overrides or [])])
     sim = simulation_for(s)
     chain = build_chain(sim, processing_for(sim))
     if chain.name != "hook":
-        raise ValueError(f"{program}: not a hook scenario (its chain is {chain.name})")
+        raise ChainError(f"{program}: not a hook scenario (its chain is {chain.name}); bench hook runs hook-1, hook-2, ...")
     wall_sim = wall_perc = cpu_sim = cpu_perc = 0.0
     cpu = time.process_time
     stage_ms: dict[str, list[float]] = defaultdict(list)

@@ -308,6 +308,8 @@ def test_ekf_mean_by_the_jacobian_equals_the_model_to_micrometres(truth, ekf_run
     standard deviations (A every 25 ms: 16 um, 0.4 mm/s, 0.005)."""
     assert HookFilterConfig().ekf_mean == "jacobian"
     assert HookFilterConfig().jacobian_interval_s == 0.05
+    with pytest.raises(ValueError):  # a negative interval would be taken silently as 0
+        HookFilterConfig(jacobian_interval_s=-0.1)
     model = run_hook_filter(measurements_from_truth(truth, seed=7), "ekf", "flexible",
                             config=HookFilterConfig(ekf_mean="model"))
     assert np.abs(model.p_rel - ekf_run.p_rel).max() < 4e-5

@@ -62,3 +62,12 @@ def test_the_whole_bench_runs_and_the_integrators_agree():
     assert all(len(v) == 2 and min(v) > 0 for v in two["wall_s_each"].values())
     assert r["ratio"] == pytest.approx(1.0 / two["wall_s"]["two_cores"])
     assert 0 < two["cpu_s_own"]["two_cores"] < two["cpu_s_with_children"]["two_cores"]
+
+
+def test_bench_hook_on_a_scenario_without_the_hook_chain_says_so():
+    from typer.testing import CliRunner
+
+    from boomtip.tools.cli import app
+
+    r = CliRunner().invoke(app, ["bench", "hook", "-s", "sts-loaded", "--duration", "1"])
+    assert r.exit_code == 2 and "not a hook scenario" in r.output and "Traceback" not in r.output
