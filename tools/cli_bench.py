@@ -246,7 +246,13 @@ def bench_hook_cmd(
     print(f"  by CPU time: serial {t['cpu_s_own']['serial']:.2f} s; on two cores {t['cpu_s_with_children']['two_cores']:.2f} s "
           f"in all, {t['cpu_s_own']['two_cores']:.2f} s in the parent (an idle machine at best "
           f"{t['realtime_factor_parent_cpu']:.2f}x real time)")
-    print(f"  ratio {r['ratio']:.2f}x real time end to end (on two cores)")
+    c = r["command"]
+    print(f"  the whole command ({' '.join(c['argv'])}, start-up included): {c['wall_s']:.2f} s "
+          f"(runs {', '.join(f'{w:.2f}' for w in c['wall_s_each'])})")
+    for name, a in r["accuracy"].items():
+        print(f"  {name}: hook RMSE x/y/z " + " / ".join(f"{100 * v:.2f}" for v in a["rmse_pos_m"]) + " cm, velocity "
+              + " / ".join(f"{100 * v:.2f}" for v in a["rmse_vel_mps"]) + f" cm/s, NEES {a.get('nees_pos_mean', float('nan')):.2f}")
+    print(f"  ratio {r['ratio']:.2f}x real time end to end (the whole command)")
 
 
 @bench_app.command("feeder")
