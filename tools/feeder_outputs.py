@@ -232,9 +232,12 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
 
 
 def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_map_feeder: np.ndarray | None,
-               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 0.2, max_points: int = 800) -> None:
-    """The feeder's model at the estimated pose (and a ghost at the true one) in the tip view,
-    `rate_hz` times a second, and the pose series as columns at 10 Hz."""
+               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 0.2, max_points: int = 800,
+               mesh_feeder: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """The pose series as columns at 10 Hz, and in the tip view the feeder at the estimated pose
+    (and a ghost at the true one): its mesh (vertices in the feeder frame, triangles) moved by
+    a transform at 10 Hz when the run has one (a simulated run: for display only, processing
+    never sees it), else the chain's own model as points `rate_hz` times a second."""
     rr, rec = vars(viz).get("rr"), vars(viz).get("rec")  # the null visualiser has neither
     if rr is None or rec is None or len(res.t_s) == 0:
         return
@@ -250,6 +253,10 @@ def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_ma
         if truth_pose is not None:
             rec.send_columns(f"feeder/{name}/truth", indexes=[rr.TimeColumn(TIMELINE, duration=t_keep)],
                              columns=rr.Scalars.columns(scalars=truth_pose[keep, i] * scale))
+    if mesh_feeder is not None:
+        _log_feeder_mesh(rr, rec, TIMELINE, t_keep, res.pose[keep], None if truth_pose is None else truth_pose[keep],
+                         rpy_yaw, mesh_feeder)
+        return
     if model_points_map is None or T_map_feeder is None or len(model_points_map) == 0:
         return
     pts_feeder = transform(inverse(T_map_feeder), model_points_map)
@@ -267,3 +274,28 @@ def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_ma
         if truth_pose is not None and np.all(np.isfinite(truth_pose[k])):
             rec.log("tip/feeder/truth", rr.Points3D(transform(pose_matrix(*truth_pose[k]), pts_feeder) @ Rz.T, radii=0.05,
                                                     colors=[[255, 255, 255, 80]]))
+
+
+def _log_feeder_mesh(rr, rec, timeline: str, t_s: np.ndarray, pose: np.ndarray, truth_pose: np.ndarray | None, rpy_yaw,
+                     mesh_feeder: tuple[np.ndarray, np.ndarray]) -> None:
+    """The mesh once (static), then only its transforms: the file grows by a pose per sample."""
+    from boomtip.perception.feeder_registration import pose_matrix
+
+    vertices, triangles = mesh_feeder
+    yaw = np.array([rpy_yaw(float(t)) for t in t_s])
+    c, s = np.cos(yaw), np.sin(yaw)
+    Rz = np.zeros((len(t_s), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0  # heading -> tip view axes
+    for name, poses, colour in (("estimate", pose, [80, 200, 255, 255]), ("truth", truth_pose, [255, 255, 255, 70])):
+        if poses is None:
+            continue
+        ok = np.all(np.isfinite(poses), axis=1)
+        if not ok.any():
+            continue
+        rec.log(f"tip/feeder/{name}/mesh", rr.Mesh3D(vertex_positions=vertices.astype(np.float32), triangle_indices=triangles,
+                                                    albedo_factor=colour), static=True)
+        T = np.array([pose_matrix(*p) for p in poses[ok]])
+        R = Rz[ok] @ T[:, :3, :3]
+        p = np.einsum("tij,tj->ti", Rz[ok], T[:, :3, 3])
+        rec.send_columns(f"tip/feeder/{name}", indexes=[rr.TimeColumn(timeline, duration=t_s[ok])],
+                         columns=rr.Transform3D.columns(translation=p, mat3x3=R))

@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.data.processing import Processing
 from boomtip.perception.pipeline import FrameResult
@@ -81,4 +83,17 @@ class ShipChain:
             att = mru.attitude(t)
             return float(att[0][2]) if att is not None else 0.0
 
-        log_feeder(viz, res, res.model_points_map, res.T_map_feeder, truth_pose, yaw)
+        log_feeder(viz, res, res.model_points_map, res.T_map_feeder, truth_pose, yaw, mesh_feeder=self._feeder_mesh(truth, res))
+
+    def _feeder_mesh(self, truth: Truth | None, res) -> tuple[np.ndarray, np.ndarray] | None:
+        """The simulated feeder's mesh in the feeder frame as the truth defines it (its body axes,
+        origin below the tip at the first frame), for the recording only; None for a recording
+        of a real run or one without the feeder's truth."""
+        from boomtip.tools.feeder_truth import feeder_origin_body
+
+        bodies = getattr(getattr(self.source, "world", None), "bodies", None) or []
+        feeder = next((b for b in bodies if b.name == "feeder"), None)
+        if feeder is None or truth is None or "feeder_x" not in truth.columns or not np.isfinite(res.t_definition_s):
+            return None
+        origin = feeder_origin_body(truth, res.t_definition_s, self.p_tip_crane_m)
+        return feeder.vertices - origin, feeder.triangles

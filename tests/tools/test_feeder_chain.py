@@ -161,3 +161,49 @@ def test_bench_feeder_says_what_it_cannot_score(args, expected):
 
     r = CliRunner().invoke(app, ["bench", "feeder", *args])
     assert r.exit_code == 2 and expected in r.output and "Traceback" not in r.output
+
+
+def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short_run):
+    """The simulated feeder's mesh in the feeder frame as the truth defines it: the chain's own
+    model (registered returns) lies on it; the recording gets it once per pose and then only
+    the two poses' transforms."""
+    import open3d as o3d
+    import rerun as rr
+
+    from boomtip.perception.feeder_registration import inverse, transform
+    from boomtip.tools.feeder_outputs import log_feeder, truth_of
+    from boomtip.tools.runner import build_chain, processing_for
+
+    res = short_run[1].result.feeder
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=14"]))
+    chain = build_chain(sim, processing_for(sim))
+    vertices, triangles = chain._feeder_mesh(sim.truth, res)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    model_feeder = transform(inverse(res.T_map_feeder), res.model_points_map).astype(np.float32)
+    d = scene.compute_distance(o3d.core.Tensor(model_feeder)).numpy()
+    assert np.median(d) < 0.03 and np.percentile(d, 90) < 0.08  # 0.014 / 0.041 m when written
+
+    logged = []
+
+    class Rec:
+        def log(self, path, item, static=False):
+            logged.append((path, type(item).__name__, static))
+
+        def send_columns(self, path, indexes, columns):
+            logged.append((path, "columns", False))
+
+        def set_time(self, *a, **k):
+            pass
+
+    class Viz:
+        def __init__(self):
+            self.rr, self.rec = rr, Rec()
+
+    truth_pose = truth_of(res, sim.truth, chain.p_tip_crane_m)[0]
+    log_feeder(Viz(), res, res.model_points_map, res.T_map_feeder, truth_pose, lambda t: 0.0, mesh_feeder=(vertices, triangles))
+    assert ("tip/feeder/estimate/mesh", "Mesh3D", True) in logged and ("tip/feeder/truth/mesh", "Mesh3D", True) in logged
+    assert ("tip/feeder/estimate", "columns", False) in logged and ("tip/feeder/truth", "columns", False) in logged
+    assert not any(kind == "Points3D" for _, kind, _ in logged)
+    # a real recording has no mesh: the chain's model as points instead
+    assert build_chain(sim, processing_for(sim))._feeder_mesh(None, res) is None
