@@ -48,6 +48,17 @@ def complementary_attitude(log: MruLog, tau_s: float) -> MruLog:
     return MruLog(t, out, log.rpy_rate_radps, log.max_gap_s)
 
 
+def complementary_angle_sigma(angle_sigma_rad: float, rate_sigma_radps: float, tau_s: float, dt_s: float) -> float:
+    """1-sigma of `complementary_attitude`'s angles from white angle and rate noise: the angle
+    noise through the low-pass (1 - a) / (1 - a z^-1), variance gain (1 - a) / (1 + a), and the
+    rate noise integrated through a dt / (1 - a z^-1), gain a^2 dt^2 / (1 - a^2); a = tau / (tau + dt).
+    The error is correlated over about tau, not white from frame to frame."""
+    if tau_s <= 0 or dt_s <= 0:
+        return angle_sigma_rad
+    a = tau_s / (tau_s + dt_s)
+    return float(np.sqrt(angle_sigma_rad ** 2 * (1 - a) / (1 + a) + rate_sigma_radps ** 2 * a * a * dt_s * dt_s / (1 - a * a)))
+
+
 def averaged_rates(log: MruLog, half_window_s: float) -> tuple[MruLog, int]:
     """The log with each rate the mean of the samples within +-half_window_s (angles
     unchanged), and how many samples that mean takes. Why: the tip's velocity is the rate times

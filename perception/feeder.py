@@ -107,7 +107,8 @@ def plane_in_level(points_level: np.ndarray, inflation: float) -> PlaneLevel:
 class FeederPerception:
     """Built from the installation (mounts, tip) and the settings."""
 
-    def __init__(self, installation: Installation, cfg: FeederConfig | None = None, rates_averaged_over: int = 1) -> None:
+    def __init__(self, installation: Installation, cfg: FeederConfig | None = None, rates_averaged_over: int = 1,
+                 angle_sigma_rad: float | None = None) -> None:
         self.installation = installation
         self.cfg = cfg or FeederConfig()
         T_cb, T_bs = installation.T_crane_boomtip(), installation.T_boomtip_sensor()
@@ -118,7 +119,9 @@ class FeederPerception:
         # the MRU's stated rate noise, over the samples the caller averages each rate of
         rate_sigma = math.radians(installation.mru.rate_noise_degps)
         self.rate_sigma_radps = rate_sigma / math.sqrt(rates_averaged_over)
-        self.angle_sigma_rad = math.radians(installation.mru.angle_noise_deg)
+        # the attitude's angle noise as the caller levels with it: the MRU's stated noise, or less
+        # when the caller filters the angles (the chain: attitude_filter, 0.02 -> 0.0016 deg)
+        self.angle_sigma_rad = math.radians(installation.mru.angle_noise_deg) if angle_sigma_rad is None else angle_sigma_rad
         self.mount_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
         self.mru_bias_sigma_rad = math.radians(installation.mru.bias_accuracy_deg)
         # 1-sigma of the tip's velocity from the MRU's rates (its stated rate noise at the tip's lever)

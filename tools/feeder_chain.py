@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.processing import Processing
-from boomtip.fusion.attitude_filter import averaged_rates, complementary_attitude
+from boomtip.fusion.attitude_filter import averaged_rates, complementary_angle_sigma, complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
 from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
 from boomtip.fusion.models.relative_motion import deck_plane, rotation
@@ -85,7 +85,9 @@ class FeederChain:
         # the levelling's attitude: the MRU's angles filtered with its rates (see attitude_filter)
         self.mru = complementary_attitude(source.mru, cfg.mru_tau_s) if cfg.mru_tau_s > 0 else source.mru
         self.mru, n_rates = averaged_rates(self.mru, cfg.mru_rate_half_window_s)
-        self.perception = FeederPerception(inst, cfg.perception, rates_averaged_over=n_rates)
+        angle_sigma = complementary_angle_sigma(math.radians(inst.mru.angle_noise_deg), math.radians(inst.mru.rate_noise_degps),
+                                                cfg.mru_tau_s, 1.0 / inst.mru.rate_hz)
+        self.perception = FeederPerception(inst, cfg.perception, rates_averaged_over=n_rates, angle_sigma_rad=angle_sigma)
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
         # frames the model must be merged from before a registration's x and y update the filter:
