@@ -53,16 +53,31 @@ class Fans:
         axes += R_world_body[:, 2] * world[..., 2:3]
         return axes
 
-    def body_frame_rays_one_pose(self, A: np.ndarray, o: np.ndarray) -> np.ndarray:
-        """Rows [origin, direction] of every ray in a body frame where x_b = A x_s + o (one
-        pose), computed in float64 and rounded once to Embree's float32. A view of the buffer
-        the next call overwrites."""
-        rays = self._ray_buffer(len(self.dirs))
-        d = A @ self.dirs_by_axis
+    def body_frame_rays_one_pose(self, A: np.ndarray, o: np.ndarray, fans: range | None = None) -> np.ndarray:
+        """Rows [origin, direction] of every ray (or of the fans in the range `fans`) in a body
+        frame where x_b = A x_s + o (one pose), computed in float64 and rounded once to
+        Embree's float32. A view of the buffer the next call overwrites."""
+        first, stop = (0, len(self.dirs)) if fans is None else (fans.start * len(self.el_rad), fans.stop * len(self.el_rad))
+        rays = self._ray_buffer(len(self.dirs))[first:stop]
+        d = A @ self.dirs_by_axis  # every ray: the same product, so the same rounding, whichever fans are cast
         for i in range(3):
             rays[:, i] = o[i]
-            rays[:, 3 + i] = d[i]
+            rays[:, 3 + i] = d[i, first:stop]
         return rays
+
+    def fans_cutting_box(self, box_lo: np.ndarray, box_hi: np.ndarray, A: np.ndarray, o: np.ndarray,
+                         scale: np.ndarray | None) -> range:
+        """The least range of fans holding every fan whose plane cuts a box given in a body
+        frame where x_b = S^-1 (A x_s + o) (one pose; S = diag(scale) or 1): a fan whose plane
+        leaves every corner on one side has no ray that can meet the box. The box's corners'
+        distances to fan f's plane, normal n_f = (-sin az, cos az, 0), are (S A n_f).c - (A n_f).o."""
+        normal = np.multiply.outer(A[:, 1], self.cos_az)  # (3,F): A n_f
+        normal -= np.multiply.outer(A[:, 0], self.sin_az)
+        corners = np.where(_CORNER_BITS, box_hi, box_lo) * (1.0 if scale is None else scale)
+        g = corners @ normal  # (8,F)
+        g -= o @ normal
+        cut = np.flatnonzero((g.min(axis=0) <= 0) & (g.max(axis=0) >= 0))
+        return range(0) if len(cut) == 0 else range(int(cut[0]), int(cut[-1]) + 1)
 
     def body_frame_rays(self, axes: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,
                         fan: np.ndarray | None = None) -> np.ndarray:

@@ -207,6 +207,12 @@ class RayCaster:
             o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
             axes = None if m == 1 and not fans.wide else fans.axes_in(R, R_world_sensor)
             ray_k = fan = None  # every ray, fan by fan
+            cast_fans = None  # with one pose, the fans whose plane cuts the box (the rays in between)
+            if axes is None:
+                A = R[0].T @ R_world_sensor[0]
+                cast_fans = fans.fans_cutting_box(self.box_lo[b], self.box_hi[b], A, o[0], None if scale is None else scale[0])
+                if len(cast_fans) == 0:
+                    continue
             if fans.wide:
                 ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], axes, o, scale)
                 dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale) if b > 0 else None
@@ -215,8 +221,8 @@ class RayCaster:
                     ray_k, fan = ray_k[ahead], fan[ahead]
                 if len(ray_k) == 0:
                     continue
-            if axes is None:  # one pose, every ray: one product
-                rays = fans.body_frame_rays_one_pose(R[0].T @ R_world_sensor[0], o[0])
+            if axes is None:  # one pose: one product
+                rays = fans.body_frame_rays_one_pose(A, o[0], cast_fans)
             else:
                 rays = fans.body_frame_rays(axes, o, ray_k, fan)
             if scale is not None:  # after the rounding to float32, as `cast` divides its rays
@@ -225,32 +231,39 @@ class RayCaster:
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
+            first = 0 if cast_fans is None else cast_fans.start * len(fans.el_rad)  # the rays cast: first, first + len(t)
             if best_t is None:
-                # The first cast, of every ray: its answer is the best so far (Open3D's invalid
-                # id, 2^32 - 1, reads -1 as int32, and a miss's incidence reads the zero normal),
-                # and the fixed hits before it, few, go back where they are at least as close.
+                # The first cast, of every ray (a miss where its fan was not cast): its answer is
+                # the best so far (Open3D's invalid id, 2^32 - 1, reads -1 as int32, and a miss's
+                # incidence reads the zero normal), and the fixed hits before it, few, go back
+                # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
+                cos_inc = self._incidence(b, best_face, rays, None, scale)
+                if len(t) < k:
+                    best_t, best_face, cos_inc = (_pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
                 best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
                 best_body |= b  # ... then b (-1 stays -1)
-                cos_inc = self._incidence(b, best_face, rays, None, scale)
                 if pending is not None:
                     k_f, t_k, face_k, c_k = self._fixed_compact(pending, fixed_hits[pending])
-                    nearer = ~(np.take(t, k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
+                    nearer = ~(np.take(best_t, k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
                     if not nearer.all():
                         k_f, t_k, face_k, c_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer]
                     best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_k, pending, face_k, c_k
                     pending = None
                 continue
             nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
-            closer = np.flatnonzero(t < (best_t if ray_k is None else np.take(best_t, ray_k)))
-            hit_k = closer if ray_k is None else np.take(ray_k, closer)
+            closer = np.flatnonzero(t < (best_t[first:first + len(t)] if ray_k is None else np.take(best_t, ray_k)))
+            hit_k = closer + first if ray_k is None else np.take(ray_k, closer)
             best_t[hit_k] = np.take(t, closer)
             best_body[hit_k] = b
             face = np.take(ans["primitive_ids"].numpy(), closer)
             best_face[hit_k] = face
             cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
-        if best_t is None:  # no body cast: the fixed hits alone
+        if best_t is None and pending is not None:  # no body cast: the fixed hits alone
             best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
+        elif best_t is None:  # no ray could reach a body
+            best_t, cos_inc = np.full(k, np.inf, dtype=np.float32), np.zeros(k, dtype=np.float32)
+            best_body, best_face = np.full(k, -1, dtype=np.int32), np.full(k, -1, dtype=np.int32)
         return Hits(best_t, best_body, best_face, cos_inc)
 
     def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
@@ -317,6 +330,13 @@ class RayCaster:
         cos_inc = np.zeros(len(t), dtype=np.float32)
         cos_inc[hit] = np.abs(np.einsum("ij,ij->i", self.face_normals[b][face[hit]], dirs_body[hit]))
         return t, face, cos_inc
+
+
+def _pad(x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
+    """x as rows first.. of k, the other rows `fill`."""
+    out = np.full(k, fill, dtype=x.dtype)
+    out[first:first + len(x)] = x
+    return out
 
 
 def box_distance(box_lo: np.ndarray, box_hi: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
