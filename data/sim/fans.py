@@ -65,17 +65,16 @@ class Fans:
             rays[:, 3 + i] = d[i, first:stop]
         return rays
 
-    def fans_cutting_box(self, box_lo: np.ndarray, box_hi: np.ndarray, A: np.ndarray, o: np.ndarray,
-                         scale: np.ndarray | None) -> range:
-        """The least range of fans holding every fan whose plane cuts a box given in a body
-        frame where x_b = S^-1 (A x_s + o) (one pose; S = diag(scale) or 1): a fan whose plane
-        leaves every corner on one side has no ray that can meet the box. The box's corners'
-        distances to fan f's plane, normal n_f = (-sin az, cos az, 0), are (S A n_f).c - (A n_f).o."""
-        normal = np.multiply.outer(A[:, 1], self.cos_az)  # (3,F): A n_f
-        normal -= np.multiply.outer(A[:, 0], self.sin_az)
-        corners = np.where(_CORNER_BITS, box_hi, box_lo) * (1.0 if scale is None else scale)
-        g = corners @ normal  # (8,F)
-        g -= o @ normal
+    def fans_cutting_box(self, corners: np.ndarray, A: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> range:
+        """The least range of fans holding every fan whose plane cuts a box, `corners` (8,3),
+        given in a body frame where x_b = S^-1 (A x_s + o) (one pose; S = diag(scale) or 1): a
+        fan whose plane leaves every corner on one side has no ray that can meet the box. A
+        corner's distance to fan f's plane, normal n_f = (-sin az, cos az, 0), is n_f . x_s
+        with x_s = A^T (S c - o)."""
+        x_s = (corners if scale is None else corners * scale) - o
+        x_s = x_s @ A  # (8,3) rows x_s^T
+        g = np.multiply.outer(x_s[:, 1], self.cos_az)  # (8,F)
+        g -= np.multiply.outer(x_s[:, 0], self.sin_az)
         cut = np.flatnonzero((g.min(axis=0) <= 0) & (g.max(axis=0) >= 0))
         return range(0) if len(cut) == 0 else range(int(cut[0]), int(cut[-1]) + 1)
 

@@ -22,7 +22,7 @@ import numpy as np
 import open3d as o3d
 
 from boomtip.data.meshes import Body
-from boomtip.data.sim.fans import Fans, transpose_times
+from boomtip.data.sim.fans import _CORNER_BITS, Fans, transpose_times
 
 
 @dataclass
@@ -67,6 +67,7 @@ class RayCaster:
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
+        self.box_corners = [np.where(_CORNER_BITS, h, l) for l, h in zip(self.box_lo, self.box_hi)]  # (8,3) each
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
 
@@ -215,7 +216,7 @@ class RayCaster:
             cast_fans = None  # with one pose, the fans whose plane cuts the box (the rays in between)
             if axes is None:
                 A = R[0].T @ R_world_sensor[0]
-                cast_fans = fans.fans_cutting_box(self.box_lo[b], self.box_hi[b], A, o[0], None if scale is None else scale[0])
+                cast_fans = fans.fans_cutting_box(self.box_corners[b], A, o[0], None if scale is None else scale[0])
                 if len(cast_fans) == 0:
                     continue
             if fans.wide:
@@ -335,9 +336,11 @@ class RayCaster:
 
 
 def _pad(x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
-    """x as rows first.. of k, the other rows `fill`."""
-    out = np.full(k, fill, dtype=x.dtype)
+    """x as rows first.. of k, the other rows `fill` (each row written once)."""
+    out = np.empty(k, dtype=x.dtype)
+    out[:first] = fill
     out[first:first + len(x)] = x
+    out[first + len(x):] = fill
     return out
 
 
