@@ -32,6 +32,9 @@ class Hits:
     face: np.ndarray  # (K,) int, -1 on a miss
     cos_incidence: np.ndarray  # (K,) |cos| of the angle between ray and face normal (0 on a miss)
     normal_world: np.ndarray | None = None  # (K,3) unit face normals, world axes, when asked for
+    # (K,) int64 face index over all bodies (the caster's `face_offset[body] + face`; any value
+    # on a miss), when the cast had it at hand (`cast_fans` on one pose): the materials' index.
+    flat_face: np.ndarray | None = None
 
     @property
     def hit(self) -> np.ndarray:
@@ -68,6 +71,7 @@ class RayCaster:
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
         self.box_corners = [np.where(_CORNER_BITS, h, l) for l, h in zip(self.box_lo, self.box_hi)]  # (8,3) each
+        self.face_offset = np.concatenate([[0], np.cumsum([len(b.triangles) for b in bodies])[:-1]]).astype(np.int64)
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
 
@@ -181,6 +185,7 @@ class RayCaster:
         if m not in (1, len(fans.az_rad)):
             raise ValueError(f"cast_fans: {m} sensor poses for {len(fans.az_rad)} fans (expected 1 or one per fan)")
         best_t = best_body = best_face = cos_inc = None  # set by the first body
+        best_flat = None  # the flat face index, kept up from a first cast of one pose on
         nearest = np.inf  # a lower bound of best_t: while the box is nearer, no ray is stopped before it
         pending = None  # a first body's fixed hits, copied only if needed (see below)
         for b, scene in enumerate(self.scenes):
@@ -194,6 +199,8 @@ class RayCaster:
                 t, face, c = fixed_hits[b]
                 closer = np.flatnonzero(t < best_t)
                 best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                if best_flat is not None:
+                    best_flat[closer] = face[closer] + self.face_offset[b]
                 nearest = min(nearest, self._fixed_nearest(b, t))
                 continue
             if best_t is None and fans.wide:
@@ -245,8 +252,10 @@ class RayCaster:
                 # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
                 cos_inc = self._incidence(b, best_face, rays, None, scale)
+                best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)
                 if len(t) < k:
-                    best_t, best_face, cos_inc = (_pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
+                    best_t, best_face, cos_inc, best_flat = (
+                        _pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0), (best_flat, -1)))
                 best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
                 best_body |= b  # ... then b (-1 stays -1)
                 if pending is not None:
@@ -255,6 +264,7 @@ class RayCaster:
                     if not nearer.all():
                         k_f, t_k, face_k, c_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer]
                     best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_k, pending, face_k, c_k
+                    best_flat[k_f] = face_k + self.face_offset[pending]
                     pending = None
                 continue
             nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
@@ -264,13 +274,15 @@ class RayCaster:
             best_body[hit_k] = b
             face = np.take(ans["primitive_ids"].numpy(), closer)
             best_face[hit_k] = face
+            if best_flat is not None:
+                best_flat[hit_k] = face + self.face_offset[b]
             cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
         if best_t is None and pending is not None:  # no body cast: the fixed hits alone
             best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
         elif best_t is None:  # no ray could reach a body
             best_t, cos_inc = np.full(k, np.inf, dtype=np.float32), np.zeros(k, dtype=np.float32)
             best_body, best_face = np.full(k, -1, dtype=np.int32), np.full(k, -1, dtype=np.int32)
-        return Hits(best_t, best_body, best_face, cos_inc)
+        return Hits(best_t, best_body, best_face, cos_inc, flat_face=best_flat)
 
     def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
                    scale: np.ndarray | None) -> np.ndarray:

@@ -165,8 +165,11 @@ def lidar_measure(
         idx = idx[not_sea | (rng.random(len(idx), dtype=np.float32) < sea_probability)]
     if cfg.dropout_probability > 0:
         idx = idx[rng.random(len(idx), dtype=np.float32) >= cfg.dropout_probability]
-    f = np.take(faces.offset, np.take(hits.body, idx))
-    f += np.take(hits.face, idx)
+    if hits.flat_face is not None:  # the caster's, one gather (its offsets are the lookup's: the same bodies)
+        f = np.take(hits.flat_face, idx)
+    else:
+        f = np.take(faces.offset, np.take(hits.body, idx))
+        f += np.take(hits.face, idx)
     r = np.take(r_all, idx).astype(np.float64, copy=False)
     cos_inc = np.take(hits.cos_incidence, idx)
     np.clip(cos_inc, 1e-3, 1.0, out=cos_inc)

@@ -28,6 +28,9 @@ def assert_same_hits(sim, times, fixed):
         assert np.array_equal(fans.body, ref.body) and np.array_equal(fans.face, ref.face)
         np.testing.assert_allclose(fans.cos_incidence, ref.cos_incidence, atol=1e-6)
         assert fans.hit.sum() > 0.1 * len(fans.range_m)  # the frame really sees the scene
+        if fans.flat_face is not None:  # the materials' index, as the sensor model's lookup has it
+            hit = fans.body >= 0
+            assert np.array_equal(fans.flat_face[hit], sim.world.faces.offset[fans.body[hit]] + fans.face[hit])
 
 
 @pytest.mark.parametrize("overrides", [
