@@ -260,7 +260,7 @@ class RayCaster:
                 best_body |= b  # ... then b (-1 stays -1)
                 if pending is not None:
                     k_f, t_k, face_k, c_k = self._fixed_compact(pending, fixed_hits[pending])
-                    nearer = ~(np.take(best_t, k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
+                    nearer = ~(best_t.take(k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
                     if not nearer.all():
                         k_f, t_k, face_k, c_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer]
                     best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_k, pending, face_k, c_k
@@ -268,11 +268,11 @@ class RayCaster:
                     pending = None
                 continue
             nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
-            closer = np.flatnonzero(t < (best_t[first:first + len(t)] if ray_k is None else np.take(best_t, ray_k)))
-            hit_k = closer + first if ray_k is None else np.take(ray_k, closer)
-            best_t[hit_k] = np.take(t, closer)
+            closer = np.flatnonzero(t < (best_t[first:first + len(t)] if ray_k is None else best_t.take(ray_k)))
+            hit_k = closer + first if ray_k is None else ray_k.take(closer)
+            best_t[hit_k] = t.take(closer)
             best_body[hit_k] = b
-            face = np.take(ans["primitive_ids"].numpy(), closer)
+            face = ans["primitive_ids"].numpy().take(closer)
             best_face[hit_k] = face
             if best_flat is not None:
                 best_flat[hit_k] = face + self.face_offset[b]
@@ -289,14 +289,14 @@ class RayCaster:
         """|cos| of the incidence of `rays` (all, or rows ray_i) on body b's faces `face`, in
         the body frame (as in `cast`), one component at a time in float32. Rotated unit rays
         stay unit; only a stretched body's rays need normalising."""
-        n_b = np.take(self.face_normals32_rows[b], face, axis=0)
-        c = n_b[:, 0] * (rays[:, 3] if ray_i is None else np.take(rays[:, 3], ray_i))
+        n_b = self.face_normals32_rows[b].take(face, axis=0)
+        c = n_b[:, 0] * (rays[:, 3] if ray_i is None else rays[:, 3].take(ray_i))
         for i in (1, 2):
-            ci = n_b[:, i] * (rays[:, 3 + i] if ray_i is None else np.take(rays[:, 3 + i], ray_i))
+            ci = n_b[:, i] * (rays[:, 3 + i] if ray_i is None else rays[:, 3 + i].take(ray_i))
             c += ci
         np.abs(c, out=c)
         if scale is not None:
-            d_b = rays[:, 3:] if ray_i is None else np.take(rays, ray_i, axis=0)[:, 3:]
+            d_b = rays[:, 3:] if ray_i is None else rays.take(ray_i, axis=0)[:, 3:]
             c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
         return c
 
