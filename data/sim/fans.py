@@ -13,6 +13,11 @@ _CORNER_BITS = (np.arange(8)[:, None] >> np.array([2, 1, 0])) & 1
 _EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1])
 
 
+def box_corners(box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+    """(8,3): corner c of the box [lo, hi] has bits (x, y, z) = (c >> 2, c >> 1, c) & 1."""
+    return np.where(_CORNER_BITS, box_hi, box_lo)
+
+
 class Fans:
     """A scanning sensor's rays as F fans of N rays from its origin: ray f*N + k points along
     azimuth az[f] (about the sensor z) and elevation el[k] (ascending), i.e. along
@@ -120,7 +125,7 @@ class Fans:
         and greatest angle atan2(z, u); if it lies where u < 0, none; else (the sensor inside
         the box, or a polygon across u = 0) all of the fan."""
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
-        corners = np.where(_CORNER_BITS, box_hi, box_lo)  # (8,3), body frame
+        corners = box_corners(box_lo, box_hi)  # (8,3), body frame
         # A corner c in fan f's coordinates (distance to the plane, along u_f, along z): e.x_s
         # for e = n_f, u_f, z with x_s = A^T (S c - o), i.e. (S A e).c - (A e).o.
         shift = axes[..., 0] * o[:, 0]  # (3,F), written out: einsum is slower on these

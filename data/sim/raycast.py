@@ -22,7 +22,7 @@ import numpy as np
 import open3d as o3d
 
 from boomtip.data.meshes import Body
-from boomtip.data.sim.fans import _CORNER_BITS, Fans, transpose_times
+from boomtip.data.sim.fans import Fans, box_corners, transpose_times
 
 
 @dataclass
@@ -70,7 +70,7 @@ class RayCaster:
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
-        self.box_corners = [np.where(_CORNER_BITS, h, l) for l, h in zip(self.box_lo, self.box_hi)]  # (8,3) each
+        self.box_corners = [box_corners(l, h) for l, h in zip(self.box_lo, self.box_hi)]  # (8,3) each
         self.face_offset = np.concatenate([[0], np.cumsum([len(b.triangles) for b in bodies])[:-1]]).astype(np.int64)
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
@@ -178,8 +178,9 @@ class RayCaster:
         hits as `cast` on these rays in world axes. For fans spread over more than half a turn
         (a spinning LiDAR, most of whose rays never come near a body) only the rays that can
         reach a body's box, nearer than the closest hit found so far, are cast into it; a
-        narrower grid sees the ships with most of its rays, and the box test would cost more
-        than the few misses it saves."""
+        narrower grid sees the ships with most of its rays, and that test would cost more than
+        the few misses it saves: with one pose it casts the fans from the first to the last
+        whose plane cuts the box (`Fans.fans_cutting_box`), one contiguous block of rays."""
         k = len(fans.dirs)
         m = len(R_world_sensor)
         if m not in (1, len(fans.az_rad)):
@@ -220,11 +221,11 @@ class RayCaster:
             o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
             axes = None if m == 1 and not fans.wide else fans.axes_in(R, R_world_sensor)
             ray_k = fan = None  # every ray, fan by fan
-            cast_fans = None  # with one pose, the fans whose plane cuts the box (the rays in between)
+            fan_range = None  # with one pose, the fans whose plane cuts the box (the rays in between)
             if axes is None:
                 A = R[0].T @ R_world_sensor[0]
-                cast_fans = fans.fans_cutting_box(self.box_corners[b], A, o[0], None if scale is None else scale[0])
-                if len(cast_fans) == 0:
+                fan_range = fans.fans_cutting_box(self.box_corners[b], A, o[0], None if scale is None else scale[0])
+                if len(fan_range) == 0:
                     continue
             if fans.wide:
                 ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], axes, o, scale)
@@ -235,7 +236,7 @@ class RayCaster:
                 if len(ray_k) == 0:
                     continue
             if axes is None:  # one pose: one product
-                rays = fans.body_frame_rays_one_pose(A, o[0], cast_fans)
+                rays = fans.body_frame_rays_one_pose(A, o[0], fan_range)
             else:
                 rays = fans.body_frame_rays(axes, o, ray_k, fan)
             if scale is not None:  # after the rounding to float32, as `cast` divides its rays
@@ -244,7 +245,7 @@ class RayCaster:
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
-            first = 0 if cast_fans is None else cast_fans.start * len(fans.el_rad)  # the rays cast: first, first + len(t)
+            first = 0 if fan_range is None else fan_range.start * len(fans.el_rad)  # the rays cast: first, first + len(t)
             if best_t is None:
                 # The first cast, of every ray (a miss where its fan was not cast): its answer is
                 # the best so far (Open3D's invalid id, 2^32 - 1, reads -1 as int32, and a miss's
