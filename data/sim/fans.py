@@ -13,6 +13,11 @@ _CORNER_BITS = (np.arange(8)[:, None] >> np.array([2, 1, 0])) & 1
 _EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1])
 
 
+def box_corners(box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+    """(8,3): corner c of the box [lo, hi] has bits (x, y, z) = (c >> 2, c >> 1, c) & 1."""
+    return np.where(_CORNER_BITS, box_hi, box_lo)
+
+
 class Fans:
     """A scanning sensor's rays as F fans of N rays from its origin: ray f*N + k points along
     azimuth az[f] (about the sensor z) and elevation el[k] (ascending), i.e. along
@@ -53,16 +58,30 @@ class Fans:
         axes += R_world_body[:, 2] * world[..., 2:3]
         return axes
 
-    def body_frame_rays_one_pose(self, A: np.ndarray, o: np.ndarray) -> np.ndarray:
-        """Rows [origin, direction] of every ray in a body frame where x_b = A x_s + o (one
-        pose), computed in float64 and rounded once to Embree's float32. A view of the buffer
-        the next call overwrites."""
-        rays = self._ray_buffer(len(self.dirs))
-        d = A @ self.dirs_by_axis
+    def body_frame_rays_one_pose(self, A: np.ndarray, o: np.ndarray, fans: range | None = None) -> np.ndarray:
+        """Rows [origin, direction] of every ray (or of the fans in the range `fans`) in a body
+        frame where x_b = A x_s + o (one pose), computed in float64 and rounded once to
+        Embree's float32. A view of the buffer the next call overwrites."""
+        first, stop = (0, len(self.dirs)) if fans is None else (fans.start * len(self.el_rad), fans.stop * len(self.el_rad))
+        rays = self._ray_buffer(len(self.dirs))[first:stop]
+        d = A @ self.dirs_by_axis  # every ray: the same product, so the same rounding, whichever fans are cast
         for i in range(3):
             rays[:, i] = o[i]
-            rays[:, 3 + i] = d[i]
+            rays[:, 3 + i] = d[i, first:stop]
         return rays
+
+    def fans_cutting_box(self, corners: np.ndarray, A: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> range:
+        """The least range of fans holding every fan whose plane cuts a box, `corners` (8,3),
+        given in a body frame where x_b = S^-1 (A x_s + o) (one pose; S = diag(scale) or 1): a
+        fan whose plane leaves every corner on one side has no ray that can meet the box. A
+        corner's distance to fan f's plane, normal n_f = (-sin az, cos az, 0), is n_f . x_s
+        with x_s = A^T (S c - o)."""
+        x_s = (corners if scale is None else corners * scale) - o
+        x_s = x_s @ A  # (8,3) rows x_s^T
+        g = np.multiply.outer(x_s[:, 1], self.cos_az)  # (8,F)
+        g -= np.multiply.outer(x_s[:, 0], self.sin_az)
+        cut = np.flatnonzero((g.min(axis=0) <= 0) & (g.max(axis=0) >= 0))
+        return range(0) if len(cut) == 0 else range(int(cut[0]), int(cut[-1]) + 1)
 
     def body_frame_rays(self, axes: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,
                         fan: np.ndarray | None = None) -> np.ndarray:
@@ -106,7 +125,7 @@ class Fans:
         and greatest angle atan2(z, u); if it lies where u < 0, none; else (the sensor inside
         the box, or a polygon across u = 0) all of the fan."""
         n_fan, n_el = len(self.az_rad), len(self.el_rad)
-        corners = np.where(_CORNER_BITS, box_hi, box_lo)  # (8,3), body frame
+        corners = box_corners(box_lo, box_hi)  # (8,3), body frame
         # A corner c in fan f's coordinates (distance to the plane, along u_f, along z): e.x_s
         # for e = n_f, u_f, z with x_s = A^T (S c - o), i.e. (S A e).c - (A e).o.
         shift = axes[..., 0] * o[:, 0]  # (3,F), written out: einsum is slower on these

@@ -22,7 +22,7 @@ import numpy as np
 import open3d as o3d
 
 from boomtip.data.meshes import Body
-from boomtip.data.sim.fans import Fans, transpose_times
+from boomtip.data.sim.fans import Fans, box_corners, transpose_times
 
 
 @dataclass
@@ -32,6 +32,9 @@ class Hits:
     face: np.ndarray  # (K,) int, -1 on a miss
     cos_incidence: np.ndarray  # (K,) |cos| of the angle between ray and face normal (0 on a miss)
     normal_world: np.ndarray | None = None  # (K,3) unit face normals, world axes, when asked for
+    # (K,) int64 face index over all bodies (the caster's `face_offset[body] + face`; any value
+    # on a miss), when the cast had it at hand (`cast_fans` on one pose): the materials' index.
+    flat_face: np.ndarray | None = None
 
     @property
     def hit(self) -> np.ndarray:
@@ -54,14 +57,21 @@ class RayCaster:
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             self.face_normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12))
             self.face_normals32.append(self.face_normals[-1].astype(np.float32))
-        # The same, one contiguous array per axis (gathers of one float each are the fast ones),
-        # and a zero normal last: a miss's face, -1, reads it, so misses get cos 0 with no mask.
-        self.face_normals32_by_axis = [np.concatenate([n.T, np.zeros((3, 1), np.float32)], axis=1) for n in self.face_normals32]
+        # The same as rows padded to 16 bytes (one gather of a row costs less than three of a
+        # float each), and a zero normal last: a miss's face, -1, reads it, so misses get cos 0
+        # with no mask.
+        self.face_normals32_rows = []
+        for n in self.face_normals32:
+            rows = np.zeros((len(n) + 1, 4), dtype=np.float32)
+            rows[:-1, :3] = n
+            self.face_normals32_rows.append(rows)
         # Bounding boxes, padded well beyond float32 rounding of rays out to kilometres.
         lo = np.array([b.vertices.min(axis=0) for b in bodies])
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
+        self.box_corners = [box_corners(l, h) for l, h in zip(self.box_lo, self.box_hi)]  # (8,3) each
+        self.face_offset = np.concatenate([[0], np.cumsum([len(b.triangles) for b in bodies])[:-1]]).astype(np.int64)
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
 
@@ -168,13 +178,15 @@ class RayCaster:
         hits as `cast` on these rays in world axes. For fans spread over more than half a turn
         (a spinning LiDAR, most of whose rays never come near a body) only the rays that can
         reach a body's box, nearer than the closest hit found so far, are cast into it; a
-        narrower grid sees the ships with most of its rays, and the box test would cost more
-        than the few misses it saves."""
+        narrower grid sees the ships with most of its rays, and that test would cost more than
+        the few misses it saves: with one pose it casts the fans from the first to the last
+        whose plane cuts the box (`Fans.fans_cutting_box`), one contiguous block of rays."""
         k = len(fans.dirs)
         m = len(R_world_sensor)
         if m not in (1, len(fans.az_rad)):
             raise ValueError(f"cast_fans: {m} sensor poses for {len(fans.az_rad)} fans (expected 1 or one per fan)")
         best_t = best_body = best_face = cos_inc = None  # set by the first body
+        best_flat = None  # the flat face index, kept up from a first cast of one pose on
         nearest = np.inf  # a lower bound of best_t: while the box is nearer, no ray is stopped before it
         pending = None  # a first body's fixed hits, copied only if needed (see below)
         for b, scene in enumerate(self.scenes):
@@ -188,6 +200,8 @@ class RayCaster:
                 t, face, c = fixed_hits[b]
                 closer = np.flatnonzero(t < best_t)
                 best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                if best_flat is not None:
+                    best_flat[closer] = face[closer] + self.face_offset[b]
                 nearest = min(nearest, self._fixed_nearest(b, t))
                 continue
             if best_t is None and fans.wide:
@@ -207,6 +221,12 @@ class RayCaster:
             o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
             axes = None if m == 1 and not fans.wide else fans.axes_in(R, R_world_sensor)
             ray_k = fan = None  # every ray, fan by fan
+            fan_range = None  # with one pose, the fans whose plane cuts the box (the rays in between)
+            if axes is None:
+                A = R[0].T @ R_world_sensor[0]
+                fan_range = fans.fans_cutting_box(self.box_corners[b], A, o[0], None if scale is None else scale[0])
+                if len(fan_range) == 0:
+                    continue
             if fans.wide:
                 ray_k, fan = fans.reaching_box(self.box_lo[b], self.box_hi[b], axes, o, scale)
                 dist = box_distance(self.box_lo[b], self.box_hi[b], o, scale) if b > 0 else None
@@ -215,8 +235,8 @@ class RayCaster:
                     ray_k, fan = ray_k[ahead], fan[ahead]
                 if len(ray_k) == 0:
                     continue
-            if axes is None:  # one pose, every ray: one product
-                rays = fans.body_frame_rays_one_pose(R[0].T @ R_world_sensor[0], o[0])
+            if axes is None:  # one pose: one product
+                rays = fans.body_frame_rays_one_pose(A, o[0], fan_range)
             else:
                 rays = fans.body_frame_rays(axes, o, ray_k, fan)
             if scale is not None:  # after the rounding to float32, as `cast` divides its rays
@@ -225,50 +245,59 @@ class RayCaster:
                 rays[:, 3:] /= s_ray
             ans = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t = ans["t_hit"].numpy()
+            first = 0 if fan_range is None else fan_range.start * len(fans.el_rad)  # the rays cast: first, first + len(t)
             if best_t is None:
-                # The first cast, of every ray: its answer is the best so far (Open3D's invalid
-                # id, 2^32 - 1, reads -1 as int32, and a miss's incidence reads the zero normal),
-                # and the fixed hits before it, few, go back where they are at least as close.
+                # The first cast, of every ray (a miss where its fan was not cast): its answer is
+                # the best so far (Open3D's invalid id, 2^32 - 1, reads -1 as int32, and a miss's
+                # incidence reads the zero normal), and the fixed hits before it, few, go back
+                # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
+                cos_inc = self._incidence(b, best_face, rays, None, scale)
+                best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)
+                if len(t) < k:
+                    best_t, best_face, cos_inc, best_flat = (
+                        _pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0), (best_flat, -1)))
                 best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
                 best_body |= b  # ... then b (-1 stays -1)
-                cos_inc = self._incidence(b, best_face, rays, None, scale)
                 if pending is not None:
                     k_f, t_k, face_k, c_k = self._fixed_compact(pending, fixed_hits[pending])
-                    nearer = ~(np.take(t, k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
+                    nearer = ~(best_t.take(k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
                     if not nearer.all():
                         k_f, t_k, face_k, c_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer]
                     best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_k, pending, face_k, c_k
+                    best_flat[k_f] = face_k + self.face_offset[pending]
                     pending = None
                 continue
             nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
-            closer = np.flatnonzero(t < (best_t if ray_k is None else np.take(best_t, ray_k)))
-            hit_k = closer if ray_k is None else np.take(ray_k, closer)
-            best_t[hit_k] = np.take(t, closer)
+            closer = np.flatnonzero(t < (best_t[first:first + len(t)] if ray_k is None else best_t.take(ray_k)))
+            hit_k = closer + first if ray_k is None else ray_k.take(closer)
+            best_t[hit_k] = t.take(closer)
             best_body[hit_k] = b
-            face = np.take(ans["primitive_ids"].numpy(), closer)
+            face = ans["primitive_ids"].numpy().take(closer)
             best_face[hit_k] = face
+            if best_flat is not None:
+                best_flat[hit_k] = face + self.face_offset[b]
             cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
-        if best_t is None:  # no body cast: the fixed hits alone
+        if best_t is None and pending is not None:  # no body cast: the fixed hits alone
             best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
-        return Hits(best_t, best_body, best_face, cos_inc)
+        elif best_t is None:  # no ray could reach a body
+            best_t, cos_inc = np.full(k, np.inf, dtype=np.float32), np.zeros(k, dtype=np.float32)
+            best_body, best_face = np.full(k, -1, dtype=np.int32), np.full(k, -1, dtype=np.int32)
+        return Hits(best_t, best_body, best_face, cos_inc, flat_face=best_flat)
 
     def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
                    scale: np.ndarray | None) -> np.ndarray:
         """|cos| of the incidence of `rays` (all, or rows ray_i) on body b's faces `face`, in
         the body frame (as in `cast`), one component at a time in float32. Rotated unit rays
         stay unit; only a stretched body's rays need normalising."""
-        n_b = self.face_normals32_by_axis[b]
-        face = face.astype(np.intp, copy=False)  # once: np.take widens other indices at each call
-        c = np.take(n_b[0], face)
-        c *= rays[:, 3] if ray_i is None else np.take(rays[:, 3], ray_i)
+        n_b = self.face_normals32_rows[b].take(face, axis=0)
+        c = n_b[:, 0] * (rays[:, 3] if ray_i is None else rays[:, 3].take(ray_i))
         for i in (1, 2):
-            ci = np.take(n_b[i], face)
-            ci *= rays[:, 3 + i] if ray_i is None else np.take(rays[:, 3 + i], ray_i)
+            ci = n_b[:, i] * (rays[:, 3 + i] if ray_i is None else rays[:, 3 + i].take(ray_i))
             c += ci
         np.abs(c, out=c)
         if scale is not None:
-            d_b = rays[:, 3:] if ray_i is None else np.take(rays, ray_i, axis=0)[:, 3:]
+            d_b = rays[:, 3:] if ray_i is None else rays.take(ray_i, axis=0)[:, 3:]
             c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
         return c
 
@@ -317,6 +346,15 @@ class RayCaster:
         cos_inc = np.zeros(len(t), dtype=np.float32)
         cos_inc[hit] = np.abs(np.einsum("ij,ij->i", self.face_normals[b][face[hit]], dirs_body[hit]))
         return t, face, cos_inc
+
+
+def _pad(x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
+    """x as rows first.. of k, the other rows `fill` (each row written once)."""
+    out = np.empty(k, dtype=x.dtype)
+    out[:first] = fill
+    out[first:first + len(x)] = x
+    out[first + len(x):] = fill
+    return out
 
 
 def box_distance(box_lo: np.ndarray, box_hi: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> np.ndarray:

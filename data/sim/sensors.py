@@ -161,19 +161,22 @@ def lidar_measure(
     # The clutter and dropout draws are made for the returns in range only (most of a
     # spinning LiDAR's rays miss), in float32: a probability needs no more.
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
-        not_sea = np.take(hits.body, idx) != sea_body
+        not_sea = hits.body.take(idx) != sea_body
         idx = idx[not_sea | (rng.random(len(idx), dtype=np.float32) < sea_probability)]
     if cfg.dropout_probability > 0:
         idx = idx[rng.random(len(idx), dtype=np.float32) >= cfg.dropout_probability]
-    f = np.take(faces.offset, np.take(hits.body, idx))
-    f += np.take(hits.face, idx)
-    r = np.take(r_all, idx).astype(np.float64, copy=False)
-    cos_inc = np.take(hits.cos_incidence, idx)
+    if hits.flat_face is not None:  # the caster's, one gather (its offsets are the lookup's: the same bodies)
+        f = hits.flat_face.take(idx)
+    else:
+        f = faces.offset.take(hits.body.take(idx))
+        f += hits.face.take(idx)
+    r = r_all.take(idx).astype(np.float64, copy=False)
+    cos_inc = hits.cos_incidence.take(idx)
     np.clip(cos_inc, 1e-3, 1.0, out=cos_inc)
-    intensity = np.take(faces.reflectivity, f)
+    intensity = faces.reflectivity.take(f)
     intensity *= cos_inc  # diffuse (Lambert)
-    label = np.take(faces.label, f)
-    retro = np.take(faces.retro, f)
+    label = faces.label.take(f)
+    retro = faces.retro.take(f)
     if spray is not None and spray.probability > 0 and len(idx):
         # a droplet at a height z in the band, met by a downward ray before its surface
         z0 = np.broadcast_to(np.asarray(origin_z_world, dtype=float), r_all.shape)[idx]
@@ -220,9 +223,9 @@ def lidar_measure(
         r *= cfg.range_resolution_m
     points = np.empty((n, 3))
     for i in range(3):
-        np.multiply(np.take(pattern.dirs_by_axis[i], idx), r, out=points[:, i])
+        np.multiply(pattern.dirs_by_axis[i].take(idx), r, out=points[:, i])
     if cfg.motion_during_sweep:
-        t_offset = np.take(pattern.ray_time_s32, idx)
+        t_offset = pattern.ray_time_s32.take(idx)
     else:
         t_offset = np.zeros(n, dtype=np.float32)
     return points, {"intensity": intensity.astype(np.float32, copy=False), "t": t_offset, "label": label}

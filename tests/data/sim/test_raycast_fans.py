@@ -28,6 +28,9 @@ def assert_same_hits(sim, times, fixed):
         assert np.array_equal(fans.body, ref.body) and np.array_equal(fans.face, ref.face)
         np.testing.assert_allclose(fans.cos_incidence, ref.cos_incidence, atol=1e-6)
         assert fans.hit.sum() > 0.1 * len(fans.range_m)  # the frame really sees the scene
+        if fans.flat_face is not None:  # the materials' index, as the sensor model's lookup has it
+            hit = fans.body >= 0
+            assert np.array_equal(fans.flat_face[hit], sim.world.faces.offset[fans.body[hit]] + fans.face[hit])
 
 
 @pytest.mark.parametrize("overrides", [
@@ -128,6 +131,56 @@ def test_reaching_box_keeps_every_ray_that_meets_the_box(seed):
         if np.all((o >= lo) & (o <= hi)):  # the sensor inside the box: every ray meets it
             assert kept.all()
     assert meets_any > 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fans_cutting_box_holds_every_ray_that_meets_the_box(seed):
+    """The one-pose cast's fan range: every ray meeting the (possibly stretched) box lies in a
+    fan within it, and its first and last fans do cut the box."""
+    rng = np.random.default_rng(seed)
+    span = np.pi * (2 / 3 if seed % 2 else 2)  # a grid's 120 degrees, or a whole turn
+    az = np.sort(rng.uniform(-span / 2, span / 2, 120))
+    el = np.linspace(-0.3, 0.3, 30)
+    az_g, el_g = np.meshgrid(az, el, indexing="ij")
+    fans = Fans(spherical_dirs(az_g.ravel(), el_g.ravel()), az, el)
+    lo = rng.uniform(-20, 0, 3)
+    hi = lo + rng.uniform(0.5, 15, 3)
+    corners = np.where(np.arange(8)[:, None] >> np.array([2, 1, 0]) & 1, hi, lo)
+    cut_some = 0
+    for i in range(30):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        A = q * np.sign(np.linalg.det(q))  # a rotation
+        o = rng.uniform(-30, 30, 3)
+        scale = rng.uniform(0.5, 2.0, 3) if i % 3 == 0 else None
+        fr = fans.fans_cutting_box(corners, A, o, scale)
+        s = np.ones(3) if scale is None else scale
+        meets = slab_hits(lo, hi, o / s, (fans.dirs @ A.T) / s).reshape(len(az), len(el))
+        inside = np.zeros(len(az), dtype=bool)
+        inside[fr.start:fr.stop] = True
+        assert not np.any(meets.any(axis=1) & ~inside)
+        for f in (fr.start, fr.stop - 1) if len(fr) else ():
+            n_f = np.array([-np.sin(az[f]), np.cos(az[f]), 0.0])
+            g = ((corners * s - o) @ A) @ n_f  # the corners' distances to fan f's plane
+            assert g.min() <= 0 <= g.max()
+        cut_some += len(fr) > 0
+    assert cut_some > 0
+
+
+def test_grid_casts_only_the_fans_cutting_the_feeder_box():
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=1"]))
+    feeder = sim.world.caster.scenes[1]
+    sent = []
+
+    class Counting:
+        def cast_rays(self, rays):
+            sent.append(len(rays))
+            return feeder.cast_rays(rays)
+
+    sim.world.caster.scenes[1] = Counting()
+    hits, *_ = sim._lidar_hits(0.2, sim._scene_poses, sim._sensor_fixed_hits("lidar"))
+    n_el = len(sim.lidar_pattern.fans.el_rad)
+    assert len(sent) == 1 and sent[0] % n_el == 0
+    assert int((hits.body == 1).sum()) <= sent[0] < 0.9 * len(hits.range_m)
 
 
 def test_reaching_box_per_fan_poses_and_scale():
