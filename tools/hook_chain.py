@@ -31,7 +31,7 @@ from boomtip.tools import hook_outputs as outputs
 from boomtip.tools import hook_workers as workers
 from boomtip.tools.hook_rows import FrameRows
 from boomtip.tools.hook_store import P_REL, EstimateStore
-from boomtip.tools.runner import ChainError
+from boomtip.tools.runner import ChainError, NullVisualiser
 
 ROW_DEFAULTS = {"x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sigma_y_m": np.nan, "sigma_z_m": np.nan,
                 "n_points": 0, "fit_rms_m": np.nan, "precision": np.nan, "recall": np.nan, "hook_points_true": 0,
@@ -274,7 +274,9 @@ class HookChain:
         return HookRerunLogger(path, source, gate_radius_m=self.cfg.prior_radius_m)
 
     def visualise_result(self, viz, result: HookResult, truth: Truth | None) -> None:
-        if not result.runs:
+        # without a recording nothing is logged: the estimates are not read back (a 700 s run's
+        # whole estimate, read at the run's peak, raised it by about 9 MB)
+        if not result.runs or isinstance(viz, NullVisualiser):
             return
         name = "ekf_flexible" if "ekf_flexible" in result.runs else next(iter(result.runs))
         t_run, p_rel = result.stores[name].columns(P_REL)
