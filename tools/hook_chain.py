@@ -232,7 +232,7 @@ class HookChain:
                                   self.filter_cfg, sink=stores[name])
             return run, stores[name].state()
 
-        # the estimators are independent: shared between this process and a forked child
+        # the estimators are independent: shared between two forked children
         done = workers.run_split(self.estimators, ESTIMATOR_COST, estimate)
         runs = {}
         for name, (run, state) in done.items():
