@@ -219,6 +219,33 @@ class HookSimulation(Simulation):
         super().__init__(scenario, world)
         self.encoders = self._encoder_log()
 
+    # The MRU and encoder logs on disk too, each read back whole when asked for: a chain copies
+    # what it needs once, and no second copy stays for the whole run (700 s: 10 MB).
+    @property
+    def mru(self) -> MruLog:
+        return MruLog(*(self._logs.read(f"mru_{k}") for k in ("t", "rpy", "rate")), max_gap_s=self._mru_max_gap_s)
+
+    @mru.setter
+    def mru(self, log: MruLog) -> None:
+        for k, v in (("t", log.t_s), ("rpy", log.rpy_rad), ("rate", log.rpy_rate_radps)):
+            self._log_files().append(f"mru_{k}", v)
+        self._mru_max_gap_s = log.max_gap_s
+
+    @property
+    def encoders(self) -> dict[str, np.ndarray]:
+        return {k: self._logs.read(f"encoders_{k}") for k in self._encoder_keys}
+
+    @encoders.setter
+    def encoders(self, log: dict[str, np.ndarray]) -> None:
+        for k, v in log.items():
+            self._log_files().append(f"encoders_{k}", v)
+        self._encoder_keys = tuple(log)
+
+    def _log_files(self) -> TrackFiles:
+        if not hasattr(self, "_logs"):
+            self._logs = TrackFiles()
+        return self._logs
+
     # -- poses from the crane truth ------------------------------------------------------
     def _interp(self, name: str, t: np.ndarray) -> np.ndarray:
         return self._tracks.interp(name, t, self._t_crane)
