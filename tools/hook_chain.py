@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from boomtip.data.crane_model import CraneParams
-from boomtip.data.frames import Frame, FrameSource, Truth
+from boomtip.data.frames import Frame, FrameSource, MruLog, Truth
 from boomtip.data.installation import CraneSpec, Installation, LidarSpec
 from boomtip.data.meshes import Label
 from boomtip.data.processing import Processing
@@ -31,7 +31,7 @@ from boomtip.tools import hook_outputs as outputs
 from boomtip.tools import hook_workers as workers
 from boomtip.tools.hook_rows import FrameRows
 from boomtip.tools.hook_store import P_REL, EstimateStore
-from boomtip.tools.runner import ChainError
+from boomtip.tools.runner import ChainError, NullVisualiser
 
 ROW_DEFAULTS = {"x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sigma_y_m": np.nan, "sigma_z_m": np.nan,
                 "n_points": 0, "fit_rms_m": np.nan, "precision": np.nan, "recall": np.nan, "hook_points_true": 0,
@@ -92,7 +92,8 @@ class HookChain:
 
     def __init__(self, source: FrameSource, processing: Processing) -> None:
         inst: Installation = source.meta.installation
-        if source.encoders is None:
+        enc, m = source.encoders, source.mru  # once: a source may read them from disk on each access
+        if enc is None:
             raise ChainError(f"{source.meta.name}: the hook chain needs the crane's encoder stream (slew, luff, hoist)")
         if not inst.lidar.enabled:
             raise ChainError("installation.lidar.enabled is false: the hook chain needs a LiDAR")
@@ -109,16 +110,17 @@ class HookChain:
             self.filter_cfg = self.filter_cfg.model_copy(update={"levelling_bias_sigma_rad": inst.levelling_bias_sigma_rad("lidar")})
         self.seed = processing.seed
         self.params = nominal_crane_params(inst.crane)
-        enc, m = source.encoders, source.mru
         # The hoist encoder reads the rope paid out; the pendulum is that stretched by the
         # hook's weight, with the rope's nominal EA (rigid when the installation gives none).
         stretch = 1.0 + (self.params.m * self.params.g / inst.crane.rope_ea_n if inst.crane.rope_ea_n else 0.0)
-        self.enc = {**enc, "hoist": np.asarray(enc["hoist"]) * stretch}
-        enc = self.enc
-        self.enc_table = np.column_stack([enc["slew"], enc["luff"], enc["hoist"]])
+        self.enc = {"t": enc["t"], "hoist": np.asarray(enc["hoist"]) * stretch}
+        self.enc_table = np.column_stack([enc["slew"], enc["luff"], self.enc["hoist"]])
         self.mru_table = np.column_stack([m.rpy_rad[:, 0], m.rpy_rad[:, 1], m.rpy_rate_radps[:, 0], m.rpy_rate_radps[:, 1]])
-        self.mru = m
-        self.tracker = HookTracker(enc["t"], self.enc_table, m.t_s, self.mru_table, params=self.params)
+        # Of the MRU log, only its times and gaps (whether a frame has an attitude; zero-strided values): the
+        # estimators take the values from mru_table, and the source's log is not held for the whole run.
+        self.mru_times = MruLog(m.t_s, np.broadcast_to(np.zeros(3), m.rpy_rad.shape), np.broadcast_to(np.zeros(3), m.rpy_rad.shape),
+                          max_gap_s=m.max_gap_s)
+        self.tracker = HookTracker(self.enc["t"], self.enc_table, self.mru_times.t_s, self.mru_table, params=self.params)
         self.T_ts = inst.lidar.mount.matrix()
         self.rows = FrameRows()
         self.warnings: list[str] = []
@@ -132,7 +134,7 @@ class HookChain:
         res = HookFrameResult({"t": t, **ROW_DEFAULTS})
         if frame.error is not None:
             res.row["status"] = f"unreadable frame: {frame.error}"
-        elif self.mru.attitude(t) is None or not (self.enc["t"][0] <= t <= self.enc["t"][-1]):
+        elif self.mru_times.attitude(t) is None or not (self.enc["t"][0] <= t <= self.enc["t"][-1]):
             res.row["status"] = f"no MRU attitude or encoder reading at t={t:.3f} s"
         else:
             self._perceive(frame, res, times)
@@ -214,13 +216,13 @@ class HookChain:
         rows = self.rows
         if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
             empty = np.zeros((0, 3))
-            meas = HookMeasurements(np.zeros(0), empty, self.enc["t"], self.enc_table, self.mru.t_s, self.mru_table,
+            meas = HookMeasurements(np.zeros(0), empty, self.enc["t"], self.enc_table, self.mru_times.t_s, self.mru_table,
                                     lidar_cov_m2=np.zeros((0, 3, 3)))
             self.warnings.append("no LiDAR frame in this run: no hook estimate")
             return HookResult(rows, meas, {})
         meas = HookMeasurements(
             t_lidar=rows["t"], lidar_p_rel_tip_world=rows.xyz(),
-            t_encoders=self.enc["t"], encoders=self.enc_table, t_mru=self.mru.t_s, mru=self.mru_table,
+            t_encoders=self.enc["t"], encoders=self.enc_table, t_mru=self.mru_times.t_s, mru=self.mru_table,
             lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
         )
         # each run's samples go to disk as they come: a run's memory stays flat in its length
@@ -232,7 +234,7 @@ class HookChain:
                                   self.filter_cfg, sink=stores[name])
             return run, stores[name].state()
 
-        # the estimators are independent: shared between this process and a forked child
+        # the estimators are independent: shared between two forked children
         done = workers.run_split(self.estimators, ESTIMATOR_COST, estimate)
         runs = {}
         for name, (run, state) in done.items():
@@ -274,7 +276,9 @@ class HookChain:
         return HookRerunLogger(path, source, gate_radius_m=self.cfg.prior_radius_m)
 
     def visualise_result(self, viz, result: HookResult, truth: Truth | None) -> None:
-        if not result.runs:
+        # without a recording nothing is logged: the estimates are not read back (a 700 s run's
+        # whole estimate, read at the run's peak, raised it by about 9 MB)
+        if not result.runs or isinstance(viz, NullVisualiser):
             return
         name = "ekf_flexible" if "ekf_flexible" in result.runs else next(iter(result.runs))
         t_run, p_rel = result.stores[name].columns(P_REL)

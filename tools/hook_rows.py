@@ -1,9 +1,13 @@
-"""The hook chain's per-frame rows held as columns: a 700 s run has 14,000 LiDAR frames, and a
-dict of Python objects per frame took about 2.3 kB (33 MB), the columns about 0.4 kB."""
+"""The hook chain's per-frame rows, kept on disk while the run goes on: a 700 s run has 14,000
+LiDAR frames (a dict of Python objects per frame took about 2.3 kB, 33 MB; typed columns in
+memory 0.4 kB, 5.3 MB, which still grew with the run). Each frame's numbers are one float64
+record in an unnamed temporary file, appended a chunk of frames at a time; a column is read back
+a chunk of records at a time."""
 
 from __future__ import annotations
 
-from array import array
+import os
+import tempfile
 
 import numpy as np
 
@@ -21,65 +25,98 @@ COLUMNS = ("t", "status", "x", "y", "z", "sigma_x_m", "sigma_y_m", "sigma_z_m", 
            "rope_status", "rope_points", "rope_ux", "rope_uy", "rope_uz", "rope_sigma_across_m", "rope_radius_m",
            "rope_accepted", "rope_precision", "time_ms")
 _NAN9 = (float("nan"),) * 9
+NUMERIC = FLOAT + INT + BOOL  # a record: these, then the fix covariance (9), the rope direction (3) and its covariance (9)
+_AT = {k: i for i, k in enumerate(NUMERIC)}
+COV, ROPE_DIR, ROPE_COV = slice(len(NUMERIC), len(NUMERIC) + 9), slice(len(NUMERIC) + 9, len(NUMERIC) + 12), \
+    slice(len(NUMERIC) + 12, len(NUMERIC) + 21)
+RECORD = len(NUMERIC) + 21
+CHUNK = 1024  # records buffered before a write, and read back at a time
 
 
 class FrameRows:
-    """Rows (dicts with the keys of :data:`COLUMNS`) appended one per frame, kept as typed columns,
-    with each frame's fix covariance and rope direction and covariance (NaN when none)."""
+    """Rows (dicts with the keys of :data:`COLUMNS`) appended one per frame, kept as records on
+    disk (integers and booleans as float64: exact below 2**53), with each frame's fix covariance
+    and rope direction and covariance (NaN when none). The text columns stay in memory (a
+    reference per frame to a few shared strings)."""
 
     def __init__(self) -> None:
-        self._cols: dict[str, array | list] = {k: array("d") for k in FLOAT}
-        self._cols.update({k: array("q") for k in INT})
-        self._cols.update({k: array("b") for k in BOOL})
-        self._cols.update({k: [] for k in TEXT})
-        self._cov, self._rope_dir, self._rope_cov = array("d"), array("d"), array("d")
+        # unbuffered: a forked process holding this object has no write of it pending
+        self._file = tempfile.TemporaryFile(prefix="boomtip-rows-", buffering=0)
+        self._buf = np.empty((CHUNK, RECORD))
+        self._n_file = self._n_buf = 0
+        self._text: dict[str, list[str]] = {k: [] for k in TEXT}
 
     def append(self, row: dict, cov_m2: np.ndarray, rope_direction: np.ndarray | None,
                rope_cov: np.ndarray | None) -> None:
-        for k in FLOAT:
-            self._cols[k].append(float(row[k]))
-        for k in INT:
-            self._cols[k].append(int(row[k]))
-        for k in BOOL:
-            self._cols[k].append(bool(row[k]))
+        rec = self._buf[self._n_buf]
+        rec[:len(NUMERIC)] = [float(row[k]) for k in NUMERIC]
+        rec[COV] = np.asarray(cov_m2, float).ravel()
+        rec[ROPE_DIR] = _NAN9[:3] if rope_direction is None else np.asarray(rope_direction, float)
+        rec[ROPE_COV] = _NAN9 if rope_cov is None else np.asarray(rope_cov, float).ravel()
         for k in TEXT:
-            self._cols[k].append(str(row[k]))
-        self._cov.extend(np.asarray(cov_m2, float).ravel().tolist())
-        self._rope_dir.extend(_NAN9[:3] if rope_direction is None else np.asarray(rope_direction, float).tolist())
-        self._rope_cov.extend(_NAN9 if rope_cov is None else np.asarray(rope_cov, float).ravel().tolist())
+            self._text[k].append(str(row[k]))
+        self._n_buf += 1
+        if self._n_buf == CHUNK:
+            self._file.write(self._buf.tobytes())
+            self._n_file += CHUNK
+            self._n_buf = 0
 
     def __len__(self) -> int:
-        return len(self._cols["t"])
+        return self._n_file + self._n_buf
+
+    def _records(self, cols) -> np.ndarray:
+        """(N, ...) of the records' columns ``cols`` (an index list or a slice), a chunk at a time."""
+        parts = []
+        for a in range(0, self._n_file, CHUNK):
+            block = np.empty((min(CHUNK, self._n_file - a), RECORD))
+            os.preadv(self._file.fileno(), [memoryview(block).cast("B")], a * RECORD * 8)
+            parts.append(block[:, cols].copy())  # a copy: not the whole chunk
+        parts.append(self._buf[:self._n_buf, cols].copy())
+        return np.concatenate(parts)
 
     def __getitem__(self, name: str) -> np.ndarray:
         """A column: float64, int64, bool, or an object array of str."""
-        col = self._cols[name]
         if name in TEXT:
-            return np.array(col, dtype=object)
-        dtype = np.float64 if name in FLOAT else np.int64 if name in INT else np.int8
-        # copies: a view would stop the column from growing (an array exporting its buffer)
-        out = np.frombuffer(col, dtype=dtype) if len(col) else np.zeros(0, dtype)
-        return out.astype(bool) if name in BOOL else out.copy()
+            return np.array(self._text[name], dtype=object)
+        col = self._records(_AT[name])
+        return col.astype(np.int64) if name in INT else col.astype(bool) if name in BOOL else col
 
     def xyz(self, prefix: str = "") -> np.ndarray:
         """(N, 3) of the columns ``{prefix}x``, ``{prefix}y``, ``{prefix}z``."""
-        return np.column_stack([self[f"{prefix}{a}"] for a in "xyz"]) if len(self) else np.zeros((0, 3))
+        return self._records([_AT[f"{prefix}{a}"] for a in "xyz"])
 
     @property
     def cov_m2(self) -> np.ndarray:
-        return np.frombuffer(self._cov, np.float64).reshape(-1, 3, 3).copy() if len(self) else np.zeros((0, 3, 3))
+        return self._records(COV).reshape(-1, 3, 3)
 
     @property
     def rope_direction(self) -> np.ndarray:
-        return np.frombuffer(self._rope_dir, np.float64).reshape(-1, 3).copy() if len(self) else np.zeros((0, 3))
+        return self._records(ROPE_DIR)
 
     @property
     def rope_cov(self) -> np.ndarray:
-        return np.frombuffer(self._rope_cov, np.float64).reshape(-1, 3, 3).copy() if len(self) else np.zeros((0, 3, 3))
+        return self._records(ROPE_COV).reshape(-1, 3, 3)
 
     def text(self, name: str) -> list[str]:
-        return list(self._cols[name])
+        return list(self._text[name])
 
     def row(self, i: int) -> dict:
         """Frame i as the dict it was appended as (values as Python scalars)."""
-        return {k: (col[i] if k not in BOOL else bool(col[i])) for k, col in self._cols.items()}
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        if i >= self._n_file:
+            rec = self._buf[i - self._n_file].copy()
+        else:
+            rec = np.empty(RECORD)
+            os.preadv(self._file.fileno(), [memoryview(rec).cast("B")], i * RECORD * 8)
+        vals = rec.tolist()
+        out = {k: vals[_AT[k]] for k in FLOAT}
+        out.update({k: int(vals[_AT[k]]) for k in INT})
+        out.update({k: bool(vals[_AT[k]]) for k in BOOL})
+        out.update({k: self._text[k][i] for k in TEXT})
+        return out
+
+    def close(self) -> None:
+        self._file.close()

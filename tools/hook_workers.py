@@ -1,7 +1,7 @@
 """A hook run on two cores: the simulator's frames made in a child process while this one runs
-the perception on the previous ones, and the estimators shared between this process and a child.
+the perception on the previous ones, and the estimators shared between two children.
 
-Both children are forks that run exactly the code a serial run would (same inputs, same random
+The children are forks that run exactly the code a serial run would (same inputs, same random
 draws, same order), so a run's outputs do not depend on it; only the wall clock does. Processes
 and not threads: the simulator and the filters are mostly small numpy calls holding the GIL
 (measured: a frame-producing thread gave no gain at all).
@@ -137,26 +137,37 @@ def _run_group(jobs: Sequence[str], work: Callable[[str], object], conn) -> None
 
 
 def run_split(names: Sequence[str], costs: dict[str, float], work: Callable[[str], object]) -> dict[str, object]:
-    """{name: work(name)} for every name, the names split by cost between this process and a
-    forked child (which runs its share first to last, as a serial run would). What ``work``
-    returns must pickle; it may write to files opened before the call (the child shares them)."""
+    """{name: work(name)} for every name, the names split by cost between two forked children
+    (each runs its share first to last, as a serial run would). Both in children, not one here:
+    an estimator's working memory then goes back to the system when its child ends (three
+    estimators run here left a 700 s run's process 19 MB larger, at the run's peak, the report).
+    What ``work`` returns must pickle; it may write to files opened before the call (the
+    children share them)."""
     names = list(names)
     if len(names) < 2 or not parallel_enabled():
         return {name: work(name) for name in names}
-    child_jobs, own_jobs = split_by_cost({n: costs.get(n, 1.0) for n in names})
     ctx = mp.get_context("fork")
-    recv, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_run_group, args=(child_jobs, work, send), name="boomtip-estimators", daemon=True)
-    proc.start()
-    send.close()
+    children = []
     try:
-        out = {name: work(name) for name in own_jobs}
-        kind, payload = recv.recv()
-        proc.join()
+        for jobs in split_by_cost({n: costs.get(n, 1.0) for n in names}):
+            recv, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_run_group, args=(jobs, work, send), name="boomtip-estimators", daemon=True)
+            proc.start()
+            send.close()
+            children.append((proc, recv))
+        out: dict[str, object] = {}
+        failure = None
+        for proc, recv in children:
+            kind, payload = recv.recv()
+            proc.join()
+            if kind == "error":
+                failure = failure or payload
+            else:
+                out.update(dict(payload))
     finally:
-        _stop(proc)
-        recv.close()
-    if kind == "error":
-        raise payload
-    out.update(dict(payload))
+        for proc, recv in children:
+            _stop(proc)
+            recv.close()
+    if failure is not None:
+        raise failure
     return {name: out[name] for name in names}

@@ -25,11 +25,12 @@ from boomtip.data.crane_model import CraneParams
 from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
 from boomtip.data.sim.crane_truth import crane_truth_chunks
 from boomtip.data.sim.vessel_waves import CallableVesselMotion
-from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Frame, Truth
+from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Frame, MruLog, Truth
 from boomtip.data.block_model import lower_block_parts, rope_mesh
 from boomtip.data.scenario import Scenario
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
 from boomtip.data.sim.simulator import SENSOR_IDS, SimScene, Simulation, frame_times
+from boomtip.data.sim.world import in_windows
 
 BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
 # the crane truth's tracks kept (on disk): the frames' poses (_scene_poses), the encoders and the truth table
@@ -218,6 +219,33 @@ class HookSimulation(Simulation):
         super().__init__(scenario, world)
         self.encoders = self._encoder_log()
 
+    # The MRU and encoder logs on disk too, each read back whole when asked for: a chain copies
+    # what it needs once, and no second copy stays for the whole run (700 s: 10 MB).
+    @property
+    def mru(self) -> MruLog:
+        return MruLog(*(self._logs.read(f"mru_{k}") for k in ("t", "rpy", "rate")), max_gap_s=self._mru_max_gap_s)
+
+    @mru.setter
+    def mru(self, log: MruLog) -> None:
+        for k, v in (("t", log.t_s), ("rpy", log.rpy_rad), ("rate", log.rpy_rate_radps)):
+            self._log_files().append(f"mru_{k}", v)
+        self._mru_max_gap_s = log.max_gap_s
+
+    @property
+    def encoders(self) -> dict[str, np.ndarray]:
+        return {k: self._logs.read(f"encoders_{k}") for k in self._encoder_keys}
+
+    @encoders.setter
+    def encoders(self, log: dict[str, np.ndarray]) -> None:
+        for k, v in log.items():
+            self._log_files().append(f"encoders_{k}", v)
+        self._encoder_keys = tuple(log)
+
+    def _log_files(self) -> TrackFiles:
+        if not hasattr(self, "_logs"):
+            self._logs = TrackFiles()
+        return self._logs
+
     # -- poses from the crane truth ------------------------------------------------------
     def _interp(self, name: str, t: np.ndarray) -> np.ndarray:
         return self._tracks.interp(name, t, self._t_crane)
@@ -251,6 +279,25 @@ class HookSimulation(Simulation):
         raise NotImplementedError("hook scenarios simulate no radar (set radar.enabled: false)")
 
     # -- logs ----------------------------------------------------------------------------
+    def _mru_log(self) -> MruLog:
+        """Simulation's MRU log (the same noise draws, the same numbers), with the vessel's states
+        evaluated TRUTH_CHUNK samples at a time: all at once, a 700 s log's states (six (N, 3)
+        arrays, 20 MB) raised the run's memory by 35 MB, which the heap then kept."""
+        cfg, mm = self.scenario.installation.mru, self.scenario.world.mismatch
+        t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
+        rpy, rate = np.empty((len(t), 3)), np.empty((len(t), 3))
+        for a in range(0, len(t), TRUTH_CHUNK):
+            st = self.world.crane_motion.states(t[a:a + TRUTH_CHUNK] - mm.mru_lag_s)
+            rpy[a:a + TRUTH_CHUNK], rate[a:a + TRUTH_CHUNK] = st.rpy_rad, st.rpy_rate_radps
+        rng = self._rng("mru", 0)
+        rpy += np.deg2rad(mm.mru_bias_deg)
+        rpy += np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(rpy.shape)
+        rate += np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(rate.shape)
+        keep = ~in_windows(t, self.scenario.world.mru.outages_s)
+        if not keep.all():
+            t, rpy, rate = t[keep], rpy[keep], rate[keep]
+        return MruLog(t, rpy, rate, max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
+
     def _encoder_log(self) -> dict[str, np.ndarray]:
         """The encoders as they are: specified noise plus the world's unstated biases."""
         cfg, bias = self.scenario.installation.encoders, self.scenario.world.mismatch.encoder_bias_deg

@@ -176,3 +176,23 @@ def test_frame_kpis_from_the_columns(tmp_path):
     assert np.isnan(seg["sparse_rmse_m"][0])  # the sparse rows have no x
     rope = hook_outputs.rope_kpis(rows, None)
     assert rope == {"found_fraction": 1.0, "accepted_fraction": 1.0, "points_median": 300.0, "radius_median_m": 0.04}
+
+
+def test_frame_rows_read_back_across_the_file_and_the_buffer(monkeypatch):
+    """Records on disk (whole chunks) and in the buffer read back alike: whole columns and single
+    rows on either side."""
+    from boomtip.tools import hook_rows
+
+    monkeypatch.setattr(hook_rows, "CHUNK", 7)  # 30 rows: 4 chunks on disk, 2 in the buffer
+    rows = FrameRows()
+    for i in range(30):
+        row = _row(i, "ok" if i % 3 else "sparse")
+        row["n_points"] = 1000 + i
+        rows.append(row, np.full((3, 3), float(i)), np.array([i, 0.0, -1.0]) if i % 2 else None, None)
+    assert len(rows) == 30
+    np.testing.assert_array_equal(rows["n_points"], 1000 + np.arange(30))
+    np.testing.assert_array_equal(rows.cov_m2[:, 1, 2], np.arange(30.0))
+    np.testing.assert_array_equal(rows.rope_direction[1::2, 0], np.arange(1, 30, 2))
+    assert np.isnan(rows.rope_direction[::2]).all()
+    for i in (0, 6, 7, 27, 28, 29, -1):
+        assert rows.row(i)["n_points"] == 1000 + (i % 30) and rows.row(i)["status"] == ("ok" if (i % 30) % 3 else "sparse")

@@ -108,7 +108,7 @@ def test_run_split_returns_each_jobs_result_in_the_given_order():
             raise ValueError("no job bb")
         return name
 
-    for costs in ({"bb": 2.0}, {"a": 2.0}):  # the failing job in the child, then in this process
+    for costs in ({"bb": 2.0}, {"a": 2.0}):  # the failing job in the first child, then in the second
         with pytest.raises(ValueError, match="no job bb"):
             workers.run_split(["a", "bb"], costs, fails_on_bb)
 

@@ -54,3 +54,20 @@ def test_stored_truth_is_the_truth_in_memory(grid):
             assert np.array_equal(stored.at(name, tq), memory.at(name, tq), equal_nan=True)
     with pytest.raises(KeyError):
         stored.columns["D"]
+
+
+@pytest.mark.parametrize("outages", [[], [[3.0, 7.5]]])
+def test_mru_log_in_chunks_is_the_simulations(monkeypatch, outages):
+    """The hook simulation's MRU log, its vessel states made a chunk at a time, is the base
+    simulation's to the last bit: the same states, the same noise draws, the same outages."""
+    from boomtip.data.scenario import load_scenario
+    from boomtip.data.sim import hook_world
+    from boomtip.data.sim.simulator import Simulation
+
+    monkeypatch.setattr(hook_world, "TRUTH_CHUNK", 997)  # several chunks, the last one short
+    sim = hook_world.HookSimulation(load_scenario("hook-2", ["duration_s=12", f"mru.outages_s={outages}"]))
+    whole = Simulation._mru_log(sim)
+    assert len(sim.mru.t_s) == len(whole.t_s) == 2401 - (900 if outages else 0)
+    for k in ("t_s", "rpy_rad", "rpy_rate_radps"):
+        np.testing.assert_array_equal(getattr(sim.mru, k), getattr(whole, k))
+    assert sim.mru.max_gap_s == whole.max_gap_s
