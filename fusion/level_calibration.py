@@ -89,17 +89,19 @@ def tilt_from_normals(t_s: np.ndarray, normals_level: np.ndarray, min_span_s: fl
 
 def within_the_survey(tilt: Tilt | None, prior_sigma_rad: float, k: float = 4.0) -> tuple[Tilt | None, str | None]:
     """The tilt if the surveyed mount and the MRU's stated accuracy allow it (within k of their
-    combined 1-sigma, plus the estimate's own), else None and why. A feeder with a steady list
-    or trim breaks the zero-mean assumption: its deck averages to that list, which the deck
-    alone cannot tell from a mount error. A mean tilt far beyond the survey's is taken as the
-    feeder's, not the installation's, and the survey stands."""
+    combined 1-sigma, plus the estimate's own), else no tilt with the survey's 1-sigma, and why.
+    A feeder with a steady list or trim breaks the zero-mean assumption: its deck averages to
+    that list, which the deck alone cannot tell from a mount error. A mean tilt far beyond the
+    survey's is taken as the feeder's, not the installation's: the survey stands for the two
+    tilts (the rotation about the vertical, from the own hull, is another matter). A smaller
+    list, within the bound, is still taken as a levelling error."""
     if tilt is None:
         return None, None
     size = float(np.hypot(tilt.rx_rad, tilt.ry_rad))
     bound = k * float(np.hypot(prior_sigma_rad, tilt.sigma_rad))
     if size <= bound:
         return tilt, None
-    return None, (f"the deck's mean tilt, {np.degrees(size):.3f} deg, is beyond what the mount survey and the MRU allow "
+    return Tilt(0.0, 0.0, prior_sigma_rad, tilt.span_s), (f"the deck's mean tilt, {np.degrees(size):.3f} deg, is beyond what the mount survey and the MRU allow "
                   f"({k:g} sigma: {np.degrees(bound):.3f} deg): taken as the feeder's own list or trim, not a levelling error; "
                   "the surveyed mount stands")
 

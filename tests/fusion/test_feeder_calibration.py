@@ -147,7 +147,11 @@ def test_a_mean_tilt_beyond_the_survey_is_the_feeders_list_not_the_mount():
     assert kept is mount and why is None
     listing = tilt_from_normals(t, _normals(math.radians(0.5), 0.0, t), min_span_s=30.0)
     kept, why = within_the_survey(listing, prior)
-    assert kept is None and "list or trim" in why and "0.500 deg" in why
+    assert "list or trim" in why and "0.500 deg" in why
+    assert (kept.rx_rad, kept.ry_rad, kept.sigma_rad, kept.span_s) == (0.0, 0.0, prior, listing.span_s)  # the survey's
+    assert with_heading(kept, np.full(5, 0.01)).rz_rad == pytest.approx(-0.01)  # the hull's heading still applies
     assert within_the_survey(None, prior) == (None, None)
-    edge = Tilt(4.0 * prior * 0.99, 0.0, 0.0, 60.0)  # just inside 4 sigma is still the mount's
-    assert within_the_survey(edge, prior)[0] is edge
+    inside = Tilt(4.0 * prior * 0.99, 0.0, 0.0, 60.0)  # just inside 4 sigma is still the mount's
+    assert within_the_survey(inside, prior) == (inside, None)
+    outside = Tilt(0.0, -4.0 * prior * 1.01, 0.0, 60.0)
+    assert within_the_survey(outside, prior)[0].ry_rad == 0.0
