@@ -227,6 +227,9 @@ class HookSimulation(Simulation):
 
     @mru.setter
     def mru(self, log: MruLog) -> None:
+        # once, at set-up: the files append, so a second log would follow the first
+        if hasattr(self, "_mru_max_gap_s"):
+            raise AttributeError("a hook simulation's MRU log is made once, at set-up")
         for k, v in (("t", log.t_s), ("rpy", log.rpy_rad), ("rate", log.rpy_rate_radps)):
             self._log_files().append(f"mru_{k}", v)
         self._mru_max_gap_s = log.max_gap_s
@@ -237,6 +240,8 @@ class HookSimulation(Simulation):
 
     @encoders.setter
     def encoders(self, log: dict[str, np.ndarray]) -> None:
+        if hasattr(self, "_encoder_keys"):
+            raise AttributeError("a hook simulation's encoder log is made once, at set-up")
         for k, v in log.items():
             self._log_files().append(f"encoders_{k}", v)
         self._encoder_keys = tuple(log)

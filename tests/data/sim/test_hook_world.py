@@ -71,3 +71,8 @@ def test_mru_log_in_chunks_is_the_simulations(monkeypatch, outages):
     for k in ("t_s", "rpy_rad", "rpy_rate_radps"):
         np.testing.assert_array_equal(getattr(sim.mru, k), getattr(whole, k))
     assert sim.mru.max_gap_s == whole.max_gap_s
+    with pytest.raises(AttributeError, match="made once"):  # the files append: a second log would follow the first
+        sim.mru = whole
+    with pytest.raises(AttributeError, match="made once"):
+        sim.encoders = sim.encoders
+    assert len(sim.mru.t_s) == len(whole.t_s)
