@@ -57,7 +57,7 @@ class FrameRows:
             self._text[k].append(str(row[k]))
         self._n_buf += 1
         if self._n_buf == CHUNK:
-            self._file.write(self._buf.tobytes())
+            _write_all(self._file, self._buf.tobytes())
             self._n_file += CHUNK
             self._n_buf = 0
 
@@ -69,7 +69,7 @@ class FrameRows:
         parts = []
         for a in range(0, self._n_file, CHUNK):
             block = np.empty((min(CHUNK, self._n_file - a), RECORD))
-            os.preadv(self._file.fileno(), [memoryview(block).cast("B")], a * RECORD * 8)
+            _read_all(self._file, block, a * RECORD * 8)
             parts.append(block[:, cols].copy())  # a copy: not the whole chunk
         parts.append(self._buf[:self._n_buf, cols].copy())
         return np.concatenate(parts)
@@ -110,7 +110,7 @@ class FrameRows:
             rec = self._buf[i - self._n_file].copy()
         else:
             rec = np.empty(RECORD)
-            os.preadv(self._file.fileno(), [memoryview(rec).cast("B")], i * RECORD * 8)
+            _read_all(self._file, rec, i * RECORD * 8)
         vals = rec.tolist()
         out = {k: vals[_AT[k]] for k in FLOAT}
         out.update({k: int(vals[_AT[k]]) for k in INT})
@@ -120,3 +120,21 @@ class FrameRows:
 
     def close(self) -> None:
         self._file.close()
+
+
+def _write_all(file, data: bytes) -> None:
+    """An unbuffered write may write less than asked (a full disk): a short record would shift
+    every later one, so it is finished or it fails."""
+    view = memoryview(data)
+    while len(view):
+        n = file.write(view)
+        if not n:
+            raise OSError(f"{file.name}: no space left for the per-frame rows")
+        view = view[n:]
+
+
+def _read_all(file, out: np.ndarray, offset: int) -> None:
+    """Fill `out` from the file at `offset`, or fail: a short read would leave np.empty's garbage."""
+    n = os.preadv(file.fileno(), [memoryview(out).cast("B")], offset)
+    if n != out.nbytes:
+        raise OSError(f"{file.name}: read {n} of {out.nbytes} bytes of the per-frame rows at {offset}")
