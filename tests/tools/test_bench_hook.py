@@ -64,7 +64,8 @@ def test_the_whole_bench_runs_and_the_integrators_agree():
     assert len(c["wall_s_each"]) == 2 and r["ratio"] == pytest.approx(1.0 / c["wall_s"])
     assert c["wall_s"] > two["wall_s"]["two_cores"]  # imports and the scene's set-up come on top
     assert set(r["accuracy"]) == {"ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"}
-    assert all(0 < max(a["rmse_pos_m"]) < 0.5 for a in r["accuracy"].values())
+    assert r["accuracy_same_in_process"]  # the timed command's run is the bench's, figure for figure
+    assert all(0 < max(a["rmse_pos_m"]) < 0.15 for a in r["accuracy"].values())  # the first second: 10-11 cm in x
     assert 0 < two["cpu_s_own"]["two_cores"] < two["cpu_s_with_children"]["two_cores"]
 
 
