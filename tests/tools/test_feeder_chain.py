@@ -83,7 +83,7 @@ def test_without_truth_the_two_Ds_are_still_compared(short_run):
     k = feeder_kpis(res.result.feeder, None, np.zeros(3), heave_D=(fused.t_s, fused.x[:, 0]))
     with_truth = res.kpis["feeder"]["D_side_by_side"]
     assert "rmse_pos_m" not in k and set(k["D_side_by_side"]) == {"feeder_minus_fused_rms_m"}
-    assert k["D_side_by_side"]["feeder_minus_fused_rms_m"] == pytest.approx(with_truth["feeder_minus_fused_rms_m"], rel=0.05)
+    assert k["D_side_by_side"]["feeder_minus_fused_rms_m"] == with_truth["feeder_minus_fused_rms_m"]  # the truth is finite throughout
     assert "RMS apart (no truth)" in report_section({"feeder": k})
 
 
