@@ -76,6 +76,13 @@ class RegistrationConfig(BaseModel):
     model_merges: tuple[int, ...] = Field((20, 50, 100, 200), description="when this many frames are registered, they are aligned "
                                           "to each other and become the model; the last is final (empty: the first frame's "
                                           "keyframe stays the model)")
+    @field_validator("merge_lag_frames")
+    @classmethod
+    def _lags_not_negative(cls, v: tuple[int, ...]) -> tuple[int, ...]:
+        if any(n < 0 for n in v):
+            raise ValueError(f"merge_lag_frames must be frame counts of at least 0, got {list(v)}")
+        return v
+
     @field_validator("model_merges")
     @classmethod
     def _merges_ascending(cls, v: tuple[int, ...]) -> tuple[int, ...]:
@@ -85,6 +92,14 @@ class RegistrationConfig(BaseModel):
 
     model_iterations: int = Field(1, ge=1, le=10, description="rounds of aligning the model's frames to each other (a second "
                                   "moved sts-irregular's y RMSE by 0.4 mm: each merge starts from the last one's poses)")
+    merge_lag_frames: tuple[int, ...] = Field((2, 5, 50, 100), description="each merge (in model_merges' order; past "
+                                              "its end, the last lag) runs beside the frames and its model is taken this many "
+                                              "LiDAR frames after the one that started it, waiting there if it is not done (so "
+                                              "a run never depends on the machine's speed; 0: inline). The early merges matter "
+                                              "most: taken 10 and 25 frames late, sts-irregular seed 8's y RMSE went 6.9 -> "
+                                              "11.2 mm (max 20 -> 58); at 2 and 5, 7.1. The late ones take seconds (5.4 s for "
+                                              "200 frames on a busy machine); 50 and 100 frames late cost no more than 10 and 20")
+
     model_voxel_m: float = Field(0.25, gt=0, description="the model's voxel")
     min_fitness: float = Field(0.3, gt=0, le=1, description="below this overlap with the keyframe a new keyframe is taken")
 
@@ -224,6 +239,24 @@ def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], 
     return [T0] + [M @ T for T in poses[1:]]
 
 
+@dataclass
+class MergedModel:
+    """A merge's result: the frames' poses aligned, their merged cloud and its search index."""
+
+    frames: int  # the first this many collected frames
+    poses: list[np.ndarray]
+    cloud: object  # an Open3D cloud with normals, in the map frame
+    surface: Surface
+
+
+def merged_model(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig) -> MergedModel:
+    """The frames aligned to each other and merged into a model (a pure function of its
+    inputs: it may run beside the frames, see tools/feeder_merge.py)."""
+    poses = align_frames(frames_level, T_map_level, cfg)
+    cloud = merged_cloud(frames_level, poses, cfg.model_voxel_m, cfg.normal_neighbours)
+    return MergedModel(len(frames_level), poses, cloud, surface_of(cloud))
+
+
 class FeederModel:
     """The feeder's model (map frame) and the registrations to it: the first frame's keyframe,
     then the first frames aligned to each other and merged, at each of `model_merges` frames."""
@@ -277,20 +310,31 @@ class FeederModel:
         self.collected.append((source_level, T_map_level))
         return len(self.collected) in self.cfg.model_merges
 
+    def merge_inputs(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """What a merge needs, as of now: the collected frames and their poses (new lists, so
+        that frames collected while the merge runs elsewhere do not enter it)."""
+        return [f for f, _ in self.collected], [T for _, T in self.collected]
+
     def merge(self) -> list[np.ndarray]:
         """The collected frames aligned to each other (the first is the keyframe's and holds
         the map frame) become the model. Returns their poses as aligned."""
-        frames = [f for f, _ in self.collected]
-        poses = align_frames(frames, [T for _, T in self.collected], self.cfg)
-        self._use(merged_cloud(frames, poses, self.cfg.model_voxel_m, self.cfg.normal_neighbours))
+        merged = merged_model(*self.merge_inputs(), self.cfg)
+        self.apply_merge(merged)
+        return merged.poses
+
+    def apply_merge(self, merged: "MergedModel") -> None:
+        """The model becomes a merge's (computed from the first `merged.frames` collected
+        frames); frames collected since follow the merged ones with the poses they had."""
+        n = merged.frames
+        self.keyframe, self.surface = merged.cloud, merged.surface
         self.kiss_map.clear()
         self.kiss_map.add_points(np.asarray(self.keyframe.points))
-        self.collected = list(zip(frames, poses))  # the next merge starts from these poses
-        self.model_frames = len(frames)
-        if len(frames) >= max(self.cfg.model_merges):
+        # the next merge starts from these poses
+        self.collected = [(f, T) for (f, _), T in zip(self.collected[:n], merged.poses)] + self.collected[n:]
+        self.model_frames = n
+        if n >= max(self.cfg.model_merges):
             self.collected.clear()
             self.merged = True
-        return poses
 
     def extend_keyframe(self, source_level: np.ndarray, T_map_level: np.ndarray) -> None:
         """Add a registered frame to the keyframe: the scan pattern falls elsewhere on the

@@ -52,6 +52,7 @@ from boomtip.perception.pipeline import FrameResult
 from boomtip.perception.static_returns import StaticReturns
 from boomtip.perception.timing import StageTimes
 from boomtip.tools.feeder_frame import estimates_in_feeder_frame
+from boomtip.tools.feeder_merge import BackgroundMerges, MergeRecord
 
 DECK_STAGES = ("deck.preprocess", "deck.planes", "deck.refine", "deck.intersect")
 
@@ -66,13 +67,13 @@ class FeederResult:
     tilt: Tilt | None  # the final levelling calibration
     centre_line: tuple[float, int] | None  # yaw of the centre line in the map frame, frames it was found in
     counts: dict
-    frame_ms: list[float]  # whole-chain time per LiDAR frame (feeder stages, plus the deck stage it reuses), merges apart
+    frame_ms: list[float]  # wall time per LiDAR frame on the chain's thread (feeder stages, the deck stage it reuses, waits for a merge)
     notes: list[str] = field(default_factory=list)
     missing: list[tuple[float, str, str]] = field(default_factory=list)  # (t, sensor, why)
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the model's (map) frame
     model_points_map: np.ndarray | None = None  # the keyframe, for the display
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
-    merges_s: list[tuple[int, float]] = field(default_factory=list)  # (frames, seconds) of each model merge
+    merges: list[MergeRecord] = field(default_factory=list)  # the model's merges (run beside the frames)
 
 
 class FeederChain:
@@ -90,6 +91,7 @@ class FeederChain:
         self.perception = FeederPerception(inst, cfg.perception, rates_averaged_over=n_rates, angle_sigma_rad=angle_sigma)
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
+        self.merges = BackgroundMerges(self.model)
         # frames the model must be merged from before a registration's x and y update the filter:
         # at most its last merge's (no merges at all: the first keyframe's one frame)
         self.xy_after_frames = min(cfg.register_xy_after_frames, max(cfg.perception.registration.model_merges, default=1))
@@ -105,7 +107,6 @@ class FeederChain:
         self.t_definition: float | None = None
         self.T_level_map0: np.ndarray | None = None
         self.frame_ms: list[float] = []
-        self.merges_s: list[tuple[int, float]] = []  # a merge is a one-off (a live chain runs it beside the frames): timed apart
         self.missing: list[tuple[float, str, str]] = []
         self.pivots: list[np.ndarray] = []  # the LiDAR's position (level, from the tip) at each recorded state
         self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
@@ -157,10 +158,8 @@ class FeederChain:
         for obs in self.queue:
             if isinstance(obs, LidarObservation):
                 t0 = time.perf_counter()
-                merged = len(self.merges_s)
                 self._lidar(obs, times)
-                ms = obs.ms + (time.perf_counter() - t0) * 1e3
-                self.frame_ms.append(ms - sum(s for _, s in self.merges_s[merged:]) * 1e3)
+                self.frame_ms.append(obs.ms + (time.perf_counter() - t0) * 1e3)
             else:
                 self._radar(obs, times)
         self.queue.clear()
@@ -180,6 +179,7 @@ class FeederChain:
 
     def _lidar(self, obs: LidarObservation, times: StageTimes) -> None:
         f = self.filter
+        self.merges.next_frame()  # a merge due at this frame becomes the model (waiting for it if need be)
         if obs.plane is None and not f.started:
             self.missing.append((obs.t_s, "lidar", obs.status))
             return
@@ -226,10 +226,7 @@ class FeederChain:
                     f.update_registration(xy_yaw, info, np.diag([s_lvl ** 2, s_lvl ** 2, 0.0]))
                     self.last_registration_t = obs.t_s
                     if self.model.collect(structure, inverse(pose_matrix(*f.x[:6]))):
-                        t_merge = time.perf_counter()
-                        n = len(self.model.collected)
-                        self.model.merge()
-                        self.merges_s.append((n, time.perf_counter() - t_merge))
+                        self.merges.start()
                     if self.model.keyframe_size < self.model.cfg.keyframe_frames:
                         self.model.extend_keyframe(structure, inverse(pose_matrix(*f.x[:6])))
                         self.model.keyframe_size += 1
@@ -340,6 +337,7 @@ class FeederChain:
     def finish(self) -> FeederResult:
         if self.queue:  # a run shorter than the warm-up: use what the mask has
             self._drain()
+        self.merges.close()
         out = self.filter.out
         notes: list[str] = []
         # The calibration from every deck normal of the run (online it would be updated as they
@@ -391,7 +389,7 @@ class FeederChain:
         return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
                             self.frame_ms, notes, self.missing, T_map_feeder,
                             np.asarray(self.model.keyframe.points) if not self.model.empty else None,
-                            self._feeder_mru_summary(), self.merges_s)
+                            self._feeder_mru_summary(), self.merges.records)
 
     def _feeder_mru_summary(self) -> dict | None:
         if self.feeder_mru is None or not self.filter.feeder_mru_started:

@@ -207,3 +207,136 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
     assert not any(kind == "Points3D" for _, kind, _ in logged)
     # a real recording has no mesh: the chain's model as points instead
     assert build_chain(sim, processing_for(sim))._feeder_mesh(None, res) is None
+
+# -- the model's merges beside the frames ----------------------------------------------------
+
+def _structure(seed: int) -> np.ndarray:
+    """A deck with a bulwark along x and a container end wall across it: x, y and yaw pinned."""
+    r = np.random.default_rng(seed)
+    deck = np.column_stack([r.uniform(-20, 20, 1500), r.uniform(-8, 8, 1500), np.zeros(1500)])
+    wall = np.column_stack([r.uniform(-20, 20, 600), np.full(600, 8.0), r.uniform(0, 1.5, 600)])
+    end = np.column_stack([np.full(400, 5.0), r.uniform(-2, 2, 400), r.uniform(0, 2.6, 400)])
+    return np.vstack([deck, wall, end]) + r.normal(0, 0.005, (2500, 3))
+
+
+def _model_with(n_frames: int, merges=(4, 8), lags=(2, 4)):
+    from boomtip.perception.feeder_registration import FeederModel, RegistrationConfig
+
+    with pytest.raises(ValueError, match="at least 0"):
+        RegistrationConfig(model_merges=merges, merge_lag_frames=(2, -1))
+    model = FeederModel(RegistrationConfig(model_merges=merges, merge_lag_frames=lags))
+    model.set_keyframe(_structure(0), np.eye(4))
+    due = [model.collect(_structure(k), np.eye(4)) for k in range(1, n_frames)]
+    return model, due
+
+
+def test_a_merge_runs_beside_the_frames_and_is_taken_at_its_frame_waiting_for_it(monkeypatch):
+    """A merge of 4 frames at a lag of 2 is taken two LiDAR frames later, not before even when it
+    is done, and the chain waits there when it is not; a frame collected meanwhile follows the
+    merged ones with its own pose."""
+    import time
+
+    from boomtip.tools import feeder_merge
+
+    model, due = _model_with(4)
+    assert due == [False, False, True]
+    real = feeder_merge.merged_model
+    monkeypatch.setattr(feeder_merge, "merged_model", lambda *a: (time.sleep(0.4), real(*a))[1])
+    merges = feeder_merge.BackgroundMerges(model)
+    merges.next_frame()
+    surface_before = model.surface
+    snapshot = model.merge_inputs()
+    merges.start()
+    T_meanwhile = np.eye(4)
+    T_meanwhile[0, 3] = 0.123
+    assert not model.collect(_structure(9), T_meanwhile)
+    merges.next_frame()  # one frame later: not yet, whether done or not
+    assert model.surface is surface_before and model.model_frames == 1 and merges.records[0].status == "running"
+    merges.next_frame()  # two frames later: taken, after waiting for the worker
+    rec = merges.records[0]
+    assert rec.status == "ok" and (rec.started_frame, rec.taken_frame) == (1, 3)
+    assert rec.wait_s > 0.2 and rec.worker_s > 0.4
+    assert model.surface is not surface_before and model.model_frames == 4 and not model.merged
+    assert len(model.collected) == 5 and model.collected[4][1][0, 3] == 0.123  # the frame collected meanwhile
+    # the poses are those the same merge gives inline, to the bit, and within 2 mm of where they were
+    inline = real(*snapshot, model.cfg).poses
+    assert all(np.array_equal(T, A) for (_, T), A in zip(model.collected[:4], inline))
+    assert max(np.abs(T - np.eye(4)).max() for _, T in model.collected[:4]) < 2e-3
+    merges.close()
+
+
+def test_a_failed_merge_keeps_the_old_model_and_says_why(monkeypatch):
+    from boomtip.tools import feeder_merge
+
+    def broken(*_):
+        raise RuntimeError("no overlap at all")
+
+    monkeypatch.setattr(feeder_merge, "merged_model", broken)
+    model, _ = _model_with(4)
+    merges = feeder_merge.BackgroundMerges(model)
+    surface_before = model.surface
+    merges.start()
+    merges.next_frame()
+    merges.next_frame()
+    rec = merges.records[0]
+    assert rec.status == "failed: RuntimeError: no overlap at all" and rec.taken_frame == -1
+    assert model.surface is surface_before and model.model_frames == 1 and not model.merged
+    # the chain goes on: the next merge is due at 8 frames and runs
+    monkeypatch.undo()
+    assert [model.collect(_structure(k), np.eye(4)) for k in range(4, 8)] == [False, False, False, True]
+    merges.start()
+    for _ in range(4):
+        merges.next_frame()
+    assert merges.records[1].status == "ok" and model.model_frames == 8 and model.merged
+
+
+def test_a_new_keyframe_drops_the_merge_of_the_old_model():
+    from boomtip.tools.feeder_merge import BackgroundMerges
+
+    model, _ = _model_with(4)
+    merges = BackgroundMerges(model)
+    merges.start()
+    model.set_keyframe(_structure(5), np.eye(4))
+    surface = model.surface
+    merges.next_frame()
+    merges.next_frame()
+    assert merges.records[0].status.startswith("dropped: a new keyframe") and model.surface is surface
+    assert model.model_frames == 1 and len(model.collected) == 1
+
+
+def test_merges_beside_the_frames_repeat_bit_for_bit_however_slow(short_run, tmp_path, monkeypatch):
+    """The same run with each merge's worker slowed by 1.5 s: the chain waits at the taking
+    frames, and its estimates are byte for byte the first run's."""
+    import time
+
+    from boomtip.tools import feeder_merge
+
+    out1, res1 = short_run
+    real = feeder_merge.merged_model
+    monkeypatch.setattr(feeder_merge, "merged_model", lambda *a: (time.sleep(1.5), real(*a))[1])
+    res2 = run(Simulation(load_scenario("sts-loaded", ["duration_s=14"])), tmp_path / "slow", report=False)
+    m1, m2 = res1.kpis["feeder"]["model_merges"], res2.kpis["feeder"]["model_merges"]
+    # 20 and 50 frames taken 2 and 5 frames later; 100 started, due 50 frames later, after the run's end
+    assert [m["status"] for m in m1] == ["ok", "ok", "dropped: the run ended first"]
+    assert [(m["frames"], m["taken_frame"] - m["started_frame"]) for m in m1[:2]] == [(20, 2), (50, 5)]
+    assert [(m["frames"], m["started_frame"], m["taken_frame"], m["status"]) for m in m1] == \
+        [(m["frames"], m["started_frame"], m["taken_frame"], m["status"]) for m in m2]
+    assert all(m["wait_s"] > 1.0 for m in m2[:2])
+    assert res2.kpis["feeder"]["merge_wait_ms"]["max"] > 1000 and res2.kpis["feeder"]["apt_ms_max"] > 1000
+    assert (out1 / "feeder_estimates.csv").read_bytes() == (tmp_path / "slow" / "feeder_estimates.csv").read_bytes()
+
+
+def test_a_run_whose_merges_fail_goes_on_with_its_keyframe(tmp_path, monkeypatch):
+    from boomtip.tools import feeder_merge
+
+    def broken(*_):
+        raise MemoryError("merge")
+
+    monkeypatch.setattr(feeder_merge, "merged_model", broken)
+    res = run(Simulation(load_scenario("sts-loaded", ["duration_s=10"])), tmp_path / "f")
+    k = res.kpis["feeder"]
+    # each failure is found where its model would have been taken; the last is due after the run's end
+    assert [(m["frames"], m["status"]) for m in k["model_merges"]] == [
+        (20, "failed: MemoryError: merge"), (50, "failed: MemoryError: merge"), (100, "dropped: the run ended first")]
+    assert len(res.result.feeder.t_s) > 50 and np.all(np.isfinite(res.result.feeder.pose))
+    assert "not taken: failed: MemoryError: merge" in (tmp_path / "f" / "report.md").read_text()
