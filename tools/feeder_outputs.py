@@ -174,9 +174,10 @@ def report_section(kpis: dict, windows=()) -> str:
                  f"its thread: its deck stage, static-return mask, registration, filter, and its waits for the model's merges). Velocity RMSE x/y/z {' / '.join(f'{1000 * v:.1f}' for v in f['rmse_vel_mps'])} mm/s.")
     if f.get("model_merges"):
         lines.append("The feeder's model merged at " + ", ".join(
-            f"{m['frames']} frames ({m['worker_s']:.2f} s in a worker beside the frames, "
-            + (f"taken {m['taken_frame'] - m['started_frame']} frames later, {1e3 * m['wait_s']:.0f} ms waited for)"
-               if m["status"] == "ok" else f"not taken: {m['status']})")
+            f"{m['frames']} frames ({m['worker_s']:.2f} s "
+            + ("inline, in its frame's time)" if m["status"] == "ok" and m["taken_frame"] == m["started_frame"] else
+               f"in a worker beside the frames, taken {m['taken_frame'] - m['started_frame']} frames later, "
+               f"{1e3 * m['wait_s']:.0f} ms waited for)" if m["status"] == "ok" else f"not taken: {m['status']})")
             for m in f["model_merges"]) + ".")
     if "levelling_tilt_deg" in f:
         t = f["levelling_tilt_deg"]

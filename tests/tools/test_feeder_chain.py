@@ -304,17 +304,22 @@ def test_a_new_keyframe_drops_the_merge_of_the_old_model():
     assert model.model_frames == 1 and len(model.collected) == 1
 
 
-def test_merges_beside_the_frames_repeat_bit_for_bit_however_slow(short_run, tmp_path, monkeypatch):
+BESIDE = (2, 5, 50, 100)  # merges beside the frames (the default is inline)
+
+
+def test_merges_beside_the_frames_repeat_bit_for_bit_however_slow(tmp_path, monkeypatch):
     """The same run with each merge's worker slowed by 1.5 s: the chain waits at the taking
     frames, and its estimates are byte for byte the first run's."""
     import time
 
     from boomtip.tools import feeder_merge
 
-    out1, res1 = short_run
+    beside = ["duration_s=14", f"processing.feeder.perception.registration.merge_lag_frames={list(BESIDE)}"]
+    res1 = run(Simulation(load_scenario("sts-loaded", beside)), tmp_path / "fast", report=False)
+    out1 = tmp_path / "fast"
     real = feeder_merge.merged_model
     monkeypatch.setattr(feeder_merge, "merged_model", lambda *a: (time.sleep(1.5), real(*a))[1])
-    res2 = run(Simulation(load_scenario("sts-loaded", ["duration_s=14"])), tmp_path / "slow", report=False)
+    res2 = run(Simulation(load_scenario("sts-loaded", beside)), tmp_path / "slow", report=False)
     m1, m2 = res1.kpis["feeder"]["model_merges"], res2.kpis["feeder"]["model_merges"]
     # 20 and 50 frames taken 2 and 5 frames later; 100 started, due 50 frames later, after the run's end
     assert [m["status"] for m in m1] == ["ok", "ok", "dropped: the run ended first"]
@@ -333,10 +338,21 @@ def test_a_run_whose_merges_fail_goes_on_with_its_keyframe(tmp_path, monkeypatch
         raise MemoryError("merge")
 
     monkeypatch.setattr(feeder_merge, "merged_model", broken)
-    res = run(Simulation(load_scenario("sts-loaded", ["duration_s=10"])), tmp_path / "f")
+    res = run(Simulation(load_scenario("sts-loaded", ["duration_s=10", f"processing.feeder.perception.registration.merge_lag_frames={list(BESIDE)}"])),
+              tmp_path / "f")
     k = res.kpis["feeder"]
     # each failure is found where its model would have been taken; the last is due after the run's end
     assert [(m["frames"], m["status"]) for m in k["model_merges"]] == [
         (20, "failed: MemoryError: merge"), (50, "failed: MemoryError: merge"), (100, "dropped: the run ended first")]
     assert len(res.result.feeder.t_s) > 50 and np.all(np.isfinite(res.result.feeder.pose))
     assert "not taken: failed: MemoryError: merge" in (tmp_path / "f" / "report.md").read_text()
+
+
+
+def test_merges_run_inline_by_default(short_run):
+    """Inline (lag 0): each merge is taken at the frame it was due, with no wait apart from its
+    own time, which is in that frame's time."""
+    merges = short_run[1].kpis["feeder"]["model_merges"]
+    assert [(m["frames"], m["status"]) for m in merges] == [(20, "ok"), (50, "ok"), (100, "ok")]
+    assert all(m["taken_frame"] == m["started_frame"] for m in merges)
+    assert short_run[1].kpis["feeder"]["apt_ms_max"] >= max(1e3 * m["worker_s"] for m in merges)
