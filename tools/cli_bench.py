@@ -279,6 +279,9 @@ def bench_feeder_cmd(
               f"{' / '.join(f'{v:.4f}' for v in b['rmse_rpy_deg']):>26s} {b['ms_per_lidar_frame']:9.2f}")
     print(f"  kiss-icp / chain: position {' / '.join(f'{v:.1f}' for v in r['ratio_pos'])}, "
           f"angles {' / '.join(f'{v:.1f}' for v in r['ratio_rpy'])}")
-    print(f"  chain: worst LiDAR frame {c['ms_worst_lidar_frame']:.1f} ms; waits for its model's merges (run beside the frames) "
-          f"{c['merge_wait_ms']['total']:.0f} ms in all, {c['merge_wait_ms']['max']:.0f} ms at most; everything in its ms/frame")
+    beside = any(m["taken_frame"] != m["started_frame"] for m in c["model_merges"] if m["status"] == "ok")
+    merges = (f"waits for its model's merges (run beside the frames) {c['merge_wait_ms']['total']:.0f} ms in all, "
+              f"{c['merge_wait_ms']['max']:.0f} ms at most" if beside else
+              "its model's merges ran inline: " + ", ".join(f"{m['frames']} frames {m['worker_s']:.2f} s" for m in c["model_merges"]))
+    print(f"  chain: worst LiDAR frame {c['ms_worst_lidar_frame']:.1f} ms; {merges}; everything in its ms/frame")
     print(f"  ratio {r['ratio']:.2f} (smallest over the six axes; above 1 the chain is better on every one)")

@@ -73,7 +73,7 @@ class FeederResult:
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the model's (map) frame
     model_points_map: np.ndarray | None = None  # the keyframe, for the display
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
-    merges: list[MergeRecord] = field(default_factory=list)  # the model's merges (run beside the frames)
+    merges: list[MergeRecord] = field(default_factory=list)  # the model's merges (inline, or beside the frames)
 
 
 class FeederChain:

@@ -1,8 +1,9 @@
 """The feeder model's merges beside the frames (FeederChain's LiDAR path).
 
 A merge aligns every collected frame to the others (perception/feeder_registration.py,
-`merged_model`): seconds for 200 frames, while a frame has tens of milliseconds. It runs in a
-worker thread (its ICP's nearest-neighbour searches in Open3D and its numpy work release the
+`merged_model`): seconds for 200 frames, while a frame has tens of milliseconds. By default
+(`merge_lag_frames` (0,)) it runs inline, in the frame it is due at, and its time is that
+frame's. With a lag it runs in a worker thread (its ICP's nearest-neighbour searches in Open3D and its numpy work release the
 GIL: a Python loop on the chain's thread kept 0.97 of its pace beside a merge, and the merge
 its time) on a snapshot of the frames and poses collected when it was due; the chain keeps
 registering to the current model and collecting.
@@ -10,7 +11,8 @@ registering to the current model and collecting.
 Its model is taken at a fixed LiDAR frame (`merge_lag_frames` after the one that started
 it), waiting there if it is not done: when it is taken never depends on the machine's
 speed, so runs repeat bit for bit. A merge that fails leaves the old model, with a note; a new
-keyframe (a new model) drops a merge of the old one.
+keyframe (a new model) drops a merge of the old one. A merge still running when the run ends
+is waited for (its result dropped): the thread would otherwise hold a core past the run.
 """
 
 from __future__ import annotations
@@ -80,28 +82,31 @@ class BackgroundMerges:
         t0 = time.perf_counter()
         try:
             merged, rec.worker_s = future.result()
+            failure = None
         except Exception as e:  # noqa: BLE001 - any failure of the merge: the chain goes on with the old model
-            rec.wait_s, rec.taken_frame = time.perf_counter() - t0, -1
-            rec.status = f"failed: {type(e).__name__}: {e}"
+            failure = f"failed: {type(e).__name__}: {e}"
+        rec.wait_s = time.perf_counter() - t0
+        rec.taken_frame = self.frame
+        if self.model.keyframes != keyframes:  # a new keyframe since: this merge was of the old model, whose fate is moot
+            rec.status, rec.taken_frame = "dropped: a new keyframe was taken while it ran", -1
+            return
+        if failure is not None:
+            rec.status, rec.taken_frame = failure, -1
             if rec.frames >= max(self.model.cfg.model_merges):
                 self.model.collected.clear()  # the last merge: the old model stays final
                 self.model.merged = True
-            return
-        rec.wait_s = time.perf_counter() - t0
-        rec.taken_frame = self.frame
-        if self.model.keyframes != keyframes:  # a new keyframe since: this merge was of the old model
-            rec.status, rec.taken_frame = "dropped: a new keyframe was taken while it ran", -1
             return
         self.model.apply_merge(merged)
         rec.status = "ok"
 
     def close(self) -> None:
-        """At the end of the run: a merge not yet due is dropped (its thread ends on its own)."""
+        """At the end of the run: a merge not yet due is dropped, and waited for if it is still
+        running, so no worker outlives the run (outputs, the next run of a sweep, a bench)."""
         if self._pending is not None:
             self._pending[1].status, self._pending[1].taken_frame = "dropped: the run ended first", -1
             self._pending = None
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
 

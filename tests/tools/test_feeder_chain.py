@@ -307,6 +307,40 @@ def test_a_new_keyframe_drops_the_merge_of_the_old_model():
 BESIDE = (2, 5, 50, 100)  # merges beside the frames (the default is inline)
 
 
+def test_a_merge_done_early_is_still_taken_only_at_its_frame():
+    from boomtip.tools import feeder_merge
+
+    model, _ = _model_with(4)
+    merges = feeder_merge.BackgroundMerges(model)
+    merges.next_frame()
+    surface_before = model.surface
+    merges.start()
+    merges._pending[0].result()  # the worker is done
+    merges.next_frame()
+    assert model.surface is surface_before and merges.records[0].status == "running"
+    merges.next_frame()
+    assert model.surface is not surface_before and merges.records[0].status == "ok"
+    merges.close()
+
+
+def test_a_failed_merge_of_an_old_keyframe_leaves_the_new_model_alone(monkeypatch):
+    """The last merge fails after a new keyframe was taken: the new model is not frozen."""
+    from boomtip.tools import feeder_merge
+
+    model, _ = _model_with(8)  # the 8-frame merge, the last one, is due
+    monkeypatch.setattr(feeder_merge, "merged_model", lambda *a: (_ for _ in ()).throw(MemoryError("merge")))
+    merges = feeder_merge.BackgroundMerges(model)
+    merges.start()
+    model.set_keyframe(_structure(20), np.eye(4))
+    merges.next_frame()
+    merges.next_frame()
+    merges.next_frame()
+    merges.next_frame()
+    assert merges.records[-1].status.startswith("dropped: a new keyframe")
+    assert not model.merged and model.collected  # the new model still grows and merges
+    merges.close()
+
+
 def test_merges_beside_the_frames_repeat_bit_for_bit_however_slow(tmp_path, monkeypatch):
     """The same run with each merge's worker slowed by 1.5 s: the chain waits at the taking
     frames, and its estimates are byte for byte the first run's."""
