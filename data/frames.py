@@ -77,15 +77,12 @@ class MruLog:
     def attitude(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Attitude and rates at time t, linearly interpolated; None when t falls outside the
         log or inside a gap longer than max_gap_s (the caller records a missing measurement)."""
-        t = self.t_s
-        if len(t) == 0 or t_s < t[0] - 1e-9 or t_s > t[-1] + 1e-9:
+        j = sample_after(self.t_s, self.max_gap_s, t_s)
+        if j is None:
             return None
-        if len(t) == 1:
+        if len(self.t_s) == 1:
             return self.rpy_rad[0], self.rpy_rate_radps[0]
-        j = min(max(int(t.searchsorted(t_s)), 1), len(t) - 1)  # the method: np.searchsorted's wrapper costs more
-        t0, t1 = t[j - 1 : j + 1].tolist()
-        if t1 - t0 > self.max_gap_s:
-            return None
+        t0, t1 = self.t_s[j - 1 : j + 1].tolist()
         w = 0.0 if t1 == t0 else (t_s - t0) / (t1 - t0)
         # Six numbers in Python floats: numpy's per-operation overhead on 3-vectors costs more
         # than the arithmetic, and this runs once per frame of every sensor.
@@ -94,6 +91,20 @@ class MruLog:
         rpy = [x0 + w * ((x1 - x0 + math.pi) % (2 * math.pi) - math.pi) for x0, x1 in zip(a0, a1)]
         rate = [x0 + w * (x1 - x0) for x0, x1 in zip(r0, r1)]
         return np.array(rpy), np.array(rate)
+
+
+def sample_after(t_log_s: np.ndarray, max_gap_s: float, t_s: float) -> int | None:
+    """The index of the first sample of a log (times t_log_s) at or after t_s, at least 1 (0 for
+    a one-sample log), or None when t_s falls outside the log or inside a gap longer than
+    max_gap_s: whether the log has a value at t_s."""
+    t = t_log_s
+    if len(t) == 0 or t_s < t[0] - 1e-9 or t_s > t[-1] + 1e-9:
+        return None
+    if len(t) == 1:
+        return 0
+    j = min(max(int(t.searchsorted(t_s)), 1), len(t) - 1)  # the method: np.searchsorted's wrapper costs more
+    t0, t1 = t[j - 1 : j + 1].tolist()
+    return None if t1 - t0 > max_gap_s else j
 
 
 @dataclass

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from boomtip.data.crane_model import CraneParams
-from boomtip.data.frames import Frame, FrameSource, MruLog, Truth
+from boomtip.data.frames import Frame, FrameSource, Truth, sample_after
 from boomtip.data.installation import CraneSpec, Installation, LidarSpec
 from boomtip.data.meshes import Label
 from boomtip.data.processing import Processing
@@ -116,11 +116,10 @@ class HookChain:
         self.enc = {"t": enc["t"], "hoist": np.asarray(enc["hoist"]) * stretch}
         self.enc_table = np.column_stack([enc["slew"], enc["luff"], self.enc["hoist"]])
         self.mru_table = np.column_stack([m.rpy_rad[:, 0], m.rpy_rad[:, 1], m.rpy_rate_radps[:, 0], m.rpy_rate_radps[:, 1]])
-        # Of the MRU log, only its times and gaps (whether a frame has an attitude; zero-strided values): the
-        # estimators take the values from mru_table, and the source's log is not held for the whole run.
-        self.mru_times = MruLog(m.t_s, np.broadcast_to(np.zeros(3), m.rpy_rad.shape), np.broadcast_to(np.zeros(3), m.rpy_rad.shape),
-                          max_gap_s=m.max_gap_s)
-        self.tracker = HookTracker(self.enc["t"], self.enc_table, self.mru_times.t_s, self.mru_table, params=self.params)
+        # Of the MRU log, only its times and gaps (whether a frame has an attitude): the estimators
+        # take the values from mru_table, and the source's log is not held for the whole run.
+        self.mru_t_s, self.mru_max_gap_s = m.t_s, m.max_gap_s
+        self.tracker = HookTracker(self.enc["t"], self.enc_table, self.mru_t_s, self.mru_table, params=self.params)
         self.T_ts = inst.lidar.mount.matrix()
         self.rows = FrameRows()
         self.warnings: list[str] = []
@@ -134,7 +133,7 @@ class HookChain:
         res = HookFrameResult({"t": t, **ROW_DEFAULTS})
         if frame.error is not None:
             res.row["status"] = f"unreadable frame: {frame.error}"
-        elif self.mru_times.attitude(t) is None or not (self.enc["t"][0] <= t <= self.enc["t"][-1]):
+        elif sample_after(self.mru_t_s, self.mru_max_gap_s, t) is None or not (self.enc["t"][0] <= t <= self.enc["t"][-1]):
             res.row["status"] = f"no MRU attitude or encoder reading at t={t:.3f} s"
         else:
             self._perceive(frame, res, times)
@@ -216,13 +215,13 @@ class HookChain:
         rows = self.rows
         if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
             empty = np.zeros((0, 3))
-            meas = HookMeasurements(np.zeros(0), empty, self.enc["t"], self.enc_table, self.mru_times.t_s, self.mru_table,
+            meas = HookMeasurements(np.zeros(0), empty, self.enc["t"], self.enc_table, self.mru_t_s, self.mru_table,
                                     lidar_cov_m2=np.zeros((0, 3, 3)))
             self.warnings.append("no LiDAR frame in this run: no hook estimate")
             return HookResult(rows, meas, {})
         meas = HookMeasurements(
             t_lidar=rows["t"], lidar_p_rel_tip_world=rows.xyz(),
-            t_encoders=self.enc["t"], encoders=self.enc_table, t_mru=self.mru_times.t_s, mru=self.mru_table,
+            t_encoders=self.enc["t"], encoders=self.enc_table, t_mru=self.mru_t_s, mru=self.mru_table,
             lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
         )
         # each run's samples go to disk as they come: a run's memory stays flat in its length
