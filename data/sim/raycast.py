@@ -71,7 +71,7 @@ class RayCaster:
         pad = np.maximum(1e-2, 1e-3 * (hi - lo))
         self.box_lo, self.box_hi = lo - pad, hi + pad
         self.box_corners = [box_corners(l, h) for l, h in zip(self.box_lo, self.box_hi)]  # (8,3) each
-        self.face_offset = np.concatenate([[0], np.cumsum([len(b.triangles) for b in bodies])[:-1]]).astype(np.int64)
+        self.face_offset = face_offsets(bodies)
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
 
@@ -346,6 +346,11 @@ class RayCaster:
         cos_inc = np.zeros(len(t), dtype=np.float32)
         cos_inc[hit] = np.abs(np.einsum("ij,ij->i", self.face_normals[b][face[hit]], dirs_body[hit]))
         return t, face, cos_inc
+
+
+def face_offsets(bodies: list[Body]) -> np.ndarray:
+    """(B,) int64: where each body's faces start in the faces of all bodies, in order."""
+    return np.concatenate([[0], np.cumsum([len(b.triangles) for b in bodies])[:-1]]).astype(np.int64)
 
 
 def _pad(x: np.ndarray, first: int, k: int, fill) -> np.ndarray:

@@ -16,7 +16,7 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from boomtip.data.sim.fans import Fans
-from boomtip.data.sim.raycast import Hits
+from boomtip.data.sim.raycast import Hits, face_offsets
 from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
 
@@ -89,13 +89,12 @@ class FaceLookup:
 
     @classmethod
     def from_bodies(cls, bodies: list[Body]) -> "FaceLookup":
-        sizes = np.array([len(b.face_label) for b in bodies])
         return cls(
             np.concatenate([b.face_label for b in bodies]).astype(np.int32),  # the frames' label dtype
             np.concatenate([b.face_reflectivity for b in bodies]),
             np.concatenate([b.face_retro for b in bodies]),
             np.concatenate([b.face_rcs for b in bodies]),
-            np.concatenate([[0], np.cumsum(sizes)[:-1]]),
+            face_offsets(bodies),  # the caster's: its flat face index reads these arrays
         )
 
     def flat(self, hits: Hits, mask: np.ndarray) -> np.ndarray:
@@ -165,7 +164,7 @@ def lidar_measure(
         idx = idx[not_sea | (rng.random(len(idx), dtype=np.float32) < sea_probability)]
     if cfg.dropout_probability > 0:
         idx = idx[rng.random(len(idx), dtype=np.float32) >= cfg.dropout_probability]
-    if hits.flat_face is not None:  # the caster's, one gather (its offsets are the lookup's: the same bodies)
+    if hits.flat_face is not None:  # the caster's, one gather (the same face_offsets)
         f = hits.flat_face.take(idx)
     else:
         f = faces.offset.take(hits.body.take(idx))
