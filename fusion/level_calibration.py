@@ -103,7 +103,7 @@ def within_the_survey(tilt: Tilt | None, prior_sigma_rad: float, k: float = 4.0)
         return tilt, None
     return Tilt(0.0, 0.0, prior_sigma_rad, tilt.span_s), (f"the deck's mean tilt, {np.degrees(size):.3f} deg, is beyond what the mount survey and the MRU allow "
                   f"({k:g} sigma: {np.degrees(bound):.3f} deg): taken as the feeder's own list or trim, not a levelling error; "
-                  "the surveyed mount stands")
+                  "the surveyed mount stands for roll and pitch")
 
 
 def correction(tilt: Tilt | None) -> np.ndarray:

@@ -76,13 +76,6 @@ class RegistrationConfig(BaseModel):
     model_merges: tuple[int, ...] = Field((20, 50, 100, 200), description="when this many frames are registered, they are aligned "
                                           "to each other and become the model; the last is final (empty: the first frame's "
                                           "keyframe stays the model)")
-    @field_validator("merge_lag_frames")
-    @classmethod
-    def _lags_not_negative(cls, v: tuple[int, ...]) -> tuple[int, ...]:
-        if any(n < 0 for n in v):
-            raise ValueError(f"merge_lag_frames must be frame counts of at least 0, got {list(v)}")
-        return v
-
     @field_validator("model_merges")
     @classmethod
     def _merges_ascending(cls, v: tuple[int, ...]) -> tuple[int, ...]:
@@ -102,6 +95,13 @@ class RegistrationConfig(BaseModel):
                                               "200 frames on a busy machine); 50 and 100 frames late cost no more than 10 and 20. (2, 5, 50, 100) "
                                               "on sts-irregular, 5 seeds, against inline: yaw 0.022 against 0.018 deg, one seed's "
                                               "max y 40.9 mm against 35.3 (BENCHMARKS.md): inline is the default")
+
+    @field_validator("merge_lag_frames")
+    @classmethod
+    def _lags_not_negative(cls, v: tuple[int, ...]) -> tuple[int, ...]:
+        if any(n < 0 for n in v):
+            raise ValueError(f"merge_lag_frames must be frame counts of at least 0, got {list(v)}")
+        return v
 
     model_voxel_m: float = Field(0.25, gt=0, description="the model's voxel")
     min_fitness: float = Field(0.3, gt=0, le=1, description="below this overlap with the keyframe a new keyframe is taken")

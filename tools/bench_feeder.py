@@ -21,9 +21,8 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     from boomtip.data.sources import simulation_for
     from boomtip.perception.feeder import FeederPerception
     from boomtip.perception.feeder_registration import inverse, pose_matrix, pose_vector
-    from boomtip.tools.feeder_outputs import feeder_kpis
+    from boomtip.tools.feeder_outputs import WARMUP_S, feeder_kpis
     from boomtip.tools.feeder_truth import feeder_origin_body, feeder_pose_truth
-    from boomtip.tools.feeder_outputs import WARMUP_S
     from boomtip.tools.runner import ChainError, build_chain, processing_for
     from boomtip.tools.ship_chain import ShipChain
     from kiss_icp.config import KISSConfig

@@ -111,19 +111,18 @@ def _print_kpis(kpis: dict) -> None:
         print("\nSolutions after the Kalman filter (" + kpis["solutions_note"] + "), document 000's Table 5.4 beside ours:")
         print(kpi_table(kpis))
     f = kpis.get("feeder")
+    side = (f or {}).get("D_side_by_side", {})
     if f and "rmse_pos_m" in f:
         mm = lambda v: " / ".join(f"{1000 * x:.1f}" for x in v)  # noqa: E731
         print(f"\nFeeder 6-DOF relative to the crane vessel ({f['note']}): position RMSE x/y/z {mm(f['rmse_pos_m'])} mm "
               f"(max {mm(f['max_pos_m'])}), angles r/p/y {' / '.join(f'{x:.3f}' for x in f['rmse_rpy_deg'])} deg, "
               f"NEES {f['nees_mean']:.2f} (6), {f['apt_ms']:.1f} ms per LiDAR frame")
-        if "feeder_rmse_m" in f.get("D_side_by_side", {}):
-            d = f["D_side_by_side"]
-            print(f"D from the feeder's pose {1000 * d['feeder_rmse_m']:.2f} mm RMSE; the heave chain's fused D "
-                  f"{1000 * d['heave_fused_rmse_m']:.2f} mm")
+        if "feeder_rmse_m" in side:
+            print(f"D from the feeder's pose {1000 * side['feeder_rmse_m']:.2f} mm RMSE; the heave chain's fused D "
+                  f"{1000 * side['heave_fused_rmse_m']:.2f} mm")
     elif f:
         why = f"nothing scored: {f['note']}" if "note" in f else "no truth to score"
         print(f"\nFeeder 6-DOF: {f.get('apt_ms', float('nan')):.1f} ms per LiDAR frame ({why})")
-    side = (f or {}).get("D_side_by_side", {})
     if side and "feeder_rmse_m" not in side:
         print(f"D from the feeder's pose and the heave chain's fused D: {1000 * side['feeder_minus_fused_rms_m']:.2f} mm RMS apart")
 

@@ -356,7 +356,7 @@ class FeederChain:
         if tilt is not None and tilt.rz_sigma_rad is None:
             notes.append("feeder: no straight edge of the own hull among the static returns: the LiDAR mount's rotation "
                          "about the vertical is the survey's")
-        if tilt is None and not any("levelling not calibrated" in n for n in notes):
+        if tilt is None:
             notes.append(f"feeder: levelling not calibrated (under {self.cfg.calibration_min_s:g} s of deck planes): "
                          "the surveyed mount and the MRU are taken as they are")
         C_final = correction(tilt)

@@ -289,12 +289,10 @@ def _log_feeder_mesh(rr, rec, timeline: str, t_s: np.ndarray, pose: np.ndarray, 
                      mesh_feeder: tuple[np.ndarray, np.ndarray]) -> None:
     """The mesh once (static), then only its transforms: the file grows by a pose per sample."""
     from boomtip.perception.feeder_registration import pose_matrix
+    from scipy.spatial.transform import Rotation
 
     vertices, triangles = mesh_feeder
-    yaw = np.array([rpy_yaw(float(t)) for t in t_s])
-    c, s = np.cos(yaw), np.sin(yaw)
-    Rz = np.zeros((len(t_s), 3, 3))
-    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0  # heading -> tip view axes
+    Rz = Rotation.from_euler("z", [[rpy_yaw(float(t))] for t in t_s]).as_matrix()  # heading -> tip view axes
     for name, poses, colour in (("estimate", pose, [80, 200, 255, 255]), ("truth", truth_pose, [255, 255, 255, 70])):
         if poses is None:
             continue
