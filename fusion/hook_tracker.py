@@ -35,18 +35,15 @@ class HookTracker:
     the gate re-initialises the sway after ``reacquire_after_rejections`` frames).
     """
 
-    def __init__(self, t_encoders: np.ndarray, encoders: np.ndarray, t_mru: np.ndarray, mru: np.ndarray,
+    def __init__(self, t_encoders: np.ndarray, encoders, t_mru: np.ndarray, mru,
                  kind: Literal["ekf", "ukf"] = "ekf", model: Literal["rigid", "flexible"] = "flexible",
                  params: CraneParams | None = None, config: HookFilterConfig | None = None) -> None:
+        """``encoders`` (K, 3) and ``mru`` (K, 4): arrays, or tables read by row slices (kept on
+        disk by the caller); only the rows up to each predicted time are read, a frame's at a time."""
         self.filter = HookFilter(kind, model, params, config)
-        self._enc = np.asarray(encoders, float).reshape(-1, 3)
-        self._mru = np.asarray(mru, float).reshape(-1, 4)
-        t_e, t_m = np.asarray(t_encoders, float), np.asarray(t_mru, float)
-        # the merged events as arrays (13 bytes an event; a 700 s run has 210,000 of them, as a
-        # list of tuples about 25 MB): each predict takes its few events as lists
-        self._ev_t, self._ev_s, self._ev_i = merged_events((t_m, t_e), -math.inf, math.inf)
-        self._t_enc, self._t_mru = t_e, t_m
-        self._j = 0
+        self._enc, self._mru = encoders, mru
+        self._t_enc, self._t_mru = np.asarray(t_encoders, float), np.asarray(t_mru, float)
+        self._next_mru = self._next_enc = 0  # the first sample of each stream not yet applied
 
     @property
     def started(self) -> bool:
@@ -55,29 +52,38 @@ class HookTracker:
     def _start(self, t: float) -> None:
         ie = max(0, int(np.searchsorted(self._t_enc, t, "right")) - 1)
         im = max(0, int(np.searchsorted(self._t_mru, t, "right")) - 1)
-        e = self._enc[ie]
-        self.filter.initialize_from_measurements(np.array([0.0, 0.0, -float(e[2])]), e, self._mru[im], t)
-        self._j = max(self._j, self._events_until(t))
+        e = np.asarray(self._enc[ie:ie + 1], float).reshape(3)
+        m = np.asarray(self._mru[im:im + 1], float).reshape(4)
+        self.filter.initialize_from_measurements(np.array([0.0, 0.0, -float(e[2])]), e, m, t)
+        # the samples up to t are in the initial state, not applied again
+        self._next_mru, self._next_enc = max(self._next_mru, self._until(self._t_mru, t)), max(self._next_enc, self._until(self._t_enc, t))
 
-    def _events_until(self, t: float) -> int:
-        """The number of events at or before t (the same test as one by one: times <= t + 1e-9)."""
-        return int(np.searchsorted(self._ev_t, t + 1e-9, "right"))
+    @staticmethod
+    def _until(t_stream: np.ndarray, t: float) -> int:
+        """The number of a stream's samples at or before t (the same test as one by one: times <= t + 1e-9)."""
+        return int(np.searchsorted(t_stream, t + 1e-9, "right"))
 
     def predict(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Hook position relative to the tip (world axes) and its 3x3 covariance at time t."""
         f = self.filter
         if not f.initialized:
             self._start(t)
-        enc, mru = self._enc, self._mru
-        j1 = max(self._j, self._events_until(t))
-        sl = slice(self._j, j1)
-        for te, s, i in zip(self._ev_t[sl].tolist(), self._ev_s[sl].tolist(), self._ev_i[sl].tolist()):
-            if s == 0:
-                f.update_mru_sample(mru[i], t=te)
-            elif np.isfinite(enc[i, 2]):
-                e = enc[i]
-                f.update_encoders(e[0], e[1], e[2], t=te)
-        self._j = j1
+        m0, e0 = self._next_mru, self._next_enc
+        m1, e1 = max(m0, self._until(self._t_mru, t)), max(e0, self._until(self._t_enc, t))
+        if m1 > m0 or e1 > e0:
+            # the samples since the last predict, merged in time order (MRU first at equal
+            # times): the order of one merged list over the whole run, a window of it at a time
+            mru = np.asarray(self._mru[m0:m1], float).reshape(-1, 4)
+            enc = np.asarray(self._enc[e0:e1], float).reshape(-1, 3)
+            ev_t, ev_s, ev_i = merged_events((self._t_mru[m0:m1], self._t_enc[e0:e1]), -math.inf, math.inf)
+            enc_ok = np.isfinite(enc[:, 2]).tolist()
+            for te, s, i in zip(ev_t.tolist(), ev_s.tolist(), ev_i.tolist()):
+                if s == 0:
+                    f.update_mru_sample(mru[i], t=te)
+                elif enc_ok[i]:
+                    e = enc[i]
+                    f.update_encoders(e[0], e[1], e[2], t=te)
+        self._next_mru, self._next_enc = m1, e1
         f.advance_to(t)
         return self.estimate()
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from boomtip.perception.rope import RopeFix, fit_rope
 from boomtip.perception.timing import StageTimes
 from boomtip.tools import hook_outputs as outputs
 from boomtip.tools import hook_workers as workers
-from boomtip.tools.hook_rows import FrameRows
+from boomtip.tools.hook_rows import DiskTable, FrameRows
 from boomtip.tools.hook_store import P_REL, EstimateStore
 from boomtip.tools.runner import ChainError, NullVisualiser
 
@@ -82,9 +83,14 @@ class HookFrameResult:
 @dataclass
 class HookResult:
     rows: FrameRows
-    measurements: HookMeasurements
+    read_measurements: Callable[[], HookMeasurements]  # the run's measurements, read from disk when asked
     runs: dict[str, HookFilterRun]  # statistics; the samples are in ``stores``
     stores: dict[str, EstimateStore] = field(default_factory=dict)
+
+    @property
+    def measurements(self) -> HookMeasurements:
+        """Every measurement of the run as arrays (made on each access: not held by the result)."""
+        return self.read_measurements()
 
 
 class HookChain:
@@ -113,13 +119,17 @@ class HookChain:
         # The hoist encoder reads the rope paid out; the pendulum is that stretched by the
         # hook's weight, with the rope's nominal EA (rigid when the installation gives none).
         stretch = 1.0 + (self.params.m * self.params.g / inst.crane.rope_ea_n if inst.crane.rope_ea_n else 0.0)
-        self.enc = {"t": enc["t"], "hoist": np.asarray(enc["hoist"]) * stretch}
-        self.enc_table = np.column_stack([enc["slew"], enc["luff"], self.enc["hoist"]])
-        self.mru_table = np.column_stack([m.rpy_rad[:, 0], m.rpy_rad[:, 1], m.rpy_rate_radps[:, 0], m.rpy_rate_radps[:, 1]])
+        # The encoder and MRU tables on disk (what a 700 s run held in memory, 6.2 MB, for the
+        # whole run): the tracker reads a frame's samples at a time, the estimators the whole
+        # tables in their own processes. Only the times stay here, to find the rows.
+        self.enc_t = np.asarray(enc["t"], float)
+        self.enc_table = DiskTable(np.column_stack([enc["slew"], enc["luff"], np.asarray(enc["hoist"]) * stretch]))
+        self.mru_table = DiskTable(np.column_stack([m.rpy_rad[:, 0], m.rpy_rad[:, 1], m.rpy_rate_radps[:, 0], m.rpy_rate_radps[:, 1]]))
         # Of the MRU log, only its times and gaps (whether a frame has an attitude): the estimators
         # take the values from mru_table, and the source's log is not held for the whole run.
         self.mru_t_s, self.mru_max_gap_s = m.t_s, m.max_gap_s
-        self.tracker = HookTracker(self.enc["t"], self.enc_table, self.mru_t_s, self.mru_table, params=self.params)
+        del enc, m
+        self.tracker = HookTracker(self.enc_t, self.enc_table, self.mru_t_s, self.mru_table, params=self.params)
         self.T_ts = inst.lidar.mount.matrix()
         self.rows = FrameRows()
         self.warnings: list[str] = []
@@ -133,7 +143,7 @@ class HookChain:
         res = HookFrameResult({"t": t, **ROW_DEFAULTS})
         if frame.error is not None:
             res.row["status"] = f"unreadable frame: {frame.error}"
-        elif sample_after(self.mru_t_s, self.mru_max_gap_s, t) is None or not (self.enc["t"][0] <= t <= self.enc["t"][-1]):
+        elif sample_after(self.mru_t_s, self.mru_max_gap_s, t) is None or not (self.enc_t[0] <= t <= self.enc_t[-1]):
             res.row["status"] = f"no MRU attitude or encoder reading at t={t:.3f} s"
         else:
             self._perceive(frame, res, times)
@@ -159,7 +169,7 @@ class HookChain:
             # The tracker's attitude (MRU and encoders filtered, boom deflection included), not
             # one raw MRU sample: its 0.02 deg noise alone moves a 200 m hook by 7 cm.
             roll, pitch, heading = self.tracker.tip_attitude()
-            hoist = float(np.interp(t, self.enc["t"], self.enc["hoist"]))
+            hoist = self._hoist_at(t)
             R_tip = rpy_matrix(np.array([roll, pitch, 0.0])) @ rpy_matrix(np.array([0.0, 0.0, heading]))
             pts = frame.points_sensor @ (R_tip @ self.T_ts[:3, :3]).T + R_tip @ self.T_ts[:3, 3]
         row["pred_x"], row["pred_y"], row["pred_z"] = p_pred
@@ -197,6 +207,26 @@ class HookChain:
             if res.rope is not None and res.rope.ok:
                 row["rope_precision"] = float(np.mean(labels[res.rope.mask] == Label.ROPE))
 
+    def _hoist_at(self, t: float) -> float:
+        """The hoist encoder (stretched) interpolated at t, from the two rows about t: np.interp's
+        value depends on those alone, so the same number as over the whole log."""
+        i0 = max(int(np.searchsorted(self.enc_t, t, "right")) - 1, 0)
+        i1 = min(int(np.searchsorted(self.enc_t, t, "left")) + 1, len(self.enc_t))
+        return float(np.interp(t, self.enc_t[i0:i1], self.enc_table[i0:i1][:, 2]))
+
+    def measurements(self) -> HookMeasurements:
+        """Every measurement of the run as arrays (the estimators' input), read from disk: made
+        where an estimator runs (a child process), not held by the chain."""
+        rows = self.rows
+        if not len(rows):
+            return HookMeasurements(np.zeros(0), np.zeros((0, 3)), self.enc_t, np.asarray(self.enc_table), self.mru_t_s,
+                                    np.asarray(self.mru_table), lidar_cov_m2=np.zeros((0, 3, 3)))
+        return HookMeasurements(
+            t_lidar=rows["t"], lidar_p_rel_tip_world=rows.xyz(),
+            t_encoders=self.enc_t, encoders=np.asarray(self.enc_table), t_mru=self.mru_t_s, mru=np.asarray(self.mru_table),
+            lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
+        )
+
     def _rope(self, pts, p_pred, sigma_across_m, hoist_m, index, times, row) -> RopeFix:
         """Fit the rope about the tracker's predicted direction and correct the tracker with it."""
         range_m = float(np.linalg.norm(p_pred))
@@ -214,22 +244,17 @@ class HookChain:
     def finish(self, duration_s: float, t_start_s: float = 0.0) -> HookResult:
         rows = self.rows
         if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
-            empty = np.zeros((0, 3))
-            meas = HookMeasurements(np.zeros(0), empty, self.enc["t"], self.enc_table, self.mru_t_s, self.mru_table,
-                                    lidar_cov_m2=np.zeros((0, 3, 3)))
             self.warnings.append("no LiDAR frame in this run: no hook estimate")
-            return HookResult(rows, meas, {})
-        meas = HookMeasurements(
-            t_lidar=rows["t"], lidar_p_rel_tip_world=rows.xyz(),
-            t_encoders=self.enc["t"], encoders=self.enc_table, t_mru=self.mru_t_s, mru=self.mru_table,
-            lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
-        )
+            return HookResult(rows, self.measurements, {})
+        meas: list[HookMeasurements] = []  # made once per process that runs estimators
         # each run's samples go to disk as they come: a run's memory stays flat in its length
         stores = {name: EstimateStore(self.params) for name in self.estimators}
 
         def estimate(name: str):
             kind, model = name.split("_")
-            run = run_hook_filter(meas, kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
+            if not meas:
+                meas.append(self.measurements())
+            run = run_hook_filter(meas[0], kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
                                   self.filter_cfg, sink=stores[name])
             return run, stores[name].state()
 
@@ -239,7 +264,8 @@ class HookChain:
         for name, (run, state) in done.items():
             stores[name].adopt(state)
             runs[name] = run
-        return HookResult(rows, meas, runs, stores)
+        meas.clear()  # (a serial run made them here)
+        return HookResult(rows, self.measurements, runs, stores)
 
     # -- outputs -------------------------------------------------------------------------
     def write(self, out: Path, result: HookResult) -> list[str]:
@@ -281,7 +307,7 @@ class HookChain:
             return
         name = "ekf_flexible" if "ekf_flexible" in result.runs else next(iter(result.runs))
         t_run, p_rel = result.stores[name].columns(P_REL)
-        t_l = result.measurements.t_lidar
+        t_l = result.rows["t"]
         t_l = t_l[(t_l >= t_run[0]) & (t_l <= t_run[-1])]
         p_est = np.column_stack([np.interp(t_l, t_run, p_rel[:, k]) for k in range(3)])
         p_true = np.column_stack([truth.at(f"hook_rel_{a}", t_l) for a in "xyz"]) if truth is not None else None

@@ -11,7 +11,7 @@ import tempfile
 
 import numpy as np
 
-__all__ = ["FrameRows", "COLUMNS"]
+__all__ = ["FrameRows", "COLUMNS", "DiskTable"]
 
 FLOAT = ("t", "x", "y", "z", "sigma_x_m", "sigma_y_m", "sigma_z_m", "fit_rms_m", "precision", "recall", "pred_x",
          "pred_y", "pred_z", "pred_sigma_across_m", "rope_ux", "rope_uy", "rope_uz", "rope_sigma_across_m",
@@ -117,6 +117,40 @@ class FrameRows:
         out.update({k: bool(vals[_AT[k]]) for k in BOOL})
         out.update({k: self._text[k][i] for k in TEXT})
         return out
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class DiskTable:
+    """A float64 table (N, k) in an unnamed temporary file, read back by row slices: the chain's
+    encoder and MRU tables, which a 700 s run held in memory (6.2 MB) for the whole run. Slicing
+    gives an array, so the tracker takes this or an array alike."""
+
+    def __init__(self, table: np.ndarray) -> None:
+        table = np.asarray(table, float)
+        self.shape = table.shape
+        self._row = int(np.prod(table.shape[1:], dtype=int))
+        self._file = tempfile.TemporaryFile(prefix="boomtip-table-", buffering=0)
+        flat = table.reshape(len(table), -1)
+        for a in range(0, len(table), CHUNK * 8):
+            _write_all(self._file, np.ascontiguousarray(flat[a:a + CHUNK * 8]).tobytes())
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        if not isinstance(rows, slice) or rows.step not in (None, 1):
+            raise TypeError("a DiskTable reads contiguous row slices only")
+        a, b, _ = rows.indices(len(self))
+        out = np.empty((max(b - a, 0), *self.shape[1:]))
+        if out.size:
+            _read_all(self._file, out, a * self._row * 8)
+        return out
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        whole = self[:]
+        return whole if dtype is None else whole.astype(dtype)
 
     def close(self) -> None:
         self._file.close()
