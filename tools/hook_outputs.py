@@ -221,7 +221,12 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
     step = max(PLOT_EVERY, -(-max((st.n for st in stores.values()), default=0) // PLOT_MAX_POINTS))
     every = slice(None, None, step)
     tt = truth.t_s[every]
-    ax[0].plot(truth.columns["hook_x"][every], truth.columns["hook_y"][every], "k", lw=2, label="truth")
+
+    def truth_plotted(name: str) -> np.ndarray:
+        # a copy: a plotted view would keep the whole column (a 700 s run's 140,000 samples)
+        return truth.columns[name][every].copy()
+
+    ax[0].plot(truth_plotted("hook_x"), truth_plotted("hook_y"), "k", lw=2, label="truth")
     best = "ekf_flexible" if "ekf_flexible" in runs else next(iter(runs))
     t_best, p = stores[best].columns(P, step)
     ax[0].plot(p[:, 0], p[:, 1], "r", lw=1, label=runs[best].kind + " " + runs[best].model)
@@ -230,7 +235,7 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
     ax[0].set_aspect("equal", adjustable="datalim")
     ax[0].legend()
     ax[0].set_title("hook path seen from above (world)")
-    ax[1].plot(tt, truth.columns["hook_z"][every], "k", lw=2, label="truth z")
+    ax[1].plot(tt, truth_plotted("hook_z"), "k", lw=2, label="truth z")
     ax[1].plot(t_best, p[:, 2], "r", lw=1, label="estimate z")
     ok = rows["status"] == "ok"
     if ok.any():
