@@ -196,3 +196,23 @@ def test_frame_rows_read_back_across_the_file_and_the_buffer(monkeypatch):
     assert np.isnan(rows.rope_direction[::2]).all()
     for i in (0, 6, 7, 27, 28, 29, -1):
         assert rows.row(i)["n_points"] == 1000 + (i % 30) and rows.row(i)["status"] == ("ok" if (i % 30) % 3 else "sparse")
+
+
+def test_a_disk_table_reads_back_its_rows_by_slices(monkeypatch):
+    """The chain's encoder and MRU tables on disk: any row slice (across the written chunks, empty,
+    open-ended) and the whole table equal the array's, and only slices are read."""
+    from boomtip.tools import hook_rows
+
+    monkeypatch.setattr(hook_rows, "CHUNK", 2)  # written 16 rows at a time: 50 rows in 4 writes
+    table = np.random.default_rng(3).standard_normal((50, 4))
+    disk = hook_rows.DiskTable(table)
+    assert len(disk) == 50 and disk.shape == (50, 4)
+    for rows in (slice(0, 1), slice(15, 17), slice(31, 50), slice(49, 60), slice(20, 20), slice(None, 5), slice(-3, None)):
+        np.testing.assert_array_equal(disk[rows], table[rows])
+        assert disk[rows].shape == table[rows].shape
+    np.testing.assert_array_equal(np.asarray(disk), table)
+    with pytest.raises(TypeError):
+        disk[3]
+    with pytest.raises(TypeError):
+        disk[::2]
+    disk.close()
