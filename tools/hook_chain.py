@@ -40,6 +40,7 @@ ROW_DEFAULTS = {"x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sig
                 "pred_sigma_across_m": np.nan, "rope_status": "", "rope_points": 0, "rope_ux": np.nan,
                 "rope_uy": np.nan, "rope_uz": np.nan, "rope_sigma_across_m": np.nan, "rope_accepted": False,
                 "rope_precision": np.nan, "rope_radius_m": np.nan}
+TRIM_EVERY_FRAMES = 200  # the heap's free pages returned every this many frames (10 s at 20 Hz)
 # each estimator's CPU time relative to the others (bench hook, 20 s of hook-2): to split them
 # evenly between two cores
 ESTIMATOR_COST = {"ukf_flexible": 5.3, "ukf_rigid": 2.9, "ekf_flexible": 0.95, "ekf_rigid": 0.85}
@@ -152,6 +153,8 @@ class HookChain:
         # What finish() needs, without the frame's cloud and masks (a 700 s run has 14,000 frames)
         ok = res.rope is not None and res.rope.ok
         self.rows.append(res.row, res.cov, res.rope.direction if ok else None, res.rope.cov if ok else None)
+        if len(self.rows) % TRIM_EVERY_FRAMES == 0:
+            workers.release_free_memory()
         return res
 
     def frames(self, source: FrameSource):
@@ -218,12 +221,13 @@ class HookChain:
         """Every measurement of the run as arrays (the estimators' input), read from disk: made
         where an estimator runs (a child process), not held by the chain."""
         rows = self.rows
+        t_enc, t_mru = self.enc_t, self.mru_t_s
         if not len(rows):
-            return HookMeasurements(np.zeros(0), np.zeros((0, 3)), self.enc_t, np.asarray(self.enc_table), self.mru_t_s,
+            return HookMeasurements(np.zeros(0), np.zeros((0, 3)), t_enc, np.asarray(self.enc_table), t_mru,
                                     np.asarray(self.mru_table), lidar_cov_m2=np.zeros((0, 3, 3)))
         return HookMeasurements(
             t_lidar=rows["t"], lidar_p_rel_tip_world=rows.xyz(),
-            t_encoders=self.enc_t, encoders=np.asarray(self.enc_table), t_mru=self.mru_t_s, mru=np.asarray(self.mru_table),
+            t_encoders=t_enc, encoders=np.asarray(self.enc_table), t_mru=t_mru, mru=np.asarray(self.mru_table),
             lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
         )
 
@@ -242,6 +246,7 @@ class HookChain:
         return rope
 
     def finish(self, duration_s: float, t_start_s: float = 0.0) -> HookResult:
+        workers.release_free_memory()  # before the estimators' processes fork, and the outputs
         rows = self.rows
         if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
             self.warnings.append("no LiDAR frame in this run: no hook estimate")
@@ -292,6 +297,7 @@ class HookChain:
     def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
         if not result.runs or truth is None:  # the CSVs and kpis.json say what was estimated
             return []
+        workers.release_free_memory()  # what the outputs freed, before the plots' peak
         outputs.write_hook_report(out, kpis, kpis.get("program"), result.runs, result.stores, truth, result.rows)
         return ["hook_report.md", "plots"]
 

@@ -10,6 +10,8 @@ and not threads: the simulator and the filters are mostly small numpy calls hold
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import ctypes.util
 import multiprocessing as mp
 import os
 import signal
@@ -19,7 +21,7 @@ from typing import Callable, Iterator, Sequence
 
 from boomtip.data.frames import Frame, FrameSource
 
-__all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost"]
+__all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost", "release_free_memory"]
 
 FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (hook-2: 0.6 MB each)
 _serial_depth = 0
@@ -40,6 +42,27 @@ def parallel_enabled() -> bool:
     """A second core to use, the fork start method (Linux), and not inside `serial()`."""
     return (_serial_depth == 0 and len(os.sched_getaffinity(0)) > 1
             and "fork" in mp.get_all_start_methods())
+
+
+def _libc_malloc_trim():
+    name = ctypes.util.find_library("c")
+    try:
+        return ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):  # not glibc
+        return None
+
+
+_MALLOC_TRIM = _libc_malloc_trim()
+
+
+def release_free_memory() -> None:
+    """Give the heap's free pages back to the system (glibc's malloc_trim; nothing elsewhere).
+    glibc keeps what a run freed inside its heap, and once its threshold for mapping blocks on
+    their own has risen (to the largest block freed, up to 32 MB) a run's arrays come from that
+    heap: the freed holes a long run left then stayed in its memory to the end, the report's
+    peak included. Freed pages are returned, not the heap's layout: a few ms a call."""
+    if _MALLOC_TRIM is not None:
+        _MALLOC_TRIM(0)
 
 
 def _as_child() -> None:
