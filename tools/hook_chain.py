@@ -130,7 +130,8 @@ class HookChain:
         # take the values from mru_table, and the source's log is not held for the whole run.
         self.mru_t_s, self.mru_max_gap_s = m.t_s, m.max_gap_s
         del enc, m
-        self.tracker = HookTracker(self.enc_t, self.enc_table, self.mru_t_s, self.mru_table, params=self.params)
+        self.tracker: HookTracker | None = HookTracker(self.enc_t, self.enc_table, self.mru_t_s, self.mru_table, params=self.params)
+        self._times: tuple[DiskTable, DiskTable] | None = None  # the times, once the frames are done
         self.T_ts = inst.lidar.mount.matrix()
         self.rows = FrameRows()
         self.warnings: list[str] = []
@@ -217,11 +218,19 @@ class HookChain:
         i1 = min(int(np.searchsorted(self.enc_t, t, "left")) + 1, len(self.enc_t))
         return float(np.interp(t, self.enc_t[i0:i1], self.enc_table[i0:i1][:, 2]))
 
+    def _times_to_disk(self) -> None:
+        """After the frames: the encoder and MRU times on disk too, and the tracker let go (the
+        outputs' peak then holds nothing the run's length makes larger)."""
+        if self._times is None:
+            self._times = DiskTable(self.enc_t), DiskTable(self.mru_t_s)
+            self.enc_t = self.mru_t_s = self.tracker = None
+
     def measurements(self) -> HookMeasurements:
         """Every measurement of the run as arrays (the estimators' input), read from disk: made
         where an estimator runs (a child process), not held by the chain."""
+        self._times_to_disk()
         rows = self.rows
-        t_enc, t_mru = self.enc_t, self.mru_t_s
+        t_enc, t_mru = (np.asarray(t) for t in self._times)
         if not len(rows):
             return HookMeasurements(np.zeros(0), np.zeros((0, 3)), t_enc, np.asarray(self.enc_table), t_mru,
                                     np.asarray(self.mru_table), lidar_cov_m2=np.zeros((0, 3, 3)))
@@ -246,6 +255,7 @@ class HookChain:
         return rope
 
     def finish(self, duration_s: float, t_start_s: float = 0.0) -> HookResult:
+        self._times_to_disk()
         workers.release_free_memory()  # before the estimators' processes fork, and the outputs
         rows = self.rows
         if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
