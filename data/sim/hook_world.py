@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import IO, Iterator
 
 import numpy as np
@@ -187,6 +187,32 @@ class StoredTruth(Truth):
         return self._files.interp(name, t_s, self._t, left=np.nan, right=np.nan)
 
 
+class FrameSchedule(Sequence):
+    """A simulation's frame schedule, (time stamp, sensor, index) in order, as arrays (13 bytes a
+    frame): as a list of tuples a 700 s hook run's 14,000 frames took 1.7 MB for the whole run."""
+
+    def __init__(self, items: list[tuple[float, str, int]]) -> None:
+        self._sensors = sorted({s for _, s, _ in items})
+        code = {s: k for k, s in enumerate(self._sensors)}
+        self._t = np.array([t for t, _, _ in items], float)
+        self._s = np.array([code[s] for _, s, _ in items], np.int8)
+        self._i = np.array([i for _, _, i in items], np.int32)
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[j] for j in range(*k.indices(len(self)))]
+        return float(self._t[k]), self._sensors[int(self._s[k])], int(self._i[k])
+
+    def __iter__(self) -> Iterator[tuple[float, str, int]]:
+        for a in range(0, len(self), TRUTH_CHUNK):  # a chunk at a time as Python values
+            b = a + TRUTH_CHUNK
+            for t, s, i in zip(self._t[a:b].tolist(), self._s[a:b].tolist(), self._i[a:b].tolist()):
+                yield t, self._sensors[s], i
+
+
 class HookSimulation(Simulation):
     """A hook scenario simulated in memory: LiDAR frames, MRU and encoder logs, hook truth."""
 
@@ -250,6 +276,9 @@ class HookSimulation(Simulation):
         if not hasattr(self, "_logs"):
             self._logs = TrackFiles()
         return self._logs
+
+    def _frame_schedule(self) -> FrameSchedule:
+        return FrameSchedule(super()._frame_schedule())
 
     # -- poses from the crane truth ------------------------------------------------------
     def _interp(self, name: str, t: np.ndarray) -> np.ndarray:

@@ -76,3 +76,18 @@ def test_mru_log_in_chunks_is_the_simulations(monkeypatch, outages):
     with pytest.raises(AttributeError, match="made once"):
         sim.encoders = sim.encoders
     assert len(sim.mru.t_s) == len(whole.t_s)
+
+
+def test_frame_schedule_as_arrays_gives_the_same_items(monkeypatch):
+    """The compact schedule iterates (across its chunks), indexes and slices as the list of
+    tuples it was made from: the same values and Python types, sensors apart, ties in order."""
+    from boomtip.data.sim import hook_world
+
+    monkeypatch.setattr(hook_world, "TRUTH_CHUNK", 4)  # 11 items: 3 chunks
+    items = sorted([(0.05 * k, "lidar", k) for k in range(6)] + [(0.1 * k, "radar", k) for k in range(5)])
+    sched = hook_world.FrameSchedule(items)
+    assert len(sched) == 11
+    got = list(sched)
+    assert got == items and [tuple(map(type, g)) for g in got] == [(float, str, int)] * 11
+    assert sched[7] == items[7] and sched[-1] == items[-1] and sched[2:9] == items[2:9]
+    assert list(hook_world.FrameSchedule([])) == []
