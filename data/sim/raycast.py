@@ -74,6 +74,7 @@ class RayCaster:
         self.face_offset = face_offsets(bodies)
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
+        self._fills: dict[tuple, np.ndarray] = {}  # rows of one fill value per dtype, for `_pad`
 
     def cast(
         self,
@@ -258,7 +259,7 @@ class RayCaster:
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
                 cos_inc = self._incidence(b, best_face, rays, None, scale)
                 if len(t) < k:
-                    best_t, best_face, cos_inc = (_pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
+                    best_t, best_face, cos_inc = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
                 best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)  # (any value on a miss)
                 best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
                 best_body |= b  # ... then b (-1 stays -1)
@@ -304,6 +305,15 @@ class RayCaster:
             d_b = rays[:, 3:] if ray_i is None else rays.take(ray_i, axis=0)[:, 3:]
             c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
         return c
+
+    def _pad(self, x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
+        """x as rows first.. of k, the other rows `fill`: one concatenate with views of a
+        kept row of fills (each row written once, one numpy call)."""
+        key = (x.dtype, fill)
+        fills = self._fills.get(key)
+        if fills is None or len(fills) < k:
+            fills = self._fills[key] = np.full(k, fill, dtype=x.dtype)
+        return np.concatenate((fills[:first], x, fills[:k - first - len(x)]))
 
     def _fixed_arrays(self, b: int, fixed: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
         """Copies of fixed hits on body b as the fans' best hits so far: t, body, face, cos."""
@@ -356,15 +366,6 @@ class RayCaster:
 def face_offsets(bodies: list[Body]) -> np.ndarray:
     """(B,) int64: where each body's faces start in the faces of all bodies, in order."""
     return np.concatenate([[0], np.cumsum([len(b.triangles) for b in bodies])[:-1]]).astype(np.int64)
-
-
-def _pad(x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
-    """x as rows first.. of k, the other rows `fill` (each row written once)."""
-    out = np.empty(k, dtype=x.dtype)
-    out[:first] = fill
-    out[first:first + len(x)] = x
-    out[first + len(x):] = fill
-    return out
 
 
 def box_distance(box_lo: np.ndarray, box_hi: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
