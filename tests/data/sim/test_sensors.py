@@ -22,7 +22,7 @@ from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.world import DOFS
 from boomtip.data.sim.scene import Label, build_bodies
 from boomtip.data.sim.sensors import FaceLookup, lidar_pattern, radar_pattern, standard_normal32
-from boomtip.data.sim.simulator import SimScene, Simulation
+from boomtip.data.sim.simulator import FrameRng, SimScene, Simulation
 
 ALL_ZERO = [f"{ship}.motion.{dof}.amplitude=0" for ship in ("crane", "feeder") for dof in DOFS]
 CRANE_LABELS = {int(Label.CRANE_HULL), int(Label.CRANE_DECK), int(Label.CRANE_STRUCTURE)}
@@ -793,3 +793,17 @@ def test_signed_reflectivity_marks_the_retro_faces(bodies_empty):
     del faces.__dict__["reflectivity_signed"]
     with pytest.raises(ValueError, match="negative"):
         faces.reflectivity_signed
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**32 - 1, 2**32])
+def test_frame_rng_is_default_rng_of_seed_sensor_index(seed):
+    """The LiDAR's per-frame generator (`FrameRng`) is `default_rng([seed, sensor, index])`:
+    the same state and draws, across blocks of indices, at the ends of the uint32 range and
+    (through default_rng itself) beyond it."""
+    frame_rng = FrameRng(seed, 1)
+    for index in [0, 1, 4095, 4096, 9001, 2**32 - 1, 2**32, 2**40]:
+        ref = np.random.default_rng([seed, 1, index])
+        rng = frame_rng(index)
+        assert rng.bit_generator.state == ref.bit_generator.state
+        assert np.array_equal(rng.random(9, dtype=np.float32), ref.random(9, dtype=np.float32))
+        assert np.array_equal(rng.standard_normal(3), ref.standard_normal(3))
