@@ -89,7 +89,7 @@ class Fans:
         g = x_s[:, 1::-1] @ self.plane_normals_xy  # (8,F): y cos az - x sin az
         lo = g.min(axis=0)
         lo *= g.max(axis=0)  # <= 0 where the corners are not all on one side (an underflow to 0 only adds a fan)
-        cut = np.flatnonzero(lo <= 0)
+        cut = (lo <= 0).nonzero()[0]
         return range(0) if len(cut) == 0 else range(int(cut[0]), int(cut[-1]) + 1)
 
     def body_frame_rays(self, axes: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,

@@ -128,8 +128,8 @@ def standard_normal32(rng: np.random.Generator, n: int) -> np.ndarray:
     out = np.empty(2 * half, dtype=np.float32)
     np.cos(angle, out=out[:half])
     np.sin(angle, out=out[half:])
-    out[:half] *= radius
-    out[half:] *= radius
+    both = out.reshape(2, half)
+    np.multiply(both, radius, out=both)  # cos and sin halves in one call
     return out[:n]
 
 
@@ -167,7 +167,7 @@ def lidar_measure(
     lo, hi = range_window(cfg.min_range_m, cfg.max_range_m, r_all.dtype)
     keep = r_all >= lo
     keep &= r_all <= hi  # a miss (inf) fails the max
-    idx = np.flatnonzero(keep)
+    idx = keep.nonzero()[0]  # (np.flatnonzero's result, without its two Python wrappers)
     # The clutter and dropout draws are made for the returns in range only (most of a
     # spinning LiDAR's rays miss), in float32: a probability needs no more.
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
@@ -198,7 +198,7 @@ def lidar_measure(
         label = np.where(hit, int(Label.SPRAY), label)
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
     # incidence. Only the few retro hits need the transcendental functions.
-    retro_i = np.flatnonzero(np.signbit(intensity))
+    retro_i = np.signbit(intensity).nonzero()[0]
     if len(retro_i):
         inc = np.arccos(cos_inc[retro_i])
         lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
