@@ -33,11 +33,13 @@ class Fans:
         self.dirs_by_axis = np.ascontiguousarray(dirs.T)  # (3,K)
         self.cos_az, self.sin_az = np.cos(az_rad), np.sin(az_rad)
         self.cos_el, self.sin_el = np.cos(el_rad), np.sin(el_rad)
+        self.plane_normals_xy = np.stack([self.cos_az, -self.sin_az])  # (2,F): n_f . x_s = [y, x] @ these (n_f = (-sin az, cos az, 0))
         self.cos_el_ray, self.sin_el_ray = np.tile(self.cos_el, len(az_rad)), np.tile(self.sin_el, len(az_rad))
         self.first_ray = np.arange(len(az_rad)) * len(el_rad)
         self.fan = np.repeat(np.arange(len(az_rad)), len(el_rad))  # (K,) the fan of each ray
         self.wide = np.ptp(az_rad) > np.pi
         self._rays: np.ndarray | None = None  # (K,6) float32, allocated on first use
+        self._dirs64: np.ndarray | None = None  # (3,K) the one-pose directions before rounding
 
     def _ray_buffer(self, n: int) -> np.ndarray:
         if self._rays is None:
@@ -64,10 +66,16 @@ class Fans:
         Embree's float32. A view of the buffer the next call overwrites."""
         first, stop = (0, len(self.dirs)) if fans is None else (fans.start * len(self.el_rad), fans.stop * len(self.el_rad))
         rays = self._ray_buffer(len(self.dirs))[first:stop]
-        d = A @ self.dirs_by_axis  # every ray: the same product, so the same rounding, whichever fans are cast
+        if self._dirs64 is None:
+            self._dirs64 = np.empty((3, len(self.dirs)))
+        # The cast columns only: each column's product is the same whichever columns are
+        # multiplied (one chain of products per element), so the rays do not depend on the fans cast.
+        d = np.matmul(A, self.dirs_by_axis[:, first:stop], out=self._dirs64[:, :stop - first])
+        o32 = o.astype(np.float32)
+        rays.view(np.uint64)[:, 0] = o32[:2].view(np.uint64)[0]  # x and y of the origin in one 8-byte store per ray
+        rays[:, 2] = o32[2]
         for i in range(3):
-            rays[:, i] = o[i]
-            rays[:, 3 + i] = d[i, first:stop]
+            rays[:, 3 + i] = d[i]
         return rays
 
     def fans_cutting_box(self, corners: np.ndarray, A: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> range:
@@ -78,9 +86,10 @@ class Fans:
         with x_s = A^T (S c - o)."""
         x_s = (corners if scale is None else corners * scale) - o
         x_s = x_s @ A  # (8,3) rows x_s^T
-        g = np.multiply.outer(x_s[:, 1], self.cos_az)  # (8,F)
-        g -= np.multiply.outer(x_s[:, 0], self.sin_az)
-        cut = np.flatnonzero((g.min(axis=0) <= 0) & (g.max(axis=0) >= 0))
+        g = x_s[:, 1::-1] @ self.plane_normals_xy  # (8,F): y cos az - x sin az
+        lo = g.min(axis=0)
+        lo *= g.max(axis=0)  # <= 0 where the corners are not all on one side (an underflow to 0 only adds a fan)
+        cut = (lo <= 0).nonzero()[0]
         return range(0) if len(cut) == 0 else range(int(cut[0]), int(cut[-1]) + 1)
 
     def body_frame_rays(self, axes: np.ndarray, o: np.ndarray, ray_k: np.ndarray | None = None,

@@ -74,6 +74,7 @@ class RayCaster:
         self.face_offset = face_offsets(bodies)
         self._fixed_body_cache: dict[int, tuple[np.ndarray, ...]] = {}
         self._fixed_nearest_cache: dict[int, tuple[np.ndarray, float]] = {}
+        self._fills: dict[tuple, np.ndarray] = {}  # rows of one fill value per dtype, for `_pad`
 
     def cast(
         self,
@@ -218,7 +219,11 @@ class RayCaster:
             scale = None if scale_body is None else scale_body[b]
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
             # (then divided by the body's scale, if stretched).
-            o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
+            if m == 1:  # transpose_times' sums in the same order, on Python floats: no numpy call on 3-vectors
+                x, Rl = (p_world_sensor[0] - p[0]).tolist(), R[0].tolist()
+                o = np.array([[Rl[0][j] * x[0] + Rl[1][j] * x[1] + Rl[2][j] * x[2] for j in range(3)]])
+            else:
+                o = transpose_times(R, (p_world_sensor - p)[:, :, None])[:, :, 0]
             axes = None if m == 1 and not fans.wide else fans.axes_in(R, R_world_sensor)
             ray_k = fan = None  # every ray, fan by fan
             fan_range = None  # with one pose, the fans whose plane cuts the box (the rays in between)
@@ -253,19 +258,18 @@ class RayCaster:
                 # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
                 cos_inc = self._incidence(b, best_face, rays, None, scale)
-                best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)
                 if len(t) < k:
-                    best_t, best_face, cos_inc, best_flat = (
-                        _pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0), (best_flat, -1)))
+                    best_t, best_face, cos_inc = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
+                best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)  # (any value on a miss)
                 best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
                 best_body |= b  # ... then b (-1 stays -1)
                 if pending is not None:
-                    k_f, t_k, face_k, c_k = self._fixed_compact(pending, fixed_hits[pending])
-                    nearer = ~(best_t.take(k_f) < t_k)  # ties to the fixed body, as `cast` (the lower index)
-                    if not nearer.all():
-                        k_f, t_k, face_k, c_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer]
-                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f] = t_k, pending, face_k, c_k
-                    best_flat[k_f] = face_k + self.face_offset[pending]
+                    k_f, t_k, face_k, c_k, flat_k = self._fixed_compact(pending, fixed_hits[pending])
+                    farther = best_t.take(k_f) < t_k  # ties to the fixed body, as `cast` (the lower index)
+                    if farther.any():
+                        nearer = ~farther
+                        k_f, t_k, face_k, c_k, flat_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer], flat_k[nearer]
+                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f], best_flat[k_f] = t_k, pending, face_k, c_k, flat_k
                     pending = None
                 continue
             nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
@@ -292,14 +296,24 @@ class RayCaster:
         stay unit; only a stretched body's rays need normalising."""
         n_b = self.face_normals32_rows[b].take(face, axis=0)
         c = n_b[:, 0] * (rays[:, 3] if ray_i is None else rays[:, 3].take(ray_i))
+        ci = np.empty_like(c)
         for i in (1, 2):
-            ci = n_b[:, i] * (rays[:, 3 + i] if ray_i is None else rays[:, 3 + i].take(ray_i))
+            np.multiply(n_b[:, i], rays[:, 3 + i] if ray_i is None else rays[:, 3 + i].take(ray_i), out=ci)
             c += ci
         np.abs(c, out=c)
         if scale is not None:
             d_b = rays[:, 3:] if ray_i is None else rays.take(ray_i, axis=0)[:, 3:]
             c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
         return c
+
+    def _pad(self, x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
+        """x as rows first.. of k, the other rows `fill`: one concatenate with views of a
+        kept row of fills (each row written once, one numpy call)."""
+        key = (x.dtype, fill)
+        fills = self._fills.get(key)
+        if fills is None or len(fills) < k:
+            fills = self._fills[key] = np.full(k, fill, dtype=x.dtype)
+        return np.concatenate((fills[:first], x, fills[:k - first - len(x)]))
 
     def _fixed_arrays(self, b: int, fixed: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
         """Copies of fixed hits on body b as the fans' best hits so far: t, body, face, cos."""
@@ -315,13 +329,14 @@ class RayCaster:
         return cached[1]
 
     def _fixed_compact(self, b: int, fixed: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
-        """The rays with a fixed hit on body b and their t, face (int32) and cos, kept as
-        `_fixed_body_face`."""
+        """The rays with a fixed hit on body b and their t, face (int32), cos and flat face
+        index, kept as `_fixed_body_face`."""
         self._fixed_body_face(b, fixed[1])
         cached = self._fixed_body_cache[b]
         if len(cached) == 3:
             k = np.flatnonzero(fixed[1] >= 0)
-            cached = self._fixed_body_cache[b] = (*cached, (k, fixed[0][k], cached[2][k], fixed[2][k]))
+            face = cached[2][k]
+            cached = self._fixed_body_cache[b] = (*cached, (k, fixed[0][k], face, fixed[2][k], face + self.face_offset[b]))
         return cached[3]
 
     def _fixed_body_face(self, b: int, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -351,15 +366,6 @@ class RayCaster:
 def face_offsets(bodies: list[Body]) -> np.ndarray:
     """(B,) int64: where each body's faces start in the faces of all bodies, in order."""
     return np.concatenate([[0], np.cumsum([len(b.triangles) for b in bodies])[:-1]]).astype(np.int64)
-
-
-def _pad(x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
-    """x as rows first.. of k, the other rows `fill` (each row written once)."""
-    out = np.empty(k, dtype=x.dtype)
-    out[:first] = fill
-    out[first:first + len(x)] = x
-    out[first + len(x):] = fill
-    return out
 
 
 def box_distance(box_lo: np.ndarray, box_hi: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> np.ndarray:

@@ -48,9 +48,12 @@ class ScanPattern:
         return np.take(self.column_time_s, self.column).astype(np.float32)
 
     @cached_property
-    def dirs_by_axis(self) -> np.ndarray:
-        """(3,K) the directions one axis per row: gathers of one float each are the fast ones."""
-        return np.ascontiguousarray(self.dirs_sensor.T)
+    def dirs_rows32b(self) -> np.ndarray:
+        """(K,4) the directions padded to 32-byte rows: one gather of a row costs less than
+        three gathers of a float each."""
+        rows = np.zeros((len(self.dirs_sensor), 4))
+        rows[:, :3] = self.dirs_sensor
+        return rows
 
 
 def lidar_pattern(cfg: Lidar) -> ScanPattern:
@@ -97,6 +100,14 @@ class FaceLookup:
             face_offsets(bodies),  # the caster's: its flat face index reads these arrays
         )
 
+    @cached_property
+    def reflectivity_signed(self) -> np.ndarray:
+        """The reflectivity with its sign bit set on retro-reflecting faces: one gather gives
+        both (the LiDAR's intensity and which returns are retro)."""
+        if np.signbit(self.reflectivity).any():
+            raise ValueError("FaceLookup: a face reflectivity is negative (its sign marks the retro-reflectors)")
+        return np.where(self.retro, -self.reflectivity, self.reflectivity)
+
     def flat(self, hits: Hits, mask: np.ndarray) -> np.ndarray:
         return self.offset[hits.body[mask]] + hits.face[mask]
 
@@ -117,8 +128,8 @@ def standard_normal32(rng: np.random.Generator, n: int) -> np.ndarray:
     out = np.empty(2 * half, dtype=np.float32)
     np.cos(angle, out=out[:half])
     np.sin(angle, out=out[half:])
-    out[:half] *= radius
-    out[half:] *= radius
+    both = out.reshape(2, half)
+    np.multiply(both, radius, out=both)  # cos and sin halves in one call
     return out[:n]
 
 
@@ -156,7 +167,7 @@ def lidar_measure(
     lo, hi = range_window(cfg.min_range_m, cfg.max_range_m, r_all.dtype)
     keep = r_all >= lo
     keep &= r_all <= hi  # a miss (inf) fails the max
-    idx = np.flatnonzero(keep)
+    idx = keep.nonzero()[0]  # (np.flatnonzero's result, without its two Python wrappers)
     # The clutter and dropout draws are made for the returns in range only (most of a
     # spinning LiDAR's rays miss), in float32: a probability needs no more.
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
@@ -171,11 +182,10 @@ def lidar_measure(
         f += hits.face.take(idx)
     r = r_all.take(idx).astype(np.float64, copy=False)
     cos_inc = hits.cos_incidence.take(idx)
-    np.clip(cos_inc, 1e-3, 1.0, out=cos_inc)
-    intensity = faces.reflectivity.take(f)
+    np.minimum(np.maximum(cos_inc, 1e-3, out=cos_inc), 1.0, out=cos_inc)  # np.clip's values, without its Python wrapper
+    intensity = faces.reflectivity_signed.take(f)  # negative on retro-reflectors, made positive below
     intensity *= cos_inc  # diffuse (Lambert)
     label = faces.label.take(f)
-    retro = faces.retro.take(f)
     if spray is not None and spray.probability > 0 and len(idx):
         # a droplet at a height z in the band, met by a downward ray before its surface
         z0 = np.broadcast_to(np.asarray(origin_z_world, dtype=float), r_all.shape)[idx]
@@ -184,16 +194,15 @@ def lidar_measure(
         r_spray = np.where(down > 1e-3, (z0 - z) / np.maximum(down, 1e-3), np.inf)
         hit = (rng.random(len(idx)) < spray.probability) & (r_spray > cfg.min_range_m) & (r_spray < r)
         r = np.where(hit, r_spray, r)
-        intensity = np.where(hit, spray.reflectivity, intensity)
+        intensity = np.where(hit, spray.reflectivity, intensity)  # (a droplet is no retro-reflector)
         label = np.where(hit, int(Label.SPRAY), label)
-        retro &= ~hit
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
     # incidence. Only the few retro hits need the transcendental functions.
-    retro_i = np.flatnonzero(retro)
+    retro_i = np.signbit(intensity).nonzero()[0]
     if len(retro_i):
         inc = np.arccos(cos_inc[retro_i])
         lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
-        intensity[retro_i] = np.maximum(lobe, intensity[retro_i])
+        intensity[retro_i] = np.maximum(lobe, -intensity[retro_i])
     spread = np.divide(INTENSITY_REFERENCE_RANGE_M, r)
     spread *= spread
     intensity *= spread  # (r_ref / r)^2
@@ -212,7 +221,7 @@ def lidar_measure(
         gain = np.maximum(intensity, 1e-9)
         np.sqrt(gain, out=gain)
         np.divide(1.0, gain, out=gain)
-        np.clip(gain, 1.0, cfg.weak_return_noise_gain, out=gain)
+        np.minimum(np.maximum(gain, 1.0, out=gain), cfg.weak_return_noise_gain, out=gain)
         gain *= cfg.range_noise_m
         gain *= noise[n:]
         r += gain  # r is this function's own array from here on (a gather or np.where)
@@ -221,8 +230,9 @@ def lidar_measure(
         np.rint(r, out=r)
         r *= cfg.range_resolution_m
     points = np.empty((n, 3))
+    dirs = pattern.dirs_rows32b.take(idx, axis=0)
     for i in range(3):
-        np.multiply(pattern.dirs_by_axis[i].take(idx), r, out=points[:, i])
+        np.multiply(dirs[:, i], r, out=points[:, i])
     if cfg.motion_during_sweep:
         t_offset = pattern.ray_time_s32.take(idx)
     else:

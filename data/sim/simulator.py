@@ -23,6 +23,80 @@ from boomtip.data.sim.truth import relative_heave, tip_states
 SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3, "feeder_mru": 4}
 
 
+# numpy's SeedSequence (a pool of 4 uint32 words) and PCG64's seeding, for `FrameRng`
+_SS_INIT_A, _SS_MULT_A, _SS_INIT_B, _SS_MULT_B = 0x43B0D7E5, 0x931E8875, 0x8B51F9DD, 0x58F38DED
+_SS_MIX_L, _SS_MIX_R = 0xCA01F9DD, 0x4973F715
+_PCG64_MULT = 0x2360ED051FC65DA44385DF649FCCF645
+_M32, _M128 = (1 << 32) - 1, (1 << 128) - 1
+
+
+def seed_sequence_words(entropy: np.ndarray) -> np.ndarray:
+    """`SeedSequence(entropy[:, j]).generate_state(4, np.uint64)` for every column j of (W, N)
+    uint32 entropy at once: (4, N) uint64. Written out (numpy's hash, uint32 arithmetic modulo
+    2^32) because SeedSequence takes one entropy per call, several us of numpy calls each."""
+    u = np.uint32
+    h = _SS_INIT_A
+
+    def hashmix(v: np.ndarray) -> np.ndarray:
+        nonlocal h
+        v = v ^ u(h)
+        h = (h * _SS_MULT_A) & _M32
+        v = v * u(h)
+        return v ^ (v >> u(16))
+
+    def mix(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        r = u(_SS_MIX_L) * x - u(_SS_MIX_R) * y
+        return r ^ (r >> u(16))
+
+    pool = [hashmix(entropy[i] if i < len(entropy) else np.zeros(entropy.shape[1], u)) for i in range(4)]
+    for src in range(4):
+        for dst in range(4):
+            if src != dst:
+                pool[dst] = mix(pool[dst], hashmix(pool[src]))
+    for src in range(4, len(entropy)):
+        for dst in range(4):
+            pool[dst] = mix(pool[dst], hashmix(entropy[src]))
+    h, words = _SS_INIT_B, []
+    for i in range(8):
+        v = pool[i % 4] ^ u(h)
+        h = (h * _SS_MULT_B) & _M32
+        v = v * u(h)
+        words.append(v ^ (v >> u(16)))
+    w = np.array(words, dtype=np.uint64)
+    return w[0::2] | (w[1::2] << np.uint64(32))  # little-endian pairs, as generate_state's uint64 view
+
+
+class FrameRng:
+    """`np.random.default_rng([seed, sensor_id, index])` frame after frame, at a third of the
+    cost: the seeds' hash for a block of indices at once (`seed_sequence_words`) and one kept
+    PCG64 put in the state its seeding gives. The generator returned is the same object each
+    call: valid until the next."""
+
+    BLOCK = 4096
+
+    def __init__(self, seed: int, sensor_id: int) -> None:
+        self.seed, self.sensor_id = seed, sensor_id
+        self._words: dict[int, np.ndarray] = {}  # block -> (4, BLOCK) uint64
+        self._bitgen = np.random.PCG64(0)
+        self._gen = np.random.Generator(self._bitgen)
+
+    def __call__(self, index: int) -> np.random.Generator:
+        if not (0 <= self.seed < 2**32 and 0 <= self.sensor_id < 2**32 and 0 <= index < 2**32):
+            return np.random.default_rng([self.seed, self.sensor_id, index])  # words of more than 32 bits
+        block, j = divmod(index, self.BLOCK)
+        words = self._words.get(block)
+        if words is None:
+            idx = np.arange(block * self.BLOCK, min((block + 1) * self.BLOCK, 2**32), dtype=np.uint32)
+            entropy = np.stack([np.full(len(idx), self.seed, np.uint32), np.full(len(idx), self.sensor_id, np.uint32), idx])
+            words = self._words[block] = seed_sequence_words(entropy)
+        s0, s1, q0, q1 = words[:, j].tolist()
+        # PCG64's seeding: state 0 and inc = 2 seq + 1, a step, state += the seed, a step.
+        inc = ((((q0 << 64) | q1) << 1) | 1) & _M128
+        state = ((inc + ((s0 << 64) | s1)) * _PCG64_MULT + inc) & _M128
+        self._bitgen.state = {"bit_generator": "PCG64", "state": {"state": state, "inc": inc}, "has_uint32": 0, "uinteger": 0}
+        return self._gen
+
+
 def frame_times(rate_hz: float, duration_s: float) -> np.ndarray:
     n = int(np.floor(duration_s * rate_hz + 1e-9))
     return np.arange(n) / rate_hz
@@ -157,7 +231,18 @@ class Simulation(FrameSource):
             yield frame
 
     def _rng(self, sensor: str, index: int) -> np.random.Generator:
-        return np.random.default_rng([self.scenario.seed, SENSOR_IDS[sensor], index])
+        """`default_rng([seed, sensor id, index])`; the LiDAR's, every frame, from a `FrameRng`
+        (valid until the next LiDAR frame). Words below 2^32 go in as one uint32 array, the
+        entropy the list becomes anyway, which skips converting each int."""
+        if sensor == "lidar":
+            frame_rng = self.__dict__.get("_lidar_rng")
+            if frame_rng is None:
+                frame_rng = self._lidar_rng = FrameRng(self.scenario.seed, SENSOR_IDS["lidar"])
+            return frame_rng(index)
+        words = (self.scenario.seed, SENSOR_IDS[sensor], index)
+        if all(0 <= x < 2**32 for x in words):
+            return np.random.Generator(np.random.PCG64(np.random.SeedSequence(np.array(words, dtype=np.uint32))))
+        return np.random.default_rng(list(words))
 
     # -- sensors -------------------------------------------------------------------------
     def _scene_poses(self, times: np.ndarray, sensor: str, offsets_s: np.ndarray | None = None):

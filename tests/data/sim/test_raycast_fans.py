@@ -183,6 +183,25 @@ def test_grid_casts_only_the_fans_cutting_the_feeder_box():
     assert int((hits.body == 1).sum()) <= sent[0] < 0.9 * len(hits.range_m)
 
 
+
+def test_one_pose_rays_of_a_fan_range_are_the_rows_of_every_ray():
+    """The rays of the fans cast are, bit for bit, those rows of every ray's rays: a ray does
+    not depend on which fans are cast (nor on the buffer's previous content)."""
+    rng = np.random.default_rng(5)
+    az, el = np.deg2rad(np.linspace(-60, 60, 241)), np.deg2rad(np.linspace(-15, 15, 61))
+    az_g, el_g = np.meshgrid(az, el, indexing="ij")
+    fans = Fans(spherical_dirs(az_g.ravel(), el_g.ravel()), az, el)
+    for _ in range(20):
+        A = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        o = rng.uniform(-50, 50, 3)
+        every = fans.body_frame_rays_one_pose(A, o).copy()
+        assert np.array_equal(every[:, 3:], (A @ fans.dirs.T).T.astype(np.float32))
+        assert np.array_equal(every[:, :3], np.broadcast_to(o.astype(np.float32), (len(every), 3)))
+        first, stop = sorted(rng.integers(0, len(az) + 1, 2))
+        part = fans.body_frame_rays_one_pose(A, o, range(first, stop))
+        assert np.array_equal(part, every[first * len(el):stop * len(el)])
+
+
 def test_reaching_box_per_fan_poses_and_scale():
     """One pose per fan and a stretched body: rays are x_b = S^-1 (A x_s + o) per fan."""
     rng = np.random.default_rng(3)

@@ -21,8 +21,8 @@ from scipy.spatial.transform import Rotation
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.world import DOFS
 from boomtip.data.sim.scene import Label, build_bodies
-from boomtip.data.sim.sensors import lidar_pattern, radar_pattern, standard_normal32
-from boomtip.data.sim.simulator import SimScene, Simulation
+from boomtip.data.sim.sensors import FaceLookup, lidar_pattern, radar_pattern, standard_normal32
+from boomtip.data.sim.simulator import FrameRng, SimScene, Simulation
 
 ALL_ZERO = [f"{ship}.motion.{dof}.amplitude=0" for ship in ("crane", "feeder") for dof in DOFS]
 CRANE_LABELS = {int(Label.CRANE_HULL), int(Label.CRANE_DECK), int(Label.CRANE_STRUCTURE)}
@@ -775,3 +775,35 @@ def test_range_window_compares_float32_ranges_as_their_float64_values(window):
     wide = x.astype(np.float64)
     np.testing.assert_array_equal((x >= lo) & (x <= hi), (wide >= window[0]) & (wide <= window[1]))
     assert ((x >= lo) & (x <= hi)).tolist() == [False, True, True, True, True, False, False]
+
+
+def test_signed_reflectivity_marks_the_retro_faces(bodies_empty):
+    """The sensor model reads the retro flag from the reflectivity's sign bit: the same
+    magnitudes, negative exactly on the retro faces (a zero reflectivity too), and a negative
+    reflectivity, which would be read as retro, refused."""
+    faces = FaceLookup.from_bodies(bodies_empty)
+    signed = faces.reflectivity_signed
+    assert faces.retro.any() and not faces.retro.all()
+    assert np.array_equal(np.abs(signed), faces.reflectivity)
+    assert np.array_equal(np.signbit(signed), faces.retro)
+    faces.retro[0], faces.reflectivity[0] = True, 0.0
+    del faces.__dict__["reflectivity_signed"]
+    assert np.signbit(faces.reflectivity_signed[0])
+    faces.reflectivity[1] = -0.5
+    del faces.__dict__["reflectivity_signed"]
+    with pytest.raises(ValueError, match="negative"):
+        faces.reflectivity_signed
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**32 - 1, 2**32])
+def test_frame_rng_is_default_rng_of_seed_sensor_index(seed):
+    """The LiDAR's per-frame generator (`FrameRng`) is `default_rng([seed, sensor, index])`:
+    the same state and draws, across blocks of indices, at the ends of the uint32 range and
+    (through default_rng itself) beyond it."""
+    frame_rng = FrameRng(seed, 1)
+    for index in [0, 1, 4095, 4096, 9001, 2**32 - 1, 2**32, 2**40]:
+        ref = np.random.default_rng([seed, 1, index])
+        rng = frame_rng(index)
+        assert rng.bit_generator.state == ref.bit_generator.state
+        assert np.array_equal(rng.random(9, dtype=np.float32), ref.random(9, dtype=np.float32))
+        assert np.array_equal(rng.standard_normal(3), ref.standard_normal(3))
