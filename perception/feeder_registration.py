@@ -3,16 +3,23 @@ the filter's prediction instead of kiss-icp's constant-velocity prior, which fai
 motion (upstream issue 257).
 
 The model is a keyframe: the feeder's returns above its deck (bulwarks, coamings, hull
-edges, cargo) in one frame, kept in the map frame with their normals. Two registrations:
-- kiss-icp (its voxel map and point-to-point ICP, C++ through its Python API) when the
-  prior is poor (the first frames, after an outage): it pulls in from metres;
-- a point-to-plane ICP with a Tukey kernel (perception/point_to_plane.py: Open3D's iteration on
-  a search index kept while the model is unchanged), always, from there. On a deck seen from
-  above kiss-icp's point-to-point ICP slides along the structure: against one keyframe it
-  was 4-9 cm off in x and y on sts-loaded, point-to-plane 0.3 / 1.3 cm
-  (BENCHMARKS.md, bench feeder). A model grown frame by frame from registered poses drifts
-  (5-7 cm in 10 s, with either ICP); the keyframe does not, and a new keyframe is taken only
-  when the old one no longer overlaps.
+edges, cargo) in one frame, kept in the map frame with their normals. How a frame is
+registered to it is a setting (`registration.method`), each seeded with the filter's prediction:
+- point_to_plane (the default): a point-to-plane ICP with a Tukey kernel (perception/
+  point_to_plane.py: Open3D's iteration on a search index kept while the model is unchanged);
+  kiss-icp (its voxel map and point-to-point ICP, C++ through its Python API) runs first only
+  when the prior is poor (the first frames, after an outage): it pulls in from metres;
+- kiss_icp: kiss-icp's `align_points_to_map` against its voxel map of the model, every frame;
+- kiss_icp_refined: kiss_icp, then the point-to-plane ICP from its pose.
+On a deck seen from above kiss-icp's point-to-point ICP slides along the structure. Every
+frame registered by kiss-icp alone, 60 s, 3 seeds (`boomtip sweep -s sts-loaded --seeds 3
+--duration 60 --set feeder.perception.registration.method=kiss_icp`, BENCHMARKS.md "kiss-icp
+in the feeder chain"): y RMSE 20.0 mm against point-to-plane's 5.0 (max 60 against 18), yaw
+0.034 against 0.009 deg on sts-loaded; on sts-irregular y 52 against 7.1 mm (max 216 against
+35), yaw 0.29 against 0.019 deg, NEES 92. Refined, it is point-to-plane's accuracy within
+0.5 mm and 0.0005 deg at 5-7 times its registration time (kiss-icp's iterations). A model
+grown frame by frame from registered poses drifts (5-7 cm in 10 s, with either ICP); the
+keyframe does not, and a new keyframe is taken only when the old one no longer overlaps.
 
 Frames: `level` is the crane vessel's heading frame as the installation sees it (levelled
 with the MRU's roll and pitch, x along the crane's heading, origin at the crane vessel's
@@ -28,6 +35,7 @@ says which: its eigenvectors with small eigenvalues are the directions not to up
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -52,8 +60,24 @@ class RegistrationConfig(BaseModel):
                             "frame's 28 786 returns and every grid LiDAR return, for 3.5 ms a frame: the ICP samples its own")
     keyframe_m: float = Field(0.0, ge=0, description="the keyframe's voxel, when coarser than the frames' (0: the frame's)")
     icp_sample_m: float = Field(0.5, gt=0, description="and the frame registered to it at this size: ICP's time goes with the source")
-    kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel (re-acquisition only)")
-    kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this")
+    method: Literal["point_to_plane", "kiss_icp", "kiss_icp_refined"] = Field(
+        "point_to_plane", description="how each frame is registered to the model, from the filter's prediction. point_to_plane: "
+        "the point-to-plane ICP with a Tukey kernel (perception/point_to_plane.py; kiss-icp only to re-acquire, see "
+        "kiss_above_sigma_m). kiss_icp: kiss-icp's align_points_to_map (its point-to-point ICP with a Geman-McClure kernel, "
+        "C++) against its voxel map of the model, every frame. kiss_icp_refined: kiss_icp, then the point-to-plane ICP from "
+        "its pose. Each method's information matrix is the point-to-plane residuals' about its pose. The model's merges "
+        "always use the point-to-plane ICP. 60 s, 3 seeds (BENCHMARKS.md): kiss_icp's y RMSE 20 mm on sts-loaded and 52 "
+        "on sts-irregular against 5.0 and 7.1, yaw 0.034 / 0.29 against 0.009 / 0.019 deg; kiss_icp_refined within 0.5 mm "
+        "and 0.0005 deg of point_to_plane at 5-7 times its registration time")
+    kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel")
+    kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this "
+                                      "(re-acquisition: correspondences out to 3 sigma, up to 5 m)")
+    kiss_max_correspondence_m: float = Field(1.0, gt=0, description="kiss-icp's correspondence distance, every frame "
+                                             "(methods kiss_icp and kiss_icp_refined)")
+    kiss_kernel_m: float = Field(0.1, gt=0, description="kiss-icp's Geman-McClure kernel scale, every frame (its "
+                                 "re-acquisition's ratio: a third of the correspondence distance). The frame sampled by kiss-icp's own "
+                                 "voxel_down_sample (returns, not Open3D's centroids), y RMSE 20.1 / 107 mm on sts-loaded / "
+                                 "sts-irregular against 20.0 / 52; that and 0.03 with 0.3 m correspondences, 21.2 / 82 (3 seeds, 60 s)")
     max_correspondence_m: float = Field(1.0, gt=0, description="point-to-plane correspondence distance")
     tukey_m: float = Field(0.3, gt=0, description="Tukey kernel width of the point-to-plane residuals")
     merge_tukey_m: float = Field(0.05, ge=0, description="a merge's registrations (the frames to each other, and the first "
@@ -116,7 +140,7 @@ class Registration6:
     n_points: int
     fitness: float  # fraction of the frame's points matched in the keyframe
     status: str  # "ok" or why there is no registration
-    kiss: bool = False  # kiss-icp pulled it in first
+    kiss: bool = False  # kiss-icp registered it first (re-acquisition, or its method)
 
 
 def pose_matrix(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -362,8 +386,13 @@ class FeederModel:
             guess = self.kiss.align_points_to_map(source_level, self.kiss_map, T_map_level_guess, dist, dist / 3.0)
             kiss = True
         source_level = icp_source(source_level, cfg)
+        if cfg.method != "point_to_plane":
+            guess = self.kiss.align_points_to_map(source_level, self.kiss_map, guess, cfg.kiss_max_correspondence_m, cfg.kiss_kernel_m)
+            kiss = True
+        # kiss_icp: no point-to-plane iteration, only its correspondences about kiss-icp's pose (for the information)
+        iterations = 0 if cfg.method == "kiss_icp" else cfg.max_iterations
         res = icp_point_to_plane(self.surface, source_level, guess, cfg.max_correspondence_m, cfg.tukey_m,
-                                 cfg.relative_change, cfg.max_iterations)
+                                 cfg.relative_change, iterations)
         T = res.T
         if not np.all(np.isfinite(T)) or len(res.source_index) < cfg.min_points:
             return Registration6(T_map_level_guess, np.zeros((6, 6)), n, res.fitness, "registration found no overlap", kiss)
