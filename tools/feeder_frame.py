@@ -63,19 +63,26 @@ class FeederFrameEstimate:
                 t.rz_sigma_rad if t is not None and t.rz_sigma_rad is not None else survey_sigma_rad)
 
 
-def levelling_at(d: FrameData, t_s: float = math.inf) -> tuple[Tilt | None, str | None]:
-    """The levelling calibration from what was known at t_s, and why a tilt was not taken."""
+def levelling_at(d: FrameData, t_s: float = math.inf, heading_alone: bool = False) -> tuple[Tilt | None, str | None]:
+    """The levelling calibration from what was known at t_s, and why a tilt was not taken.
+    heading_alone: the own hull's rotation about the vertical also before the deck normals span
+    min_span_s (the survey's tilt, span 0), as soon as three edges have it."""
     n = int(np.searchsorted(d.t_normals_s, t_s, side="right"))
-    if not n:
-        return None, None
-    tilt = tilt_from_normals(d.t_normals_s[:n], d.normals_level[:n], d.min_span_s)
-    tilt, why = within_the_survey(tilt, d.mount_sigma_rad)
-    return with_heading(tilt, d.hull_yaws_rad[:int(np.searchsorted(d.t_hull_s, t_s, side="right"))]), why
+    hull = d.hull_yaws_rad[:int(np.searchsorted(d.t_hull_s, t_s, side="right"))]
+    tilt, why = None, None
+    if n:
+        tilt = tilt_from_normals(d.t_normals_s[:n], d.normals_level[:n], d.min_span_s)
+        tilt, why = within_the_survey(tilt, d.mount_sigma_rad)
+    if tilt is None and heading_alone:
+        heading = with_heading(Tilt(0.0, 0.0, d.mount_sigma_rad, 0.0), hull)
+        return (heading if heading.rz_sigma_rad is not None else None), why
+    return with_heading(tilt, hull), why
 
 
-def frame_at(d: FrameData, t_s: float = math.inf) -> FeederFrameEstimate:
-    """The definition from what was known at t_s (all of it by default)."""
-    tilt, why = levelling_at(d, t_s)
+def frame_at(d: FrameData, t_s: float = math.inf, heading_alone: bool = False) -> FeederFrameEstimate:
+    """The definition from what was known at t_s (all of it by default); heading_alone: see
+    levelling_at."""
+    tilt, why = levelling_at(d, t_s, heading_alone)
     C = correction(tilt)
     # The origin: straight below the tip along the calibrated vertical, on the first deck.
     n0 = rotation(*d.x0[3:6])[:, 2]
@@ -100,11 +107,14 @@ def frame_history(d: FrameData, t_rows_s: np.ndarray, every_s: float = UPDATE_EV
     """The definition a live controller had: recomputed from the data up to each of the times
     t_rows[0] + k * every_s and the last row's time. Recomputed rather than updated: the Hann
     window of the tilt changes with the span (a running sum of its weights is not exact) and
-    the edges' medians need their samples; each update is O(n), 60-700 of them in a run."""
+    the edges' medians need their samples; each update is O(n), 60-700 of them in a run.
+    The own hull's heading applies as soon as it is known (a few seconds), not only with the
+    tilt's 30 s: in sts-irregular (seed 7) the online yaw RMSE is 0.029 deg with it, 0.044
+    without. (The offline definition keeps the tilt's rule: its estimates stay as they were.)"""
     t0, t1 = float(t_rows_s[0]), float(t_rows_s[-1])
     t_updates = np.r_[t0 + every_s * np.arange(max(1, math.ceil((t1 - t0) / every_s))), t1]
     t_updates = np.unique(t_updates[t_updates <= t1])
-    return t_updates, [frame_at(d, float(t)) for t in t_updates]
+    return t_updates, [frame_at(d, float(t), heading_alone=True) for t in t_updates]
 
 
 def estimates_in_feeder_frame(xs: list[np.ndarray], Ps: list[np.ndarray], tips: list[np.ndarray], pivots: list[np.ndarray],
@@ -153,7 +163,7 @@ class CausalEstimates:
     t_updates_s: np.ndarray  # (U,) when the definition was recomputed
     frames: list[FeederFrameEstimate]  # (U,) the definition from the data up to then
     history: np.ndarray  # (U, len(HISTORY_COLUMNS)) the definition's figures at each update
-    calibrated_at_s: float  # the first update with a levelling calibration (nan: none in the run)
+    calibrated_at_s: float  # the first update with a tilt from the deck normals (nan: none in the run)
 
 
 # feeder_calibration.csv: the levelling calibration (tilt about the level x, y, z axes and its
@@ -178,7 +188,7 @@ def causal_estimates(out, tips: list[np.ndarray], pivots: list[np.ndarray], d: F
     t_updates, frames = frame_history(d, t)
     pose, rates, var = online_estimates(out.x, out.P, tips, pivots, t, t_updates, frames, sigma_level, mru_bias_sigma_rad)
     history = np.array([history_row(float(u), f, sigma_level) for u, f in zip(t_updates, frames)])
-    calibrated = [float(u) for u, f in zip(t_updates, frames) if f.tilt is not None]
+    calibrated = [float(u) for u, f in zip(t_updates, frames) if f.tilt is not None and f.tilt.span_s > 0]
     return CausalEstimates(t[keep], pose[keep], rates[keep], var[keep], t_updates, frames, history,
                            calibrated[0] if calibrated else math.nan)
 

@@ -241,10 +241,10 @@ def _online_lines(o: dict | None) -> list[str]:
         return []
     if o.get("calibrated_at_s") is None:
         return ["Online (feeder_estimates_online.csv, feeder_calibration.csv): the levelling was not calibrated in this run; "
-                "every row has the survey's levelling and its 1-sigma."]
+                "every row has the survey's tilt and its 1-sigma (and the own hull's heading once it is known)."]
     text = (f"Online (feeder_estimates_online.csv, the calibration's history in feeder_calibration.csv, recomputed every "
-            f"{o['update_every_s']:g} s from the data up to then): the survey's levelling until {o['calibrated_at_s']:.1f} s, "
-            "the calibration from then on.")
+            f"{o['update_every_s']:g} s from the data up to then): the survey's tilt until {o['calibrated_at_s']:.1f} s, "
+            "the calibration from then on; the own hull's heading from its first edges.")
     parts = [(name, o[key]) for name, key in (("before", "until_calibrated"), ("after", "once_calibrated"))
              if o.get(key, {}).get("online", {}).get("samples")]
     if parts:

@@ -76,7 +76,14 @@ def test_the_history_ends_at_the_whole_runs_definition():
     t_up, frames = frame_history(d, t_rows)
     assert t_up[0] == 0.5 and t_up[-1] == t_rows[-1] and np.allclose(np.diff(t_up[:-1]), 1.0)
     spans = [f.tilt.span_s if f.tilt is not None else 0.0 for f in frames]
-    assert [f.tilt is None for f in frames].index(False) == 8 and np.all(np.diff(spans[8:]) > 0)
+    assert [s > 0 for s in spans].index(True) == 8 and np.all(np.diff(spans[8:]) > 0)
+    # the own hull's heading as soon as three edges are known (from 2 s, three a second), the
+    # survey's tilt with it until the deck normals span 8 s
+    heading = [f.tilt is not None for f in frames]
+    assert heading.index(True) == 3 and all(heading[3:])  # the update at 3.5 s, after the third edge at 2.67 s
+    assert all((f.tilt.rx_rad, f.tilt.ry_rad, f.tilt.sigma_rad) == (0.0, 0.0, SURVEY) for f in frames[3:8])
+    assert math.degrees(frames[7].tilt.rz_rad) == pytest.approx(-0.03, abs=2e-3) and frames[7].tilt.rz_sigma_rad < 1e-4
+    assert frame_at(d, t_up[7]).tilt is None  # the offline rule: no heading without the tilt
     final, whole = frames[-1], frame_at(d)
     assert final.tilt == whole.tilt and final.line == whole.line and np.array_equal(final.T_map_feeder, whole.T_map_feeder)
 
@@ -97,7 +104,7 @@ def test_each_online_row_is_in_the_definition_of_its_own_time():
         assert np.array_equal(pose[k], one[0][0]) and np.array_equal(rates[k], one[1][0]) and np.array_equal(var[k], one[2][0])
     # the survey's levelling sigma in roll before the calibration (30 s of normals), the calibration's after
     s_roll = [f.sigmas(SURVEY)[0] for f in frames]
-    i = [f.tilt is not None for f in frames].index(True)
+    i = [f.tilt is not None and f.tilt.span_s > 0 for f in frames].index(True)
     assert t_up[i] >= 30.0 > t_up[i - 1] and s_roll[i - 1] == SURVEY and s_roll[i] == frames[i].tilt.sigma_rad
     assert s_roll[-1] < 0.3 * SURVEY
     expected = np.array(s_roll)[np.searchsorted(t_up, t_rows, side="right") - 1] ** 2
