@@ -12,10 +12,11 @@ as they come.
 
 The feeder frame (the estimate's definition): origin at the deck point straight below the
 boom tip at the first LiDAR frame, z along the deck normal, x along the feeder's centre
-line (the median over frames of its longest straight hull edge). The estimates are written in
-the heading frame at the tip levelled with the run's levelling calibration (its value at the
-end: the calibration is online, its history is reported, but a constant is best known from
-all of it), and the centre line and "below" are those the whole run found.
+line (the median over frames of its longest straight hull edge). The filter runs in a map
+frame; at the end (tools/feeder_frame) its states are written twice in the heading frame at the
+tip: levelled and defined with what the whole run found (the best offline estimate of a
+recording: a constant is best known from all of it), and each row with what was known at its
+own time (what a live controller had; the calibration's history beside it).
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.processing import Processing
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_angle_sigma, complementary_attitude
 from boomtip.fusion.feeder_filter import FeederFilter
-from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
-from boomtip.fusion.models.relative_motion import deck_plane, rotation
+from boomtip.fusion.level_calibration import Tilt
+from boomtip.fusion.models.relative_motion import deck_plane
 from boomtip.perception.feeder import (
     FeederPerception,
     Footprint,
@@ -51,7 +52,7 @@ from boomtip.perception.feeder_registration import (
 from boomtip.perception.pipeline import FrameResult
 from boomtip.perception.static_returns import StaticReturns
 from boomtip.perception.timing import StageTimes
-from boomtip.tools.feeder_frame import estimates_in_feeder_frame
+from boomtip.tools.feeder_frame import CausalEstimates, FrameData, causal_estimates, estimates_in_feeder_frame, frame_at, levelling_at
 from boomtip.tools.feeder_merge import BackgroundMerges, MergeRecord
 
 DECK_STAGES = ("deck.preprocess", "deck.planes", "deck.refine", "deck.intersect")
@@ -74,6 +75,7 @@ class FeederResult:
     model_points_map: np.ndarray | None = None  # the keyframe, for the display
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
     merges: list[MergeRecord] = field(default_factory=list)  # the model's merges (inline, or beside the frames)
+    online: CausalEstimates | None = None  # the same rows as a live controller had them (feeder_frame)
 
 
 class FeederChain:
@@ -112,6 +114,7 @@ class FeederChain:
         self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
         self.lines: list[tuple[float, int]] = []  # the centre line's yaw in the map frame, every few frames
         self.hull_yaws: list[float] = []  # the own hull's edge in the level frame, every few frames
+        self.known: list[tuple[float, int, int]] = []  # at each record: its time, how many lines and hull edges by then
         self.lidar_frames = 0
         self.failed_registrations = 0  # in a row: after rekey_after_failures a new keyframe is taken
         self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck
@@ -329,6 +332,7 @@ class FeederChain:
 
     def _record(self, obs: LidarObservation | RadarObservation) -> None:
         self.filter.record()
+        self.known.append((obs.t_s, len(self.lines), len(self.hull_yaws)))
         self.tips.append(obs.tip_velocity)
         rpy = self.mru.attitude(obs.t_s)[0]
         self.pivots.append(obs.t_level_sensor if isinstance(obs, LidarObservation) else self.perception.sensor_in_level("lidar", rpy)[1])
@@ -339,17 +343,11 @@ class FeederChain:
             self._drain()
         self.merges.close()
         out = self.filter.out
+        d = self._frame_data()
         notes: list[str] = []
-        # The calibration from every deck normal of the run (online it would be updated as they
-        # come; only its last value is used, so it is computed once).
-        tilt = None
-        if self.normals:
-            tilt = tilt_from_normals(np.array([n[0] for n in self.normals]), np.array([n[1] for n in self.normals]),
-                                     self.cfg.calibration_min_s)
-            tilt, why = within_the_survey(tilt, self.perception.mount_sigma_rad["lidar"])
-            if why is not None:
-                notes.append("feeder: levelling not calibrated: " + why)
-            tilt = with_heading(tilt, np.array(self.hull_yaws))
+        tilt, why = levelling_at(d)
+        if why is not None:
+            notes.append("feeder: levelling not calibrated: " + why)
         if not self.filter.started:
             return FeederResult(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12)), float("nan"), tilt, None,
                                 out.counts, self.frame_ms, ["feeder: no LiDAR deck plane in this run: no estimate"], self.missing)
@@ -359,37 +357,30 @@ class FeederChain:
         if tilt is None:
             notes.append(f"feeder: levelling not calibrated (under {self.cfg.calibration_min_s:g} s of deck planes): "
                          "the surveyed mount and the MRU are taken as they are")
-        C_final = correction(tilt)
-        # The origin: straight below the tip along the calibrated vertical, on the first deck.
-        x0 = out.x[0]
-        n0 = rotation(*x0[3:6])[:, 2]
-        down = C_final.T @ np.array([0.0, 0.0, -1.0])
-        s = float(n0 @ x0[:3]) / float(n0 @ down)  # from the tip, the level frame's origin
-        origin_map = transform(inverse(self.T_level_map0), s * down)
-        line = None
-        # The centre line's own error is a constant error of every yaw: its 1-sigma, from the
-        # frames' spread (median_and_sigma), or the prior of the feeder lying
-        # along the crane's heading when no edge was found.
-        line_sigma = math.radians(self.cfg.filter.body_yaw_prior_deg)
-        if self.lines:  # the frames' edges: a median, so a frame that took a cargo edge does not count
-            yaws = np.array([y for y, _ in self.lines])
-            median, sigma = median_and_sigma(yaws)
-            line = (median, len(yaws))
-            if len(yaws) >= 3:
-                line_sigma = sigma
-        if line is None:
+        # offline: the definition from the whole run, applied to every estimate
+        final = frame_at(d)
+        if final.line is None:
             notes.append("feeder: no straight hull edge in the keyframe: x is along the crane's heading")
-        psi0 = line[0] if line is not None else 0.0
-        T_map_feeder = pose_matrix(*origin_map, 0.0, 0.0, psi0)
-        pose, rates, var = estimates_in_feeder_frame(out, self.tips, self.pivots, tilt, C_final, T_map_feeder,
-                                                     self.perception.mount_sigma_rad["lidar"],
-                                                     self.perception.mru_bias_sigma_rad, line_sigma)
+        sigmas = (self.perception.mount_sigma_rad["lidar"], self.perception.mru_bias_sigma_rad)
+        pose, rates, var = estimates_in_feeder_frame(out.x, out.P, self.tips, self.pivots, final, *sigmas)
         t = np.asarray(out.t_s)
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
-        return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), tilt, line, out.counts,
-                            self.frame_ms, notes, self.missing, T_map_feeder,
+        return FeederResult(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), final.tilt, final.line, out.counts,
+                            self.frame_ms, notes, self.missing, final.T_map_feeder,
                             np.asarray(self.model.keyframe.points) if not self.model.empty else None,
-                            self._feeder_mru_summary(), self.merges.records)
+                            self._feeder_mru_summary(), self.merges.records,
+                            causal_estimates(out, self.tips, self.pivots, d, keep, *sigmas))
+
+    def _frame_data(self) -> FrameData:
+        """The deck normals, the own hull's and the feeder's edges, each with the time it was known."""
+        known = np.array(self.known, dtype=float).reshape(-1, 3)  # (t, lines, hull edges) at each record
+        when = lambda k, col: known[np.searchsorted(known[:, col], np.arange(k) + 1), 0]  # the count first exceeded i
+        started = self.filter.started
+        return FrameData(np.array([n[0] for n in self.normals]), np.array([n[1] for n in self.normals]),
+                         when(len(self.hull_yaws), 2), np.array(self.hull_yaws), when(len(self.lines), 1),
+                         np.array([y for y, _ in self.lines]), self.filter.out.x[0] if started else None, self.T_level_map0,
+                         self.cfg.calibration_min_s, self.perception.mount_sigma_rad["lidar"],
+                         math.radians(self.cfg.filter.body_yaw_prior_deg))
 
     def _feeder_mru_summary(self) -> dict | None:
         if self.feeder_mru is None or not self.filter.feeder_mru_started:

@@ -16,6 +16,7 @@ from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.models.relative_motion import deck_plane
 from boomtip.tools.feeder_chain import FeederResult
+from boomtip.tools.feeder_frame import HISTORY_COLUMNS, UPDATE_EVERY_S, CausalEstimates
 from boomtip.tools.feeder_truth import (
     POSE,
     feeder_origin_body,
@@ -34,12 +35,26 @@ DOC004 = {
 }
 
 
-def write_feeder_estimates(path: Path, res: FeederResult) -> None:
+def write_feeder_estimates(path: Path, res: FeederResult | CausalEstimates) -> None:
     buf = io.StringIO()
     buf.write(",".join(COLUMNS) + "\n")
     for t, p, r, v in zip(res.t_s, res.pose, res.rates, res.var):
         buf.write(f"{t:.4f}," + ",".join(f"{x:.7g}" for x in (*p, *r)) + "," + ",".join(f"{x:.4g}" for x in v) + "\n")
     atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def write_feeder_online(out: Path, res: FeederResult) -> list[str]:
+    """feeder_estimates_online.csv (the estimates as a live controller had them) and
+    feeder_calibration.csv (the definition's history); nothing for a run without an estimate."""
+    if res.online is None:
+        return []
+    write_feeder_estimates(out / "feeder_estimates_online.csv", res.online)
+    buf = io.StringIO()
+    buf.write(",".join(HISTORY_COLUMNS) + "\n")
+    for row in res.online.history:
+        buf.write(f"{row[0]:.4f}," + ",".join(f"{x:.7g}" for x in row[1:]) + "\n")
+    atomic_write_bytes(out / "feeder_calibration.csv", buf.getvalue().encode())
+    return ["feeder_estimates_online.csv", "feeder_calibration.csv"]
 
 
 def truth_of(res: FeederResult, truth: Truth, p_tip_crane_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -95,12 +110,14 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
         side = D_side_by_side(res, heave_D, warm, truth.at("D", res.t_s) if has_truth else None)
         if side:
             out["D_side_by_side"] = side
+    t_cal = res.online.calibrated_at_s if res.online is not None else math.nan
+    online = {"calibrated_at_s": None if math.isnan(t_cal) else round(t_cal, 3), "update_every_s": UPDATE_EVERY_S}
     if not has_truth:
+        if res.online is not None:
+            out["online"] = online
         return out
     pose_t, rate_t = truth_of(res, truth, p_tip_crane_m)
-    e_pose = res.pose - pose_t
-    e_pose[:, 3:] = (e_pose[:, 3:] + np.pi) % (2 * np.pi) - np.pi
-    e_rate = res.rates - rate_t
+    e_pose, e_rate = _errors(res, pose_t, rate_t)
     scored = warm & np.all(np.isfinite(pose_t), axis=1)
     inside = np.zeros(len(res.t_s), dtype=bool)
     for a, b in windows:
@@ -110,7 +127,26 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
     if windows:
         out["outage"] = _figures(e_pose[scored & inside], e_rate[scored & inside], res.var[scored & inside])
         out["outside_outage"] = _figures(e_pose[scored & ~inside], e_rate[scored & ~inside], res.var[scored & ~inside])
+    if res.online is None:
+        return out
+    o = res.online
+    e_on, r_on = _errors(o, pose_t, rate_t)
+    online.update(_figures(e_on[scored], r_on[scored], o.var[scored]))
+    if windows:
+        online["outage"] = _figures(e_on[scored & inside], r_on[scored & inside], o.var[scored & inside])
+    # where the two differ: before the calibration applies (the survey's levelling), and after
+    before = np.isnan(t_cal) | (res.t_s < t_cal)
+    for name, part in (("until_calibrated", scored & before), ("once_calibrated", scored & ~before)):
+        online[name] = {"online": _figures(e_on[part], r_on[part], o.var[part]),
+                        "offline": _figures(e_pose[part], e_rate[part], res.var[part])}
+    out["online"] = online
     return out
+
+
+def _errors(est: FeederResult | CausalEstimates, pose_t: np.ndarray, rate_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    e_pose = est.pose - pose_t
+    e_pose[:, 3:] = (e_pose[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    return e_pose, est.rates - rate_t
 
 
 def D_side_by_side(res: FeederResult, heave_D: tuple, warm: np.ndarray, D_true: np.ndarray | None) -> dict:
@@ -162,6 +198,7 @@ def report_section(kpis: dict, windows=()) -> str:
         lines.append(f"| {name} | {mm(b['rmse_pos_m'])} | {mm(b['max_pos_m'])} | {dg(b['rmse_rpy_deg'])} | {dg(b['max_rpy_deg'])} | {b['nees_mean']:.2f} |")
 
     row("boomtip, whole run", f)
+    row("boomtip online, whole run (each row levelled and defined with what was known at its time)", f.get("online"))
     if windows:
         row("boomtip, inside the outage windows", f.get("outage"))
         row("boomtip, outside them", f.get("outside_outage"))
@@ -187,6 +224,7 @@ def report_section(kpis: dict, windows=()) -> str:
                      + (f"About the vertical, from the own hull's edge (taken as along the crane's heading): {t['about_z']:.4f} deg "
                         f"(1-sigma {t['about_z_sigma']:.4f})." if t.get("about_z_sigma") is not None
                         else "About the vertical: not calibrated (no straight edge of the own hull found)."))
+    lines += _online_lines(f.get("online"))
     if "feeder_mru" in f:
         m = f["feeder_mru"]
         lines.append(f"Feeder MRU (004's second MRU) used: heading offset between its heading frame and the crane's "
@@ -195,6 +233,25 @@ def report_section(kpis: dict, windows=()) -> str:
                      f"normal {m['body_tilt_deg'][0]:.4f} / {m['body_tilt_deg'][1]:.4f} deg; {m['gaps']} frames fell in its gaps.")
     lines += _D_side_by_side_lines(f)
     return "\n".join(lines) + "\n"
+
+
+def _online_lines(o: dict | None) -> list[str]:
+    """When the online estimate's calibration applied, and how it compares before and after."""
+    if not o:
+        return []
+    if o.get("calibrated_at_s") is None:
+        return ["Online (feeder_estimates_online.csv, feeder_calibration.csv): the levelling was not calibrated in this run; "
+                "every row has the survey's tilt and its 1-sigma (and the own hull's heading once it is known)."]
+    text = (f"Online (feeder_estimates_online.csv, the calibration's history in feeder_calibration.csv, recomputed every "
+            f"{o['update_every_s']:g} s from the data up to then): the survey's tilt until {o['calibrated_at_s']:.1f} s, "
+            "the calibration from then on; the own hull's heading from its first edges.")
+    parts = [(name, o[key]) for name, key in (("before", "until_calibrated"), ("after", "once_calibrated"))
+             if o.get(key, {}).get("online", {}).get("samples")]
+    if parts:
+        dg = lambda v: " / ".join(f"{x:.3f}" for x in v)
+        text += " Angle RMS r/p/y online against offline " + "; ".join(
+            f"{name}: {dg(b['online']['rmse_rpy_deg'])} against {dg(b['offline']['rmse_rpy_deg'])} deg" for name, b in parts) + "."
+    return [text]
 
 
 def _D_side_by_side_lines(f: dict) -> list[str]:

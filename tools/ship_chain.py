@@ -41,11 +41,11 @@ class ShipChain:
         return ShipResult(self.heave.finish(duration_s, t_start_s), self.feeder.finish())
 
     def write(self, out: Path, result: ShipResult) -> list[str]:
-        from boomtip.tools.feeder_outputs import write_feeder_estimates
+        from boomtip.tools.feeder_outputs import write_feeder_estimates, write_feeder_online
 
         written = self.heave.write(out, result.heave)
         write_feeder_estimates(out / "feeder_estimates.csv", result.feeder)
-        return written + ["feeder_estimates.csv"]
+        return written + ["feeder_estimates.csv"] + write_feeder_online(out, result.feeder)
 
     def kpis(self, result: ShipResult, truth: Truth | None, windows=()) -> dict:
         from boomtip.tools.feeder_outputs import feeder_kpis

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 
 import numpy as np
 import pytest
@@ -32,6 +33,16 @@ def test_outputs_and_kpis(short_run):
         assert key in k
     assert "Feeder 6-DOF" in (out / "report.md").read_text()
     assert (out / "plots" / "feeder_pose.png").exists()
+    # the estimates as a live controller had them: the same rows; 14 s is under the calibration's 30 s
+    with open(out / "feeder_estimates_online.csv") as fh:
+        online = list(csv.reader(fh))
+    assert online[0] == rows[0] and [r[0] for r in online] == [r[0] for r in rows]
+    with open(out / "feeder_calibration.csv") as fh:
+        cal = list(csv.DictReader(fh))
+    assert 13 <= len(cal) <= 15 and all(float(r["about_x_deg"]) == 0.0 and float(r["span_s"]) == 0.0 for r in cal)
+    assert float(cal[0]["sigma_x_deg"]) == pytest.approx(math.hypot(0.03, 0.02), rel=1e-6)  # the survey's
+    assert k["online"]["calibrated_at_s"] is None and k["online"]["samples"] == k["samples"]
+    assert "the levelling was not calibrated in this run" in (out / "report.md").read_text()
 
 
 def test_accuracy_on_a_short_run(short_run):
@@ -95,6 +106,17 @@ def test_the_levelling_calibration_takes_out_the_rigs_tilt(tmp_path):
     assert max(k["rmse_rpy_deg"][:2]) < 0.015
     t = k["levelling_tilt_deg"]
     assert t["about_x"] == pytest.approx(-0.0295, abs=0.003) and t["about_y"] == pytest.approx(-0.0251, abs=0.003)
+    # online: the survey's levelling until 30 s of decks, the calibration so far from then on;
+    # the last row has the whole run's definition, as the offline estimate
+    f, o = res.result.feeder, k["online"]
+    assert o["calibrated_at_s"] == pytest.approx(f.t_s[0] + 30.0, abs=1.0)
+    until, once = o["until_calibrated"], o["once_calibrated"]
+    assert 0.02 < min(until["online"]["rmse_rpy_deg"][:2]) and max(until["offline"]["rmse_rpy_deg"][:2]) < 0.015
+    assert max(once["online"]["rmse_rpy_deg"][:2]) < 0.02 and max(o["rmse_pos_m"]) < 0.01
+    assert np.array_equal(f.online.pose[-1], f.pose[-1]) and np.array_equal(f.online.var[-1], f.var[-1])
+    last = f.online.history[-1]
+    assert np.degrees(f.tilt.rx_rad) == pytest.approx(last[1], abs=1e-12) and last[7] == f.tilt.span_s
+    assert not np.array_equal(f.online.pose[0], f.pose[0])
 
 
 def test_a_first_frame_without_structure_is_no_keyframe():
