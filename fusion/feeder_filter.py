@@ -26,6 +26,8 @@ from boomtip.fusion.models.relative_motion import (
     POSE,
     RATE,
     deck_plane,
+    deck_plane_rate,
+    deck_spin_jacobian,
     feeder_mru_measurement,
     numeric_jacobian,
     omega,
@@ -200,6 +202,15 @@ class FeederFilter:
         # Not the yaw: a plane's normal fixes the tilt, and through the Euler angles a yaw could
         # be traded for roll and pitch that keep the normal (38 deg of yaw in a 50 s outage).
         return self._update(kind, plane_abc, deck_plane(self.x), numeric_jacobian(deck_plane, self.x, np.arange(5)), cov)
+
+    def update_deck_spin(self, kind: str, plane_abc: np.ndarray, plane_rates: np.ndarray, cov: np.ndarray) -> bool:
+        """The deck plane z = a x + b y + c (level frame at the tip) and its rate of change over
+        one frame's sweep, one measurement with their joint 6x6 covariance (instead of the
+        plane's update, not beside it); the tip's velocity is the one given to the last predict."""
+        h = np.concatenate([deck_plane(self.x), deck_plane_rate(self.x, self.tip_velocity)])
+        # Not the yaw nor its rate, for update_deck's reason: the deck's spin is its tilt's rate.
+        H = deck_spin_jacobian(self.x, self.tip_velocity)
+        return self._update(kind, np.concatenate([plane_abc, plane_rates]), h, H, cov)
 
     def update_registration(self, x_y_yaw: np.ndarray, info_xy_yaw: np.ndarray, extra_cov: np.ndarray | None = None,
                             kind: str = "registration", max_sigma_m: float | None = None) -> bool:

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from boomtip.data.installation import Installation
+from boomtip.perception.deck_spin import DeckSpin, deck_point_times, level_at_own_time, spin_plane_in_level
 from boomtip.perception.feeder_registration import RegistrationConfig
 from boomtip.perception.geometry import (
     mount_rotation,
@@ -44,6 +45,9 @@ class FeederConfig(BaseModel):
     plane_inflation: float = Field(20.0, ge=1, description="deck-plane covariance x this: one scan's residuals are correlated")
     min_plane_points: int = Field(50, ge=3)
     footprint_margin_m: float = Field(2.0, ge=0, description="structure is taken this far beyond the deck's outline")
+    spin: bool = Field(True, description="with per-point times, the deck plane and its spin (roll, pitch, heave rates) "
+                       "as one measurement (perception/deck_spin); without, the plane alone")
+    spin_min_span_s: float = Field(0.02, gt=0, description="deck returns spread over less time than this: the plane alone")
 
 
 @dataclass
@@ -70,6 +74,7 @@ class LidarObservation:
     ms: float = 0.0  # time spent on it so far (the chain adds its own)
     sample_returns_sensor: np.ndarray | None = None  # the measured return each sample stands for (its voxel's first): beams for the static test
     static_keys: tuple | None = None  # those returns' keys in the static test, computed once when counted
+    spin: DeckSpin | None = None  # the deck plane and its rates from the returns' times, when they span the sweep
 
 
 @dataclass
@@ -148,14 +153,20 @@ class FeederPerception:
         R_l = self.R_level(rpy)
         return R_l @ self.R_crane_sensor[sensor], R_l @ self.t_crane_sensor[sensor]
 
-    def deck_plane(self, sensor: str, deck, R_ls: np.ndarray, t_ls: np.ndarray, extra_tilt_sigma_rad: float = 0.0) -> PlaneLevel | None:
-        """The heave chain's deck fit (its inliers) refitted in the level frame."""
+    def deck_points_level(self, deck, R_ls: np.ndarray, t_ls: np.ndarray) -> np.ndarray | None:
+        """The heave chain's deck inliers in the level frame; None without enough of them."""
         if deck is None or not deck.ok or deck.fit is None:
             return None
         pts = deck.points_used[deck.fit.inlier_mask]
-        if len(pts) < self.cfg.min_plane_points:
+        return pts @ R_ls.T + t_ls if len(pts) >= self.cfg.min_plane_points else None
+
+    def deck_plane(self, sensor: str, deck, R_ls: np.ndarray, t_ls: np.ndarray, extra_tilt_sigma_rad: float = 0.0,
+                   pts_level: np.ndarray | None = None) -> PlaneLevel | None:
+        """The heave chain's deck fit (its inliers, pts_level when the caller has them)
+        refitted in the level frame."""
+        pts_level = self.deck_points_level(deck, R_ls, t_ls) if pts_level is None else pts_level
+        if pts_level is None:
             return None
-        pts_level = pts @ R_ls.T + t_ls
         plane = plane_in_level(pts_level, self.cfg.plane_inflation)
         plane.points_level = pts_level[:: max(1, len(pts_level) // 2000)]
         if extra_tilt_sigma_rad > 0:
@@ -165,7 +176,30 @@ class FeederPerception:
             plane.cov = plane.cov + extra_tilt_sigma_rad ** 2 * (J @ J.T)
         return plane
 
-    def lidar(self, t_s: float, points_sensor: np.ndarray, rpy: np.ndarray, rpy_rate: np.ndarray, deck) -> LidarObservation:
+    def deck_spin(self, deck, pts_level: np.ndarray, points_sensor: np.ndarray, point_times: np.ndarray,
+                  t_ls: np.ndarray, omega_level: np.ndarray) -> DeckSpin | None:
+        """The heave chain's deck inliers (pts_level: levelled at the frame's time), each moved
+        to its own time, fitted with the plane and its rates (perception/deck_spin); None
+        without times that span the sweep."""
+        t = deck_point_times(points_sensor, point_times, deck.points_used, deck.fit.inlier_mask)
+        if t is None or float(t.max() - t.min()) < self.cfg.spin_min_span_s:
+            return None
+        t = t.astype(np.float64)
+        pts = level_at_own_time(pts_level, t, omega_level)
+        spin = spin_plane_in_level(pts, t, self.cfg.plane_inflation)
+        if spin is None:
+            return None
+        # The levelling's noise tilts the plane about the sensor (as deck_plane's), the MRU rates'
+        # the spin removed from it; the tip's velocity (the rate's reference) is known to its sigma.
+        J = np.array([[1.0, 0.0], [0.0, 1.0], [-t_ls[0], -t_ls[1]]])
+        spin.cov[:3, :3] += self.angle_sigma_rad ** 2 * (J @ J.T)
+        spin.cov[3:, 3:] += self.rate_sigma_radps ** 2 * (J @ J.T)
+        spin.cov[5, 5] += self.tip_velocity_sigma ** 2
+        return spin
+
+    def lidar(self, t_s: float, points_sensor: np.ndarray, rpy: np.ndarray, rpy_rate: np.ndarray, deck,
+              point_times: np.ndarray | None = None) -> LidarObservation:
+        """point_times: each point's time from t_s (the frame's `t` field), when the sensor has them."""
         R_ls, t_ls = self.sensor_in_level("lidar", rpy)
         finite = np.isfinite(np.einsum("ij->i", points_sensor))  # a non-finite coordinate makes the row's sum so
         pts = points_sensor if finite.all() else points_sensor[finite]
@@ -173,10 +207,14 @@ class FeederPerception:
         if self.cfg.registration.sample_m > 0 and len(pts):
             sample, first = voxel_downsample(pts, self.cfg.registration.sample_m)
             returns = pts[first]
-        plane = self.deck_plane("lidar", deck, R_ls, t_ls, extra_tilt_sigma_rad=self.angle_sigma_rad)
+        pts_level = self.deck_points_level(deck, R_ls, t_ls)
+        plane = self.deck_plane("lidar", deck, R_ls, t_ls, extra_tilt_sigma_rad=self.angle_sigma_rad, pts_level=pts_level)
         status = "ok" if plane is not None else (f"no deck plane ({deck.status})" if deck is not None else "no deck plane")
+        spin = None
+        if plane is not None and self.cfg.spin and point_times is not None and len(point_times) == len(points_sensor):
+            spin = self.deck_spin(deck, pts_level, points_sensor, point_times, t_ls, self.omega_level(rpy, rpy_rate))
         return LidarObservation(t_s, sample, R_ls, t_ls, plane, status, *self.tip_motion(rpy, rpy_rate),
-                                sample_returns_sensor=returns)
+                                sample_returns_sensor=returns, spin=spin)
 
     def structure(self, obs: LidarObservation, plane_abc: np.ndarray, footprint: Footprint | None = None,
                   T_map_level: np.ndarray | None = None,

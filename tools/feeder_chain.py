@@ -143,7 +143,7 @@ class FeederChain:
         with times.stage("feeder.observe"):
             if frame.sensor == "lidar":
                 obs = self.perception.lidar(frame.t_s, frame.points_sensor, rpy, rpy_rate,
-                                            heave.deck_lidar if heave is not None else None)
+                                            heave.deck_lidar if heave is not None else None, frame.fields.get("t"))
                 obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
             else:
                 obs = self.perception.radar(frame.t_s, rpy, rpy_rate, heave.doppler if heave is not None else None,
@@ -170,10 +170,11 @@ class FeederChain:
     def _start(self, obs: LidarObservation) -> None:
         """The map frame at the first deck: origin straight below the tip (in the level frame
         as the installation has it), z along the deck normal, yaw 0."""
-        origin = np.array([0.0, 0.0, obs.plane.abc[2]])  # the level frame's origin is the tip
-        n = obs.plane.normal
+        plane = obs.spin or obs.plane  # the spin's: at the frame's time, not at its returns' mean time
+        origin = np.array([0.0, 0.0, plane.abc[2]])  # the level frame's origin is the tip
+        n = plane.normal
         pose = np.array([*origin, -math.asin(n[1]), math.atan2(n[0], n[2]), 0.0])
-        cov = np.diag([1e-8, 1e-8, float(obs.plane.cov[2, 2]), float(obs.plane.cov[1, 1]), float(obs.plane.cov[0, 0]), 1e-10])
+        cov = np.diag([1e-8, 1e-8, float(plane.cov[2, 2]), float(plane.cov[1, 1]), float(plane.cov[0, 0]), 1e-10])
         self.filter.start(obs.t_s, pose, cov, obs.tip_velocity, obs.tip_level)
         self._feeder_mru(obs.t_s)
         self.tips.append(obs.tip_velocity)
@@ -193,7 +194,10 @@ class FeederChain:
             self._feeder_mru(obs.t_s)
         if obs.plane is not None:
             with times.stage("feeder.deck_update"):
-                f.update_deck("deck_lidar", obs.plane.abc, obs.plane.cov)
+                if obs.spin is not None:  # the plane and its rates from the returns' times
+                    f.update_deck_spin("deck_spin_lidar", obs.spin.abc, obs.spin.rates, obs.spin.cov)
+                else:
+                    f.update_deck("deck_lidar", obs.plane.abc, obs.plane.cov)
                 self.normals.append((obs.t_s, obs.plane.normal))
         else:
             self.missing.append((obs.t_s, "lidar", obs.status))

@@ -18,6 +18,8 @@ model would let a 50 s outage grow its position error with t^3.
 Measurements:
 - the deck plane z = a x + b y + c in the level frame: the map frame's z is the deck normal
   and its origin lies on the deck, so (a, b, c) depend on z, roll, pitch (and, weakly, x, y, yaw);
+  with the returns' times, the plane and its rate of change together (the deck's spin over the
+  sweep), which adds the heave, roll and pitch rates;
 - a registration's x, y, yaw, projected on the directions the geometry constrains;
 - the velocity of the feeder's point at the radar (radar Doppler, made a velocity in the
   level frame by perception): v + w x (xi - p), w from the Euler rates;
@@ -110,6 +112,29 @@ def deck_plane(x: np.ndarray) -> np.ndarray:
     n = rotation(*x[3:6])[:, 2]
     d = -float(n @ x[0:3])
     return np.array([-n[0] / n[2], -n[1] / n[2], -d / n[2]])
+
+
+def deck_plane_rate(x: np.ndarray, tip_velocity: np.ndarray, dt_s: float = 1e-2) -> np.ndarray:
+    """d/dt of deck_plane: the pose moving at the state's rates, its position less the tip's
+    velocity (the level frame's origin moves with the tip). By a central difference in time over
+    +-dt_s: exact to (rate dt)^2 / 6 (1e-7 of the rate at 3 deg/s), and smooth enough to be
+    differenced again for the Jacobian."""
+    pose_dot = x[6:12].copy()
+    pose_dot[:3] -= tip_velocity
+    return (deck_plane(x[:6] + dt_s * pose_dot) - deck_plane(x[:6] - dt_s * pose_dot)) / (2.0 * dt_s)
+
+
+def deck_spin_jacobian(x: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
+    """d (deck_plane, deck_plane_rate) / dx (6 x N) over the pose (but its yaw) and the rates
+    (but the yaw's): the rate is linear in the rates, with the plane's own pose Jacobian as
+    their columns (to (rate dt)^2); differences only for its pose columns. A third of the
+    plane evaluations of differencing all ten columns (it runs at every LiDAR frame)."""
+    Jp = numeric_jacobian(deck_plane, x, np.arange(6))[:, :6]
+    J = np.zeros((6, len(x)))
+    J[:3, 0:5] = Jp[:, 0:5]
+    J[3:, 6:11] = Jp[:, 0:5]
+    J[3:, 0:5] = numeric_jacobian(lambda z: deck_plane_rate(z, tip_velocity), x, np.arange(5))[:, 0:5]
+    return J
 
 
 def point_velocity(x: np.ndarray, xi_level: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:

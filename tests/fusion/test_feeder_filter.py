@@ -12,6 +12,8 @@ from boomtip.fusion.feeder_filter import FeederFilter, FeederFilterConfig
 from boomtip.fusion.models.relative_motion import (
     _singer_block,
     deck_plane,
+    deck_plane_rate,
+    deck_spin_jacobian,
     feeder_mru_measurement,
     numeric_jacobian,
     omega,
@@ -289,3 +291,71 @@ def test_the_doppler_jacobian_matches_differences():
     tip = np.array([0.1, 0.2, 0.3])
     num = numeric_jacobian(lambda z: point_velocity(z, xi, tip), x, np.arange(12))
     assert np.allclose(point_velocity_jacobian(x, xi), num, atol=1e-6)
+
+
+# -- the deck's spin over a sweep ---------------------------------------------------------
+def test_the_deck_planes_rate_is_that_of_the_plane_moving_with_the_state():
+    """The plane of the body moved along the state's motion for 1 ms (its position less the
+    tip's, its angles at their rates), differenced: the model's rate."""
+    x = _rigid_state()
+    tip = np.array([0.1, -0.3, 0.4])
+    dt = 1e-3
+    moved = lambda s: np.r_[x[:3] + s * (x[6:9] - tip), x[3:6] + s * x[9:12]]
+    fd = (deck_plane(moved(dt)) - deck_plane(moved(-dt))) / (2 * dt)
+    assert np.allclose(deck_plane_rate(x, tip), fd, rtol=1e-6, atol=1e-9)
+    assert abs(deck_plane_rate(x, tip)[2] - (x[8] - tip[2])) < 0.2  # mostly the heave rate less the tip's
+
+
+def test_the_spins_jacobian_matches_differences_over_pose_and_rates_but_yaw():
+    x = _rigid_state()
+    tip = np.array([0.1, -0.3, 0.4])
+    h = lambda z: np.concatenate([deck_plane(z), deck_plane_rate(z, tip)])
+    num = numeric_jacobian(h, x, np.r_[0:5, 6:11])
+    J = deck_spin_jacobian(x, tip)
+    assert np.allclose(J, num, rtol=1e-6, atol=1e-7)
+    assert np.all(J[:, [5, 11]] == 0.0) and np.all(J[:, 12:] == 0.0) and J[5, 8] == pytest.approx(1.0)  # the heave rate
+
+
+def _spinning_deck(t: float) -> np.ndarray:
+    x = np.zeros(22)
+    x[:6] = [0.4, -0.3, -44.0, 0.01 + math.radians(1.0) * t, -0.02 + math.radians(-0.5) * t, 0.0]
+    x[6:12] = [0.0, 0.0, 0.0, math.radians(1.0), math.radians(-0.5), 0.0]
+    return x
+
+
+def test_the_spin_measures_the_roll_and_pitch_rates_the_plane_alone_does_not():
+    """A deck rolling at 1 deg/s and pitching at -0.5 deg/s, the filter starting at rest
+    (2 deg/s 1-sigma) at a pose known to 0.6 deg: one spin update puts both rates within
+    0.01 deg/s; one plane update leaves them nearly where they were (a tilt, not a rate)."""
+    cov = np.diag([1e-8, 1e-8, 1e-6, 1e-8, 1e-8, 1e-4])
+    rates = {}
+    for spin in (True, False):
+        truth = _spinning_deck(0.0)
+        f = FeederFilter()
+        f.start(0.0, truth[:6], np.eye(6) * 1e-4, np.zeros(3))
+        f.predict(0.1, np.zeros(3), 0.0)
+        truth = _spinning_deck(0.1)
+        if spin:
+            assert f.update_deck_spin("deck_spin_lidar", deck_plane(truth), deck_plane_rate(truth, np.zeros(3)), cov)
+        else:
+            assert f.update_deck("deck_lidar", deck_plane(truth), cov[:3, :3])
+        rates[spin] = np.degrees(f.x[9:11])
+    assert np.allclose(rates[True], [1.0, -0.5], atol=0.01)
+    assert np.all(np.abs(rates[False] - [1.0, -0.5]) > [0.8, 0.4])
+    assert f.out.counts["deck_lidar"]["accepted"] == 1
+
+
+def test_a_spin_far_from_the_state_is_gated_and_its_yaw_never_moves():
+    f = FeederFilter()
+    truth = _spinning_deck(0.0)
+    f.start(0.0, truth[:6], np.eye(6) * 1e-6, np.zeros(3))
+    f.predict(0.1, np.zeros(3), 0.0)
+    cov = np.diag([1e-8, 1e-8, 1e-6, 1e-8, 1e-8, 1e-4])
+    wrong_rates = deck_plane_rate(_spinning_deck(0.1), np.zeros(3)) + np.array([0.0, 0.0, 5.0])  # 5 m/s of heave rate
+    assert not f.update_deck_spin("deck_spin_lidar", deck_plane(_spinning_deck(0.1)), wrong_rates, cov)
+    assert f.out.counts["deck_spin_lidar"]["gated"] == 1
+    truth = _spinning_deck(0.1)
+    truth[11] = 0.05  # a yaw rate the spin must not be used to estimate
+    yaw0 = f.x[5]
+    assert f.update_deck_spin("deck_spin_lidar", deck_plane(truth), deck_plane_rate(truth, np.zeros(3)), cov)
+    assert f.x[5] == yaw0 and f.x[11] == 0.0
