@@ -117,6 +117,9 @@ def _print_kpis(kpis: dict) -> None:
         print(f"\nFeeder 6-DOF relative to the crane vessel ({f['note']}): position RMSE x/y/z {mm(f['rmse_pos_m'])} mm "
               f"(max {mm(f['max_pos_m'])}), angles r/p/y {' / '.join(f'{x:.3f}' for x in f['rmse_rpy_deg'])} deg, "
               f"NEES {f['nees_mean']:.2f} (6), {f['apt_ms']:.1f} ms per LiDAR frame")
+        online = feeder_online_line(f)
+        if online:
+            print(online)
         if "feeder_rmse_m" in side:
             print(f"D from the feeder's pose {1000 * side['feeder_rmse_m']:.2f} mm RMSE; the heave chain's fused D "
                   f"{1000 * side['heave_fused_rmse_m']:.2f} mm")
@@ -125,6 +128,18 @@ def _print_kpis(kpis: dict) -> None:
         print(f"\nFeeder 6-DOF: {f.get('apt_ms', float('nan')):.1f} ms per LiDAR frame ({why})")
     if side and "feeder_rmse_m" not in side:
         print(f"D from the feeder's pose and the heave chain's fused D: {1000 * side['feeder_minus_fused_rms_m']:.2f} mm RMS apart")
+
+
+def feeder_online_line(f: dict) -> str | None:
+    """The feeder's figures as a live controller had them (kpis' `feeder.online`: each row
+    levelled and defined with what was known at its time), for the line beside the offline
+    ones; None when the run has no scored online block."""
+    o = f.get("online") or {}
+    if "rmse_pos_m" not in o:
+        return None
+    mm = " / ".join(f"{1000 * x:.1f}" for x in o["rmse_pos_m"])
+    deg = " / ".join(f"{x:.3f}" for x in o["rmse_rpy_deg"])
+    return f"  online (causal calibration): position RMSE x/y/z {mm} mm, angles r/p/y {deg} deg, NEES {o['nees_mean']:.2f} (6)"
 
 
 def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> None:
