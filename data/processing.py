@@ -37,6 +37,17 @@ class HookProcessing(_Model):
     estimators: tuple[Literal["ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"], ...] = HOOK_ESTIMATORS
 
 
+class MruGapConfig(_Model):
+    """The feeder chain through a gap in the crane MRU's log (tools/feeder_mru_gap)."""
+
+    enabled: bool = Field(True, description="predict the crane's attitude through an MRU gap from its own samples before it "
+                          "and process the frames with it (off: the chain pauses until the MRU is back)")
+    history_s: float = Field(20.0, gt=2, description="the MRU samples before the gap the AR model is fitted to")
+    rate_hz: float = Field(10.0, gt=0, description="the AR model's sample rate")
+    order: int = Field(20, ge=2, le=64, description="the AR model's order")
+    max_sigma_deg: float = Field(0.2, gt=0, description="past this 1-sigma of the predicted roll or pitch, the chain pauses")
+
+
 class FeederProcessing(_Model):
     enabled: bool = Field(True, description="run the feeder's 6-DOF chain beside the heave chain when there is a LiDAR")
     perception: FeederConfig = FeederConfig()
@@ -56,6 +67,7 @@ class FeederProcessing(_Model):
     hull_edge_frames: int = Field(30, ge=3, description="the own hull's edge is looked for in this many frames (it is static: "
                                   "their spread was 0.0001 deg)")
     radar_registration: RadarRegistrationConfig = RadarRegistrationConfig()
+    mru_gap: MruGapConfig = MruGapConfig()
     calibration_min_s: float = Field(30.0, gt=0, description="deck planes needed before the levelling calibration applies")
 
 

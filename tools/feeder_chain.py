@@ -32,6 +32,7 @@ from boomtip.fusion.attitude_filter import averaged_rates, complementary_angle_s
 from boomtip.fusion.feeder_filter import FeederFilter
 from boomtip.fusion.level_calibration import Tilt
 from boomtip.fusion.models.relative_motion import deck_plane
+from boomtip.fusion.mru_bridge import MruBridge
 from boomtip.perception.feeder import (
     FeederPerception,
     Footprint,
@@ -54,6 +55,7 @@ from boomtip.perception.static_returns import StaticReturns
 from boomtip.perception.timing import StageTimes
 from boomtip.tools.feeder_frame import CausalEstimates, FrameData, causal_estimates, estimates_in_feeder_frame, frame_at, levelling_at
 from boomtip.tools.feeder_merge import BackgroundMerges, MergeRecord
+from boomtip.tools.feeder_mru_gap import MruGap, inflated_sigmas
 
 DECK_STAGES = ("deck.preprocess", "deck.planes", "deck.refine", "deck.intersect")
 
@@ -88,6 +90,10 @@ class FeederChain:
         # the levelling's attitude: the MRU's angles filtered with its rates (see attitude_filter)
         self.mru = complementary_attitude(source.mru, cfg.mru_tau_s) if cfg.mru_tau_s > 0 else source.mru
         self.mru, n_rates = averaged_rates(self.mru, cfg.mru_rate_half_window_s)
+        g = cfg.mru_gap  # through a gap in the log: its forecast (tools/feeder_mru_gap)
+        if g.enabled:
+            self.mru = MruBridge(self.mru, g.history_s, g.rate_hz, g.order, math.radians(g.max_sigma_deg))
+        self.gap = MruGap()  # its pipeline: ShipChain's
         angle_sigma = complementary_angle_sigma(math.radians(inst.mru.angle_noise_deg), math.radians(inst.mru.rate_noise_degps),
                                                 cfg.mru_tau_s, 1.0 / inst.mru.rate_hz)
         self.perception = FeederPerception(inst, cfg.perception, rates_averaged_over=n_rates, angle_sigma_rad=angle_sigma)
@@ -139,6 +145,17 @@ class FeederChain:
             self.missing.append((frame.t_s, frame.sensor, "no MRU attitude"))
             return times
         rpy, rpy_rate = att
+        var = self.mru.attitude_var(frame.t_s)[2] if isinstance(self.mru, MruBridge) else None
+        if var is None or not var.any() or self.gap.pipeline is None:
+            self.gap.mru_back(self.filter, frame.sensor)
+            return self._observe(frame, heave, rpy, rpy_rate, times)
+        heave, rows = self.gap.stages(frame, rpy, var), len(self.filter.out.P)
+        with inflated_sigmas(self.perception, var):
+            self._observe(frame, heave, rpy, rpy_rate, times)
+        self.gap.in_gap_rows(self.filter.out, rows)
+        return times
+
+    def _observe(self, frame: Frame, heave: FrameResult | None, rpy: np.ndarray, rpy_rate: np.ndarray, times: StageTimes) -> StageTimes:
         t_obs = time.perf_counter()
         with times.stage("feeder.observe"):
             if frame.sensor == "lidar":

@@ -81,7 +81,9 @@ def _figures(err_pose: np.ndarray, err_rate: np.ndarray, var: np.ndarray) -> dic
     }
 
 
-def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray, windows=(), heave_D: tuple | None = None) -> dict:
+def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray, windows=(), heave_D: tuple | None = None,
+                mru_windows=()) -> dict:
+    """mru_windows: the crane MRU's outages alone, scored as `mru_outage` (tools/feeder_mru_gap)."""
     apt = float(np.mean(res.frame_ms)) if res.frame_ms else float("nan")
     waits = [m.wait_s for m in res.merges]
     out: dict = {"apt_ms": round(apt, 3), "apt_ms_p95": round(float(np.percentile(res.frame_ms, 95)), 3) if res.frame_ms else None,
@@ -119,14 +121,14 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
     pose_t, rate_t = truth_of(res, truth, p_tip_crane_m)
     e_pose, e_rate = _errors(res, pose_t, rate_t)
     scored = warm & np.all(np.isfinite(pose_t), axis=1)
-    inside = np.zeros(len(res.t_s), dtype=bool)
-    for a, b in windows:
-        inside |= (res.t_s >= a) & (res.t_s < b)
+    inside, in_mru = in_windows_of(res.t_s, windows), in_windows_of(res.t_s, mru_windows)
     out.update(_figures(e_pose[scored], e_rate[scored], res.var[scored]))
     out["note"] = f"errors exclude the first {WARMUP_S:g} s after the first deck frame (filter convergence)"
     if windows:
         out["outage"] = _figures(e_pose[scored & inside], e_rate[scored & inside], res.var[scored & inside])
         out["outside_outage"] = _figures(e_pose[scored & ~inside], e_rate[scored & ~inside], res.var[scored & ~inside])
+    if mru_windows:
+        out["mru_outage"] = _figures(e_pose[scored & in_mru], e_rate[scored & in_mru], res.var[scored & in_mru])
     if res.online is None:
         return out
     o = res.online
@@ -141,6 +143,13 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
                         "offline": _figures(e_pose[part], e_rate[part], res.var[part])}
     out["online"] = online
     return out
+
+
+def in_windows_of(t_s: np.ndarray, windows) -> np.ndarray:
+    inside = np.zeros(len(t_s), dtype=bool)
+    for a, b in windows:
+        inside |= (t_s >= a) & (t_s < b)
+    return inside
 
 
 def _errors(est: FeederResult | CausalEstimates, pose_t: np.ndarray, rate_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,6 +211,7 @@ def report_section(kpis: dict, windows=()) -> str:
     if windows:
         row("boomtip, inside the outage windows", f.get("outage"))
         row("boomtip, outside them", f.get("outside_outage"))
+        row("boomtip, inside the crane MRU's gaps (its attitude predicted, tools/feeder_mru_gap)", f.get("mru_outage"))
     for name, d in DOC004.items():
         lines.append(f"| 004 {name} (x10) | {' / '.join(f'{10 * x:.1f}' for x in d['rms_mm'])} | "
                      f"{' / '.join(f'{10 * x:.1f}' for x in d['max_mm'])} | {' / '.join(f'{x:.2f}' for x in d['rms_deg'])} | "

@@ -82,10 +82,10 @@ def run_labels(source: FrameSource, chain: str) -> dict:
     return labels
 
 
-def outage_windows(source: FrameSource) -> list[tuple[float, float]]:
+def outage_windows(source: FrameSource, sensors: tuple[str, ...] = ("lidar", "radar", "mru")) -> list[tuple[float, float]]:
     """The simulated sensors' outage windows (from the provenance: for scoring only)."""
     world = (source.meta.provenance or {}).get("world") or {}
-    return sorted(tuple(w) for s in ("lidar", "radar", "mru") for w in (world.get(s) or {}).get("outages_s", []))
+    return sorted(tuple(w) for s in sensors for w in (world.get(s) or {}).get("outages_s", []))
 
 
 def run(source: FrameSource, out: Path, force: bool = False, processing: Processing | None = None, rerun: bool = False,

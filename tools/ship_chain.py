@@ -29,6 +29,7 @@ class ShipChain:
     def __init__(self, source: FrameSource, processing: Processing) -> None:
         self.heave = HeaveChain(source, processing)
         self.feeder = FeederChain(source, processing)
+        self.feeder.gap.pipeline = self.heave.pipeline  # its stages run on frames in an MRU gap (feeder_mru_gap)
         self.source = source
         self.p_tip_crane_m = source.meta.installation.T_crane_boomtip()[:3, 3]
 
@@ -53,7 +54,10 @@ class ShipChain:
         kpis = self.heave.kpis(result.heave, truth, windows)
         fused = result.heave.estimates.get("fused")
         heave_D = (fused.t_s, fused.x[:, 0]) if fused is not None else None
-        kpis["feeder"] = feeder_kpis(result.feeder, truth, self.p_tip_crane_m, windows, heave_D)
+        from boomtip.tools.runner import outage_windows
+
+        kpis["feeder"] = feeder_kpis(result.feeder, truth, self.p_tip_crane_m, windows, heave_D,
+                                     outage_windows(self.source, ("mru",)))
         return kpis
 
     def report(self, out: Path, kpis: dict, result: ShipResult, truth: Truth | None) -> list[str]:

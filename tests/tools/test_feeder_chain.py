@@ -426,3 +426,29 @@ def test_merges_run_inline_by_default(short_run):
     assert [(m["frames"], m["status"]) for m in merges] == [(20, "ok"), (50, "ok"), (100, "ok")]
     assert all(m["taken_frame"] == m["started_frame"] for m in merges)
     assert short_run[1].kpis["feeder"]["apt_ms_max"] >= max(1e3 * m["worker_s"] for m in merges)
+
+
+def test_a_crane_mru_gap_is_bridged_with_the_predicted_attitude(tmp_path):
+    """world.mru.outages_s: the frames in the gap are levelled with the MRU's own forecast
+    (tools/feeder_mru_gap); off, the chain pauses there as it did."""
+    s = load_scenario("sts-loaded", ["duration_s=16", "world.mru.outages_s=[[11,13]]"])
+    res = run(Simulation(s), tmp_path / "g", report=False)
+    k, f = res.kpis["feeder"], res.result.feeder
+    inside = (f.t_s >= 11) & (f.t_s < 13)
+    assert k["mru_outage"]["samples"] == inside.sum() >= 38  # a row per LiDAR and radar frame: 20 a second
+    assert np.all(np.isfinite(f.pose[inside])) and np.all(np.isfinite(f.var[inside])) and np.all(f.var[inside] > 0)
+    # 16 s is under the calibration's 30 s: the angles carry the mount's error (0.03 deg) inside and out
+    gap, out = k["mru_outage"], k["outside_outage"]
+    assert max(gap["rmse_pos_m"]) < 0.01 and max(gap["rmse_rpy_deg"]) < 1.3 * max(out["rmse_rpy_deg"])
+    assert min(gap["within_3sigma_pct"]) == 100.0 and 1.8 < gap["nees_mean"] < 18
+    assert not any(why == "no MRU attitude" for t, _, why in f.missing if 11 <= t < 13)
+    # the prediction's error is on the rows: x's variance in the gap's second half above the rows before it
+    assert f.var[(f.t_s > 12.5) & inside, 0].mean() > f.var[(f.t_s > 10.0) & (f.t_s < 11.0), 0].mean()
+    off = load_scenario("sts-loaded", ["duration_s=16", "world.mru.outages_s=[[11,13]]", "processing.feeder.mru_gap.enabled=false"])
+    paused = run(Simulation(off), tmp_path / "p", report=False)
+    assert paused.kpis["feeder"]["mru_outage"]["samples"] == 0
+    # before the gap the two runs agree to the bit as a live controller had them (causal rows)
+    g, p = res.result.feeder.online, paused.result.feeder.online
+    before = g.t_s < 11
+    assert before.sum() > 150 and np.array_equal(g.t_s[before], p.t_s[p.t_s < 11])
+    assert np.array_equal(g.pose[before], p.pose[p.t_s < 11]) and np.array_equal(g.var[before], p.var[p.t_s < 11])
