@@ -429,9 +429,9 @@ def test_merges_run_inline_by_default(short_run):
 
 
 def test_a_crane_mru_gap_is_bridged_with_the_predicted_attitude(tmp_path):
-    """world.mru.outages_s: the frames in the gap are levelled with the MRU's own forecast
-    (tools/feeder_mru_gap); off, the chain pauses there as it did."""
-    s = load_scenario("sts-loaded", ["duration_s=16", "world.mru.outages_s=[[11,13]]"])
+    """world.mru.outages_s: with processing.feeder.mru_gap on, the frames in the gap are levelled
+    with the MRU's own forecast (tools/feeder_mru_gap); off (the default), the chain pauses."""
+    s = load_scenario("sts-loaded", ["duration_s=16", "world.mru.outages_s=[[11,13]]", "processing.feeder.mru_gap.enabled=true"])
     res = run(Simulation(s), tmp_path / "g", report=False)
     k, f = res.kpis["feeder"], res.result.feeder
     inside = (f.t_s >= 11) & (f.t_s < 13)
@@ -444,7 +444,7 @@ def test_a_crane_mru_gap_is_bridged_with_the_predicted_attitude(tmp_path):
     assert not any(why == "no MRU attitude" for t, _, why in f.missing if 11 <= t < 13)
     # the prediction's error is on the rows: x's variance in the gap's second half above the rows before it
     assert f.var[(f.t_s > 12.5) & inside, 0].mean() > f.var[(f.t_s > 10.0) & (f.t_s < 11.0), 0].mean()
-    off = load_scenario("sts-loaded", ["duration_s=16", "world.mru.outages_s=[[11,13]]", "processing.feeder.mru_gap.enabled=false"])
+    off = load_scenario("sts-loaded", ["duration_s=16", "world.mru.outages_s=[[11,13]]"])  # the default: the pause
     paused = run(Simulation(off), tmp_path / "p", report=False)
     assert paused.kpis["feeder"]["mru_outage"]["samples"] == 0
     # before the gap the two runs agree to the bit as a live controller had them (causal rows)
