@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 
+MIN_POINTS = 24  # four residuals per coefficient at least
 MAX_CONDITION = 1e8  # of the column-scaled normal equations: beyond, the plane alone
 
 
@@ -76,10 +77,13 @@ def spin_plane_in_level(points_level: np.ndarray, t_s: np.ndarray, inflation: fl
     plane and its rates are strongly correlated (the height at the frame's time and the heave
     rate, 0.998), and inflating their blocks apart would make up information about their
     combinations (the height at the returns' mean time, the one well measured). None when the
-    returns' times do not separate from their places (MAX_CONDITION)."""
+    returns' times do not separate from their places (MAX_CONDITION), or too few for the six
+    coefficients to leave residuals (MIN_POINTS: an exact fit would claim a zero covariance)."""
     t = np.asarray(t_s, dtype=float)
     P = np.ascontiguousarray(points_level.T)  # (3, N): a contiguous row per axis for the products below
     n = P.shape[1]
+    if n < MIN_POINTS:
+        return None
     c = P.mean(axis=1)
     tm = float(t.mean())
     # rows: slope x, slope y, height, and the same three times (t - tm), about the centroid

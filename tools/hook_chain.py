@@ -215,7 +215,8 @@ class HookChain:
         """The hoist encoder (stretched) interpolated at t, from the two rows about t: np.interp's
         value depends on those alone, so the same number as over the whole log."""
         i0 = max(int(np.searchsorted(self.enc_t, t, "right")) - 1, 0)
-        i1 = min(int(np.searchsorted(self.enc_t, t, "left")) + 1, len(self.enc_t))
+        # at least one row: a time stamp repeated at t would otherwise leave an empty slice
+        i1 = max(min(int(np.searchsorted(self.enc_t, t, "left")) + 1, len(self.enc_t)), i0 + 1)
         return float(np.interp(t, self.enc_t[i0:i1], self.enc_table[i0:i1][:, 2]))
 
     def _times_to_disk(self) -> None:

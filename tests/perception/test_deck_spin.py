@@ -130,3 +130,14 @@ def test_the_feeders_lidar_observation_has_a_spin_only_with_times_that_span_the_
     assert per.lidar(0.0, pts_sensor, rpy, rate, deck).spin is None
     off = FeederPerception(inst, FeederConfig(spin=False))
     assert off.lidar(0.0, pts_sensor, rpy, rate, deck, times).spin is None and off.lidar(0.0, pts_sensor, rpy, rate, deck, times).plane is not None
+
+
+def test_too_few_points_for_six_coefficients_are_refused():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-5, 5, (6, 3))
+    pts[:, 2] = 0.1 * pts[:, 0]
+    t = np.linspace(0.0, 0.05, 6)
+    assert spin_plane_in_level(pts, t, 20.0) is None  # exact fit: no residual to scale a covariance
+    pts = rng.uniform(-5, 5, (200, 3))
+    pts[:, 2] = 0.1 * pts[:, 0] + rng.normal(0, 0.01, 200)
+    assert spin_plane_in_level(pts, rng.uniform(0, 0.05, 200), 20.0) is not None
