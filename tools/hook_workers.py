@@ -47,9 +47,12 @@ def parallel_enabled() -> bool:
 def _libc_malloc_trim():
     name = ctypes.util.find_library("c")
     try:
-        return ctypes.CDLL(name).malloc_trim if name else None
+        trim = ctypes.CDLL(name).malloc_trim if name else None
     except (OSError, AttributeError):  # not glibc
         return None
+    if trim is not None:  # int malloc_trim(size_t pad): declared, so the pad is passed at its width
+        trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return trim
 
 
 _MALLOC_TRIM = _libc_malloc_trim()
