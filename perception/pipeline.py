@@ -106,6 +106,14 @@ def keep_freed_memory(mmap_threshold_bytes: int = 16 << 20, trim_threshold_bytes
     return bool(mapped) and bool(mallopt(_M_TRIM_THRESHOLD, int(trim_threshold_bytes)))
 
 
+def carried_deck_prior(cfg: PipelineConfig, t_s: float, last: tuple[float, float] | None) -> tuple[float | None, float]:
+    """The last deck (t, D) carried forward as the deck search's prior and its tolerance (growing
+    with its age at the sea's fastest D-dot); none once it is older than max_deck_age_s."""
+    if last is not None and abs(t_s - last[0]) <= cfg.max_deck_age_s:  # abs: a frame may come late
+        return last[1], cfg.deck_prior_tol_m + cfg.max_abs_D_dot_mps * abs(t_s - last[0])
+    return None, 0.0
+
+
 def doppler_inputs(frame: Frame, pc: PreprocessConfig) -> tuple[np.ndarray, np.ndarray] | None:
     """A radar frame's detections for the Doppler fit: the points (sensor frame, m; the fit
     normalises them to beam directions) and range rates (m/s) of the finite detections within
@@ -245,7 +253,7 @@ class HeavePipeline:
             return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, status) for m in wanted}, times), times)
         if len(frame) == 0:
             return FrameResult(frame, self._rows(frame, {m: (np.nan, np.nan, "empty frame") for m in wanted}, times), times)
-        rng = np.random.default_rng([self.seed, SENSOR_IDS[frame.sensor], frame.index])
+        rng = self.frame_rng(frame)
         out = FrameResult(frame, [], times, extras={"R_level_sensor": R_ls, "wire_dir_sensor": wire})
         results: dict[str, tuple[float, float, str]] = {}
         p_tip = self.p_tip[frame.sensor]
@@ -281,15 +289,16 @@ class HeavePipeline:
                 row.sigma_systematic = attitude_sigma_D(row.value, fit.plane_sensor, wire, self.bias_sigma_rad[frame.sensor])
         return out
 
+    def frame_rng(self, frame: Frame) -> np.random.Generator:
+        """The frame's random draws (RANSAC), from the run's seed, the sensor and the frame's index."""
+        return np.random.default_rng([self.seed, SENSOR_IDS[frame.sensor], frame.index])
+
     def _deck_prior(self, t_s: float, sensor: str, reflectors: ReflectorResult | None) -> tuple[float | None, float]:
         """Where the deck is expected: this frame's reflector D, else the last deck of this
         sensor carried forward (the tolerance grows with its age at the sea's fastest D-dot)."""
         if reflectors is not None and reflectors.status == "ok" and self._implausible(sensor, "D", reflectors.D_m, 1.0) is None:
             return reflectors.D_m, self.cfg.deck_prior_tol_m
-        last = self.last_deck.get(sensor)
-        if last is not None and abs(t_s - last[0]) <= self.cfg.max_deck_age_s:  # abs: a frame may come late
-            return last[1], self.cfg.deck_prior_tol_m + self.cfg.max_abs_D_dot_mps * abs(t_s - last[0])
-        return None, 0.0
+        return carried_deck_prior(self.cfg, t_s, self.last_deck.get(sensor))
 
     def _deck_row(self, deck: DeckResult, wire, p_tip, t_s: float, sensor: str, R_ls) -> tuple[float, float, str]:
         if not deck.ok:

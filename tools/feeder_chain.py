@@ -140,12 +140,13 @@ class FeederChain:
         if frame.error is not None or len(frame) == 0:
             self.missing.append((frame.t_s, frame.sensor, frame.error or "empty frame"))
             return times
-        att = self.mru.attitude(frame.t_s)
+        # with a bridge through the MRU's gaps, the attitude's variance too (zero off the gaps)
+        att = self.mru.attitude_var(frame.t_s) if isinstance(self.mru, MruBridge) else self.mru.attitude(frame.t_s)
         if att is None:
             self.missing.append((frame.t_s, frame.sensor, "no MRU attitude"))
             return times
-        rpy, rpy_rate = att
-        var = self.mru.attitude_var(frame.t_s)[2] if isinstance(self.mru, MruBridge) else None
+        rpy, rpy_rate, *var = att
+        var = var[0] if var else None
         if var is None or not var.any() or self.gap.pipeline is None:
             self.gap.mru_back(self.filter, frame.sensor)
             return self._observe(frame, heave, rpy, rpy_rate, times)

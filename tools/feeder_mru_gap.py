@@ -47,7 +47,8 @@ from boomtip.data.frames import Frame
 from boomtip.perception.deck import detect_deck
 from boomtip.perception.doppler import doppler_velocity
 from boomtip.perception.feeder import FeederPerception
-from boomtip.perception.pipeline import SENSOR_IDS, FrameResult, HeavePipeline, doppler_inputs
+from boomtip.perception.geometry import level_rotation_rows
+from boomtip.perception.pipeline import FrameResult, HeavePipeline, carried_deck_prior, doppler_inputs
 from boomtip.perception.timing import StageTimes
 
 
@@ -56,17 +57,12 @@ def stages_with_attitude(pipeline: HeavePipeline, frame: Frame, rpy: np.ndarray,
     with `rpy`: the pipeline's own stages and settings, its random draws for the frame.
     last_deck: sensor -> (t, D) of the last deck found, the deck search's prior (updated here)."""
     times = StageTimes()
-    R_rows = np.array(pipeline._R_crane_sensor_rows[frame.sensor])
-    R_ls = FeederPerception.R_level(rpy) @ R_rows
-    wire = -R_ls[2]
+    wire = -np.array(level_rotation_rows(rpy, pipeline._R_crane_sensor_rows[frame.sensor])[2])
     p_tip = pipeline.p_tip[frame.sensor]
-    rng = np.random.default_rng([pipeline.seed, SENSOR_IDS[frame.sensor], frame.index])
+    rng = pipeline.frame_rng(frame)
     out = FrameResult(frame, [], times)
     cfg = pipeline.cfg
-    prior, tol = None, 0.0
-    last = last_deck.get(frame.sensor) or pipeline.last_deck.get(frame.sensor)
-    if last is not None and abs(frame.t_s - last[0]) <= cfg.max_deck_age_s:
-        prior, tol = last[1], cfg.deck_prior_tol_m + cfg.max_abs_D_dot_mps * abs(frame.t_s - last[0])
+    prior, tol = carried_deck_prior(cfg, frame.t_s, last_deck.get(frame.sensor) or pipeline.last_deck.get(frame.sensor))
     if frame.sensor == "lidar":
         out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_lidar, rng, times, "deck",
                                             prior_D_m=prior, prior_tol_m=tol)

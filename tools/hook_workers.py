@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import ctypes.util
 import multiprocessing as mp
 import os
 import signal
@@ -45,13 +44,11 @@ def parallel_enabled() -> bool:
 
 
 def _libc_malloc_trim():
-    name = ctypes.util.find_library("c")
-    try:
-        trim = ctypes.CDLL(name).malloc_trim if name else None
-    except (OSError, AttributeError):  # not glibc
+    try:  # the process's own symbols, as perception.pipeline.keep_freed_memory looks up mallopt
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError, TypeError):  # not glibc
         return None
-    if trim is not None:  # int malloc_trim(size_t pad): declared, so the pad is passed at its width
-        trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int  # int malloc_trim(size_t pad)
     return trim
 
 
