@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.sim.world import in_windows  # the scored windows, from the world's provenance
 from boomtip.fusion.models.relative_motion import deck_plane
 from boomtip.tools.feeder_chain import FeederResult
 from boomtip.tools.feeder_frame import HISTORY_COLUMNS, UPDATE_EVERY_S, CausalEstimates
@@ -121,7 +122,7 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
     pose_t, rate_t = truth_of(res, truth, p_tip_crane_m)
     e_pose, e_rate = _errors(res, pose_t, rate_t)
     scored = warm & np.all(np.isfinite(pose_t), axis=1)
-    inside, in_mru = in_windows_of(res.t_s, windows), in_windows_of(res.t_s, mru_windows)
+    inside, in_mru = in_windows(res.t_s, windows), in_windows(res.t_s, mru_windows)
     out.update(_figures(e_pose[scored], e_rate[scored], res.var[scored]))
     out["note"] = f"errors exclude the first {WARMUP_S:g} s after the first deck frame (filter convergence)"
     if windows:
@@ -143,13 +144,6 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
                         "offline": _figures(e_pose[part], e_rate[part], res.var[part])}
     out["online"] = online
     return out
-
-
-def in_windows_of(t_s: np.ndarray, windows) -> np.ndarray:
-    inside = np.zeros(len(t_s), dtype=bool)
-    for a, b in windows:
-        inside |= (t_s >= a) & (t_s < b)
-    return inside
 
 
 def _errors(est: FeederResult | CausalEstimates, pose_t: np.ndarray, rate_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
