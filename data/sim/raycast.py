@@ -141,7 +141,7 @@ class RayCaster:
             # one gather of the rays, float32 throughout. Rotated unit rays stay unit; only a
             # stretched body's rays need normalising.
             d_b = rays[closer][:, 3:]
-            c = np.abs(np.einsum("ij,ij->i", self.face_normals32[b][face], d_b))
+            c = np.abs(np.einsum("ij,ij->i", ans["primitive_normals"].numpy()[closer], d_b))
             if scale is not None:
                 c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
             cos_inc[closer] = c
@@ -257,7 +257,7 @@ class RayCaster:
                 # incidence reads the zero normal), and the fixed hits before it, few, go back
                 # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
-                cos_inc = self._incidence(b, best_face, rays, None, scale)
+                cos_inc = self._incidence(ans["primitive_normals"].numpy(), rays, None, scale)
                 if len(t) < k:
                     best_t, best_face, cos_inc = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
                 best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)  # (any value on a miss)
@@ -281,7 +281,7 @@ class RayCaster:
             best_face[hit_k] = face
             if best_flat is not None:
                 best_flat[hit_k] = face + self.face_offset[b]
-            cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
+            cos_inc[hit_k] = self._incidence(ans["primitive_normals"].numpy().take(closer, axis=0), rays, closer, scale)
         if best_t is None and pending is not None:  # no body cast: the fixed hits alone
             best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
         elif best_t is None:  # no ray could reach a body
@@ -289,12 +289,12 @@ class RayCaster:
             best_body, best_face = np.full(k, -1, dtype=np.int32), np.full(k, -1, dtype=np.int32)
         return Hits(best_t, best_body, best_face, cos_inc, flat_face=best_flat)
 
-    def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
+    def _incidence(self, n_b: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
                    scale: np.ndarray | None) -> np.ndarray:
-        """|cos| of the incidence of `rays` (all, or rows ray_i) on body b's faces `face`, in
-        the body frame (as in `cast`), one component at a time in float32. Rotated unit rays
-        stay unit; only a stretched body's rays need normalising."""
-        n_b = self.face_normals32_rows[b].take(face, axis=0)
+        """|cos| of the incidence of `rays` (all, or rows ray_i) on the faces hit, whose unit
+        normals `n_b` Embree gave with the hits (zero on a miss), in the body frame (as in
+        `cast`), one component at a time in float32. Rotated unit rays stay unit; only a
+        stretched body's rays need normalising."""
         c = n_b[:, 0] * (rays[:, 3] if ray_i is None else rays[:, 3].take(ray_i))
         ci = np.empty_like(c)
         for i in (1, 2):
