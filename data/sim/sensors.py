@@ -161,9 +161,10 @@ def lidar_measure(
     """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label. With `spray`
     (world.sea.spray) some rays return early from droplets in its height band (world z), given
     the rays' directions `dirs_world` and origin heights `origin_z_world` (needed only then).
-    The arithmetic runs in place on the returns kept, in the dtypes of the expressions it
-    stands for (intensity float32, range float64), so frames do not depend on how it is laid out."""
-    r_all = hits.range_m  # float32 or 64; compared and used as float64
+    The arithmetic runs in place on the returns kept, in float32 for the fans' ranges (Embree's
+    t: its rounding, 4 um at 50 m, is far below any range noise or resolution) and the
+    intensities; the points are float64."""
+    r_all = hits.range_m  # float32 (the fans') or float64 (`cast`'s), compared as float64
     lo, hi = range_window(cfg.min_range_m, cfg.max_range_m, r_all.dtype)
     keep = r_all >= lo
     keep &= r_all <= hi  # a miss (inf) fails the max
@@ -180,9 +181,9 @@ def lidar_measure(
     else:
         f = faces.offset.take(hits.body.take(idx))
         f += hits.face.take(idx)
-    r = r_all.take(idx).astype(np.float64, copy=False)
-    cos_inc = hits.cos_incidence.take(idx)
-    np.minimum(np.maximum(cos_inc, 1e-3, out=cos_inc), 1.0, out=cos_inc)  # np.clip's values, without its Python wrapper
+    r = r_all.take(idx)
+    cos_inc = hits.cos_incidence.take(idx)  # |n . d| of unit vectors: at most 1 but for rounding
+    np.maximum(cos_inc, 1e-3, out=cos_inc)  # (the retro lobe's arccos clips its few at 1)
     intensity = faces.reflectivity_signed.take(f)  # negative on retro-reflectors, made positive below
     intensity *= cos_inc  # diffuse (Lambert)
     label = faces.label.take(f)
@@ -200,10 +201,10 @@ def lidar_measure(
     # incidence. Only the few retro hits need the transcendental functions.
     retro_i = np.signbit(intensity).nonzero()[0]
     if len(retro_i):
-        inc = np.arccos(cos_inc[retro_i])
+        inc = np.arccos(np.minimum(cos_inc.take(retro_i), 1.0))
         lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
         intensity[retro_i] = np.maximum(lobe, -intensity[retro_i])
-    spread = np.divide(INTENSITY_REFERENCE_RANGE_M, r)
+    spread = np.divide(r.dtype.type(INTENSITY_REFERENCE_RANGE_M), r)
     spread *= spread
     intensity *= spread  # (r_ref / r)^2
     if cfg.extinction_per_km > 0:  # rain or fog: the light is attenuated out and back
@@ -217,18 +218,19 @@ def lidar_measure(
         factor += 1
         intensity *= np.maximum(factor, 0.05, out=factor)
     if cfg.range_noise_m > 0:
-        # Weaker returns are noisier: sigma grows as 1/sqrt(intensity), capped.
-        gain = np.maximum(intensity, 1e-9)
-        np.sqrt(gain, out=gain)
-        np.divide(1.0, gain, out=gain)
-        np.minimum(np.maximum(gain, 1.0, out=gain), cfg.weak_return_noise_gain, out=gain)
-        gain *= cfg.range_noise_m
-        gain *= noise[n:]
-        r += gain  # r is this function's own array from here on (a gather or np.where)
+        # Weaker returns are noisier: sigma grows as 1/sqrt(intensity) from 1 at intensity 1
+        # up to the gain's cap, i.e. sigma / sqrt(intensity clipped to [cap^-2, 1]).
+        sigma = np.maximum(intensity, max(cfg.weak_return_noise_gain ** -2, 1e-9))
+        np.minimum(sigma, 1.0, out=sigma)
+        np.sqrt(sigma, out=sigma)
+        np.divide(r.dtype.type(cfg.range_noise_m), sigma, out=sigma)
+        sigma *= noise[n:]
+        r += sigma  # r is this function's own array from here on (a gather or np.where)
     if cfg.range_resolution_m > 0:
-        np.divide(r, cfg.range_resolution_m, out=r)
+        r *= r.dtype.type(1.0 / cfg.range_resolution_m)
         np.rint(r, out=r)
-        r *= cfg.range_resolution_m
+        r *= r.dtype.type(cfg.range_resolution_m)
+    r = r.astype(np.float64, copy=False)
     points = np.empty((n, 3))
     dirs = pattern.dirs_rows32b.take(idx, axis=0)
     for i in range(3):
