@@ -16,8 +16,6 @@ between frames.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import open3d as o3d
 
@@ -25,20 +23,47 @@ from boomtip.data.meshes import Body
 from boomtip.data.sim.fans import Fans, box_corners, transpose_times
 
 
-@dataclass
 class Hits:
-    range_m: np.ndarray  # (K,) inf on a miss; float32 from `cast_fans` (Embree's t), float64 from `cast`
-    body: np.ndarray  # (K,) int, -1 on a miss
-    face: np.ndarray  # (K,) int, -1 on a miss
-    cos_incidence: np.ndarray  # (K,) |cos| of the angle between ray and face normal (0 on a miss)
-    normal_world: np.ndarray | None = None  # (K,3) unit face normals, world axes, when asked for
-    # (K,) int64 face index over all bodies (the caster's `face_offset[body] + face`; any value
-    # on a miss), when the cast had it at hand (`cast_fans` on one pose): the materials' index.
-    flat_face: np.ndarray | None = None
+    """The nearest hit of each of K rays. `range_m` (K,) is inf on a miss: float32 from
+    `cast_fans` (Embree's t), float64 from `cast`. `body` and `face` (K,) int are -1 on a miss.
+    `cos_incidence` (K,) is |cos| of the angle between ray and face normal (0 on a miss);
+    `normal_world` (K,3) the unit face normals in world axes, when asked for. `flat_face` (K,)
+    int64, when the cast had it at hand (`cast_fans` from a first cast), is the face index over
+    all bodies (`face_offsets(bodies)[body] + face`; any value on a miss), the materials' index;
+    given it and the offsets, `body` and `face` are derived from it when first read (a frame's
+    sensor model reads neither)."""
+
+    def __init__(self, range_m: np.ndarray, body: np.ndarray | None, face: np.ndarray | None,
+                 cos_incidence: np.ndarray, normal_world: np.ndarray | None = None,
+                 flat_face: np.ndarray | None = None, face_offset: np.ndarray | None = None) -> None:
+        if body is None and (flat_face is None or face_offset is None):
+            raise ValueError("Hits: body and face, or the flat face index and the bodies' face offsets")
+        self.range_m, self._body, self._face = range_m, body, face
+        self.cos_incidence, self.normal_world, self.flat_face = cos_incidence, normal_world, flat_face
+        self._face_offset = face_offset
 
     @property
     def hit(self) -> np.ndarray:
         return np.isfinite(self.range_m)
+
+    @property
+    def body(self) -> np.ndarray:
+        if self._body is None:
+            self._split_flat_face()
+        return self._body
+
+    @property
+    def face(self) -> np.ndarray:
+        if self._face is None:
+            self._split_flat_face()
+        return self._face
+
+    def _split_flat_face(self) -> None:
+        hit = self.hit
+        flat = np.where(hit, self.flat_face, 0)
+        body = np.searchsorted(self._face_offset, flat, side="right") - 1
+        self._face = np.where(hit, flat - self._face_offset[body], -1).astype(np.int32)
+        self._body = np.where(hit, body, -1).astype(np.int32)
 
 
 class RayCaster:
@@ -200,9 +225,11 @@ class RayCaster:
                     pending = None
                 t, face, c = fixed_hits[b]
                 closer = np.flatnonzero(t < best_t)
-                best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                best_t[closer], cos_inc[closer] = t[closer], c[closer]
                 if best_flat is not None:
                     best_flat[closer] = face[closer] + self.face_offset[b]
+                else:
+                    best_body[closer], best_face[closer] = b, face[closer]
                 nearest = min(nearest, self._fixed_nearest(b, t))
                 continue
             if best_t is None and fans.wide:
@@ -258,36 +285,35 @@ class RayCaster:
                 # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
                 cos_inc = self._incidence(ans["primitive_normals"].numpy(), rays, None, scale)
-                if len(t) < k:
-                    best_t, best_face, cos_inc = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
                 best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)  # (any value on a miss)
-                best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
-                best_body |= b  # ... then b (-1 stays -1)
+                if len(t) < k:
+                    best_t, cos_inc, best_flat = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (cos_inc, 0), (best_flat, -1)))
+                best_body = best_face = None  # from best_flat if asked for (see Hits)
                 if pending is not None:
                     k_f, t_k, face_k, c_k, flat_k = self._fixed_compact(pending, fixed_hits[pending])
                     farther = best_t.take(k_f) < t_k  # ties to the fixed body, as `cast` (the lower index)
                     if farther.any():
                         nearer = ~farther
                         k_f, t_k, face_k, c_k, flat_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer], flat_k[nearer]
-                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f], best_flat[k_f] = t_k, pending, face_k, c_k, flat_k
+                    best_t[k_f], cos_inc[k_f], best_flat[k_f] = t_k, c_k, flat_k
                     pending = None
                 continue
             nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
             closer = np.flatnonzero(t < (best_t[first:first + len(t)] if ray_k is None else best_t.take(ray_k)))
             hit_k = closer + first if ray_k is None else ray_k.take(closer)
             best_t[hit_k] = t.take(closer)
-            best_body[hit_k] = b
             face = ans["primitive_ids"].numpy().take(closer)
-            best_face[hit_k] = face
             if best_flat is not None:
                 best_flat[hit_k] = face + self.face_offset[b]
+            else:
+                best_body[hit_k], best_face[hit_k] = b, face
             cos_inc[hit_k] = self._incidence(ans["primitive_normals"].numpy().take(closer, axis=0), rays, closer, scale)
         if best_t is None and pending is not None:  # no body cast: the fixed hits alone
             best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
         elif best_t is None:  # no ray could reach a body
             best_t, cos_inc = np.full(k, np.inf, dtype=np.float32), np.zeros(k, dtype=np.float32)
             best_body, best_face = np.full(k, -1, dtype=np.int32), np.full(k, -1, dtype=np.int32)
-        return Hits(best_t, best_body, best_face, cos_inc, flat_face=best_flat)
+        return Hits(best_t, best_body, best_face, cos_inc, flat_face=best_flat, face_offset=self.face_offset)
 
     def _incidence(self, n_b: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
                    scale: np.ndarray | None) -> np.ndarray:
