@@ -28,7 +28,7 @@ class Hits:
     `cast_fans` (Embree's t), float64 from `cast`. `body` and `face` (K,) int are -1 on a miss.
     `cos_incidence` (K,) is |cos| of the angle between ray and face normal (0 on a miss);
     `normal_world` (K,3) the unit face normals in world axes, when asked for. `flat_face` (K,)
-    int64, when the cast had it at hand (`cast_fans` from a first cast), is the face index over
+    int32, when the cast had it at hand (`cast_fans` from a first cast), is the face index over
     all bodies (`face_offsets(bodies)[body] + face`; any value on a miss), the materials' index;
     given it and the offsets, `body` and `face` are derived from it when first read (a frame's
     sensor model reads neither)."""
@@ -285,7 +285,7 @@ class RayCaster:
                 # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
                 cos_inc = self._incidence(ans["primitive_normals"].numpy(), rays, None, scale)
-                best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)  # (any value on a miss)
+                best_flat = np.add(best_face, int(self.face_offset[b]), dtype=np.int32)  # (any value on a miss)
                 if len(t) < k:
                     best_t, cos_inc, best_flat = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (cos_inc, 0), (best_flat, -1)))
                 best_body = best_face = None  # from best_flat if asked for (see Hits)
@@ -362,7 +362,7 @@ class RayCaster:
         if len(cached) == 3:
             k = np.flatnonzero(fixed[1] >= 0)
             face = cached[2][k]
-            cached = self._fixed_body_cache[b] = (*cached, (k, fixed[0][k], face, fixed[2][k], face + self.face_offset[b]))
+            cached = self._fixed_body_cache[b] = (*cached, (k, fixed[0][k], face, fixed[2][k], face + int(self.face_offset[b])))
         return cached[3]
 
     def _fixed_body_face(self, b: int, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

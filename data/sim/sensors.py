@@ -177,7 +177,7 @@ def lidar_measure(
     if cfg.dropout_probability > 0:
         idx = idx[rng.random(len(idx), dtype=np.float32) >= cfg.dropout_probability]
     if hits.flat_face is not None:  # the caster's, one gather (the same face_offsets)
-        f = hits.flat_face.take(idx)
+        f = hits.flat_face.take(idx).astype(np.intp)  # (int32: widened once for both lookups)
     else:
         f = faces.offset.take(hits.body.take(idx))
         f += hits.face.take(idx)
