@@ -89,8 +89,8 @@ class Fans:
         x_s = (corners if scale is None else corners * scale) - o
         x_s = x_s @ A  # (8,3) rows x_s^T
         g = x_s[:, 1::-1] @ self.plane_normals_xy  # (8,F): y cos az - x sin az
-        lo = g.min(axis=0)
-        lo *= g.max(axis=0)  # <= 0 where the corners are not all on one side (an underflow to 0 only adds a fan)
+        lo = np.minimum.reduce(g, axis=0)  # (g.min's values, without its Python wrappers)
+        lo *= np.maximum.reduce(g, axis=0)  # <= 0 where the corners are not all on one side (an underflow to 0 only adds a fan)
         cut = (lo <= 0).nonzero()[0]
         return range(0) if len(cut) == 0 else range(int(cut[0]), int(cut[-1]) + 1)
 

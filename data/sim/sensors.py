@@ -10,6 +10,7 @@ ray-cast hits into what the sensor reports (noise, quantisation, intensity, drop
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
@@ -202,8 +203,8 @@ def lidar_measure(
     retro_i = np.signbit(intensity).nonzero()[0]
     if len(retro_i):
         inc = np.arccos(np.minimum(cos_inc.take(retro_i), 1.0))
-        lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
-        intensity[retro_i] = np.maximum(lobe, -intensity[retro_i])
+        lobe = cfg.retro_gain * np.exp(-((inc / math.radians(cfg.retro_lobe_deg)) ** 2))
+        intensity[retro_i] = np.maximum(lobe, -intensity.take(retro_i))
     spread = np.divide(r.dtype.type(INTENSITY_REFERENCE_RANGE_M), r)
     spread *= spread
     intensity *= spread  # (r_ref / r)^2
