@@ -11,6 +11,7 @@ import pytest
 
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.fans import Fans
+from boomtip.data.sim.raycast import Hits
 from boomtip.data.sim.sensors import spherical_dirs
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.bench_raycast import SPINNING_128x1024, hits_difference, reference_lidar_hits
@@ -236,3 +237,16 @@ def test_fans_need_ascending_elevations():
     az_g, el_g = np.meshgrid(az, el, indexing="ij")
     with pytest.raises(ValueError, match="ascending"):
         Fans(spherical_dirs(az_g.ravel(), el_g.ravel()), az, el)
+
+
+def test_hits_body_and_face_from_the_flat_face_index():
+    """Given the flat face index and the bodies' face offsets, a hit's body is the last offset
+    at or below it and its face the rest; a miss (inf) reads -1 whatever its index says."""
+    offsets = np.array([0, 10, 25])  # bodies of 10, 15 and more faces
+    flat = np.array([3, 12, 9, 30, 25, 10, 7], dtype=np.int32)
+    range_m = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, np.inf], dtype=np.float32)
+    hits = Hits(range_m, None, None, np.zeros(7, dtype=np.float32), flat_face=flat, face_offset=offsets)
+    np.testing.assert_array_equal(hits.body, [0, 1, 0, 2, 2, 1, -1])
+    np.testing.assert_array_equal(hits.face, [3, 2, 9, 5, 0, 0, -1])
+    with pytest.raises(ValueError, match="flat face index"):
+        Hits(range_m, None, None, np.zeros(7, dtype=np.float32))
