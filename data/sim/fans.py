@@ -38,7 +38,8 @@ class Fans:
         self.fan = np.repeat(np.arange(len(az_rad)), len(el_rad))  # (K,) the fan of each ray
         self.wide = np.ptp(az_rad) > np.pi
         self._rays: np.ndarray | None = None  # (K,6) float32, allocated on first use
-        self._dirs_h: np.ndarray | None = None  # (K,4) float32 [direction, 1] per ray, for the one-pose product
+        self._dirs_h: np.ndarray | None = None  # (K,4) [direction, 1] per ray, for the one-pose product
+        self._rays64: np.ndarray | None = None  # (K,6) the one-pose rays before rounding
 
     def _ray_buffer(self, n: int) -> np.ndarray:
         if self._rays is None:
@@ -61,19 +62,23 @@ class Fans:
 
     def body_frame_rays_one_pose(self, A: np.ndarray, o: np.ndarray, fans: range | None = None) -> np.ndarray:
         """Rows [origin, direction] of every ray (or of the fans in the range `fans`) in a body
-        frame where x_b = A x_s + o (one pose), in Embree's float32. A view of the buffer the
-        next call overwrites."""
+        frame where x_b = A x_s + o (one pose), computed in float64 and rounded once to
+        Embree's float32. A view of the buffer the next call overwrites."""
         first, stop = (0, len(self.dirs)) if fans is None else (fans.start * len(self.el_rad), fans.stop * len(self.el_rad))
         if self._dirs_h is None:
-            self._dirs_h = np.ones((len(self.dirs), 4), dtype=np.float32)
+            self._dirs_h = np.ones((len(self.dirs), 4))
             self._dirs_h[:, :3] = self.dirs
-        # [o, A d] = [d, 1] @ [[0, A^T], [o, 0]]: every ray's row in one float32 product, written
-        # row after row. The origin is exact (1 o plus zeros); a direction is within a unit in
-        # the last place of its float64 product rounded (no face changed over 880k rays cast).
-        M = np.zeros((4, 6), dtype=np.float32)
+            self._rays64 = np.empty((len(self.dirs), 6))
+        # [o, A d] = [d, 1] @ [[0, A^T], [o, 0]]: every ray's row in one product and one rounding
+        # pass, written row after row (the origin's columns filled apart cost as much again).
+        # The origin's columns are exact (1 o plus zeros); a direction's is the same dot product.
+        M = np.zeros((4, 6))
         M[:3, 3:] = A.T
         M[3, :3] = o
-        return np.matmul(self._dirs_h[first:stop], M, out=self._ray_buffer(len(self.dirs))[first:stop])
+        rays64 = np.matmul(self._dirs_h[first:stop], M, out=self._rays64[:stop - first])
+        rays = self._ray_buffer(len(self.dirs))[first:stop]
+        rays[...] = rays64
+        return rays
 
     def fans_cutting_box(self, corners: np.ndarray, A: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> range:
         """The least range of fans holding every fan whose plane cuts a box, `corners` (8,3),

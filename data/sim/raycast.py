@@ -10,9 +10,8 @@ elevations) from one origin, so a fan's rays in a body's frame are cos(el) A u_f
 two vectors per fan, not a matrix per ray. For fans spread round the sensor it first drops,
 per fan, the rays that cannot meet the body's bounding box (or only beyond a closer hit
 already found): Embree's cost is mostly per ray, and most of a spinning LiDAR's rays would
-miss. The rays go into a float32 buffer kept between frames: with one pose as one float32
-product (a frame's ray casting is then mostly Embree's), fan by fan in float64 rounded once.
-The hits' incidence comes from the face normals Embree returns with them.
+miss. The rays are built in float64 and rounded once to Embree's float32, into a buffer kept
+between frames.
 """
 
 from __future__ import annotations
