@@ -190,10 +190,10 @@ def lidar_measure(
     keep &= r_all <= hi  # a miss (inf) fails the max
     idx = keep.nonzero()[0]  # (np.flatnonzero's result, without its two Python wrappers)
     # The clutter and dropout draws are made for the returns in range only (most of a
-    # spinning LiDAR's rays miss), in float32 or 32-bit words: a probability needs no more.
+    # spinning LiDAR's rays miss), as 32-bit words: a probability needs no more.
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
         not_sea = hits.body.take(idx) != sea_body
-        idx = idx[not_sea | (rng.random(len(idx), dtype=np.float32) < sea_probability)]
+        idx = idx[not_sea | (random_words32(rng, len(idx)) < word_threshold(sea_probability))]
     if cfg.dropout_probability > 0:
         idx = idx[random_words32(rng, len(idx)) >= word_threshold(cfg.dropout_probability)]
     if hits.flat_face is not None:  # the caster's, one gather (the same face_offsets)
