@@ -125,7 +125,7 @@ def random_words32(rng: np.random.Generator, n: int) -> np.ndarray:
 def word_threshold(probability: float) -> int:
     """T with P(word < T) = T / 2^32 the probability to within 2^-32: a draw `word < T` is an
     event of that probability."""
-    return min(math.ceil(probability * 2.0 ** 32), 2 ** 32 - 1)
+    return math.ceil(probability * 2.0 ** 32)  # (2^32 for a probability of 1: every word is below)
 
 
 def standard_normal32(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -214,7 +214,7 @@ def lidar_measure(
         z = rng.uniform(*spray.height_m, len(idx))
         r_spray = np.where(down > 1e-3, (z0 - z) / np.maximum(down, 1e-3), np.inf)
         hit = (rng.random(len(idx)) < spray.probability) & (r_spray > cfg.min_range_m) & (r_spray < r)
-        r = np.where(hit, r_spray, r)
+        r = np.where(hit, r_spray.astype(r.dtype), r)  # (the returns' own dtype, spray or not)
         intensity = np.where(hit, spray.reflectivity, intensity)  # (a droplet is no retro-reflector)
         label = np.where(hit, int(Label.SPRAY), label)
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
@@ -246,11 +246,11 @@ def lidar_measure(
         np.divide(r.dtype.type(cfg.range_noise_m), sigma, out=sigma)
         sigma *= noise[n:]
         r += sigma  # r is this function's own array from here on (a gather or np.where)
-    if cfg.range_resolution_m > 0:
-        r *= r.dtype.type(1.0 / cfg.range_resolution_m)
-        np.rint(r, out=r)
-        r *= r.dtype.type(cfg.range_resolution_m)
     r = r.astype(np.float64, copy=False)
+    if cfg.range_resolution_m > 0:  # in float64: float32's steps of the resolution would bias ranges by 2e-8
+        np.divide(r, cfg.range_resolution_m, out=r)
+        np.rint(r, out=r)
+        r *= cfg.range_resolution_m
     points = np.empty((n, 3))
     dirs = pattern.dirs_rows32b.take(idx, axis=0)
     for i in range(3):

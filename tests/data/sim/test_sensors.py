@@ -692,10 +692,12 @@ def test_random_words32_are_uniform_seeded_and_continue_the_stream(n):
         assert stats.kstest(words / 2.0 ** 32, "uniform").pvalue > 1e-3
 
 
-@pytest.mark.parametrize("p", [0.0, 2.0 ** -32, 0.25, 1 - 1e-12])
+@pytest.mark.parametrize("p", [0.0, 2.0 ** -32, 0.25, 1 - 1e-12, 1.0])
 def test_word_threshold_is_the_probability_in_words(p):
     t = word_threshold(p)
-    assert 0 <= t < 2 ** 32 and abs(t / 2.0 ** 32 - p) <= 2.0 ** -32
+    assert 0 <= t <= 2 ** 32 and abs(t / 2.0 ** 32 - p) <= 2.0 ** -32
+    extremes = np.array([0, 2 ** 32 - 1], dtype=np.uint32)
+    np.testing.assert_array_equal(extremes < t, [p > 0, p > 1 - 2.0 ** -32])  # p = 0: never; p = 1: always
 
 
 def test_intensity_noise_is_relative(bodies_empty, sim_empty):
