@@ -30,7 +30,6 @@ class Fans:
         if len(dirs) != len(az_rad) * len(el_rad) or np.any(np.diff(el_rad) <= 0):
             raise ValueError("Fans: expected F*N rays, fan by fan, with ascending elevations")
         self.dirs, self.az_rad, self.el_rad = dirs, az_rad, el_rad
-        self.dirs_by_axis = np.ascontiguousarray(dirs.T)  # (3,K)
         self.cos_az, self.sin_az = np.cos(az_rad), np.sin(az_rad)
         self.cos_el, self.sin_el = np.cos(el_rad), np.sin(el_rad)
         self.plane_normals_xy = np.stack([self.cos_az, -self.sin_az])  # (2,F): n_f . x_s = [y, x] @ these (n_f = (-sin az, cos az, 0))
@@ -39,7 +38,8 @@ class Fans:
         self.fan = np.repeat(np.arange(len(az_rad)), len(el_rad))  # (K,) the fan of each ray
         self.wide = np.ptp(az_rad) > np.pi
         self._rays: np.ndarray | None = None  # (K,6) float32, allocated on first use
-        self._dirs64: np.ndarray | None = None  # (3,K) the one-pose directions before rounding
+        self._dirs_h: np.ndarray | None = None  # (K,4) [direction, 1] per ray, for the one-pose product
+        self._rays64: np.ndarray | None = None  # (K,6) the one-pose rays before rounding
 
     def _ray_buffer(self, n: int) -> np.ndarray:
         if self._rays is None:
@@ -65,17 +65,19 @@ class Fans:
         frame where x_b = A x_s + o (one pose), computed in float64 and rounded once to
         Embree's float32. A view of the buffer the next call overwrites."""
         first, stop = (0, len(self.dirs)) if fans is None else (fans.start * len(self.el_rad), fans.stop * len(self.el_rad))
+        if self._dirs_h is None:
+            self._dirs_h = np.ones((len(self.dirs), 4))
+            self._dirs_h[:, :3] = self.dirs
+            self._rays64 = np.empty((len(self.dirs), 6))
+        # [o, A d] = [d, 1] @ [[0, A^T], [o, 0]]: every ray's row in one product and one rounding
+        # pass, written row after row (the origin's columns filled apart cost as much again).
+        # The origin's columns are exact (1 o plus zeros); a direction's is the same dot product.
+        M = np.zeros((4, 6))
+        M[:3, 3:] = A.T
+        M[3, :3] = o
+        rays64 = np.matmul(self._dirs_h[first:stop], M, out=self._rays64[:stop - first])
         rays = self._ray_buffer(len(self.dirs))[first:stop]
-        if self._dirs64 is None:
-            self._dirs64 = np.empty((3, len(self.dirs)))
-        # The cast columns only: each column's product is the same whichever columns are
-        # multiplied (one chain of products per element), so the rays do not depend on the fans cast.
-        d = np.matmul(A, self.dirs_by_axis[:, first:stop], out=self._dirs64[:, :stop - first])
-        o32 = o.astype(np.float32)
-        rays.view(np.uint64)[:, 0] = o32[:2].view(np.uint64)[0]  # x and y of the origin in one 8-byte store per ray
-        rays[:, 2] = o32[2]
-        for i in range(3):
-            rays[:, 3 + i] = d[i]
+        rays[...] = rays64
         return rays
 
     def fans_cutting_box(self, corners: np.ndarray, A: np.ndarray, o: np.ndarray, scale: np.ndarray | None) -> range:
@@ -87,8 +89,8 @@ class Fans:
         x_s = (corners if scale is None else corners * scale) - o
         x_s = x_s @ A  # (8,3) rows x_s^T
         g = x_s[:, 1::-1] @ self.plane_normals_xy  # (8,F): y cos az - x sin az
-        lo = g.min(axis=0)
-        lo *= g.max(axis=0)  # <= 0 where the corners are not all on one side (an underflow to 0 only adds a fan)
+        lo = np.minimum.reduce(g, axis=0)  # (g.min's values, without its Python wrappers)
+        lo *= np.maximum.reduce(g, axis=0)  # <= 0 where the corners are not all on one side (an underflow to 0 only adds a fan)
         cut = (lo <= 0).nonzero()[0]
         return range(0) if len(cut) == 0 else range(int(cut[0]), int(cut[-1]) + 1)
 

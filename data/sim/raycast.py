@@ -16,8 +16,6 @@ between frames.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import open3d as o3d
 
@@ -25,20 +23,47 @@ from boomtip.data.meshes import Body
 from boomtip.data.sim.fans import Fans, box_corners, transpose_times
 
 
-@dataclass
 class Hits:
-    range_m: np.ndarray  # (K,) inf on a miss; float32 from `cast_fans` (Embree's t), float64 from `cast`
-    body: np.ndarray  # (K,) int, -1 on a miss
-    face: np.ndarray  # (K,) int, -1 on a miss
-    cos_incidence: np.ndarray  # (K,) |cos| of the angle between ray and face normal (0 on a miss)
-    normal_world: np.ndarray | None = None  # (K,3) unit face normals, world axes, when asked for
-    # (K,) int64 face index over all bodies (the caster's `face_offset[body] + face`; any value
-    # on a miss), when the cast had it at hand (`cast_fans` on one pose): the materials' index.
-    flat_face: np.ndarray | None = None
+    """The nearest hit of each of K rays. `range_m` (K,) is inf on a miss: float32 from
+    `cast_fans` (Embree's t), float64 from `cast`. `body` and `face` (K,) int are -1 on a miss.
+    `cos_incidence` (K,) is |cos| of the angle between ray and face normal (0 on a miss);
+    `normal_world` (K,3) the unit face normals in world axes, when asked for. `flat_face` (K,)
+    int32, when the cast had it at hand (`cast_fans` from a first cast), is the face index over
+    all bodies (`face_offsets(bodies)[body] + face`; any value on a miss), the materials' index;
+    given it and the offsets, `body` and `face` are derived from it when first read (a frame's
+    sensor model reads neither)."""
+
+    def __init__(self, range_m: np.ndarray, body: np.ndarray | None, face: np.ndarray | None,
+                 cos_incidence: np.ndarray, normal_world: np.ndarray | None = None,
+                 flat_face: np.ndarray | None = None, face_offset: np.ndarray | None = None) -> None:
+        if (body is None or face is None) and (flat_face is None or face_offset is None):
+            raise ValueError("Hits: body and face, or the flat face index and the bodies' face offsets")
+        self.range_m, self._body, self._face = range_m, body, face
+        self.cos_incidence, self.normal_world, self.flat_face = cos_incidence, normal_world, flat_face
+        self._face_offset = face_offset
 
     @property
     def hit(self) -> np.ndarray:
         return np.isfinite(self.range_m)
+
+    @property
+    def body(self) -> np.ndarray:
+        if self._body is None:
+            self._split_flat_face()
+        return self._body
+
+    @property
+    def face(self) -> np.ndarray:
+        if self._face is None:
+            self._split_flat_face()
+        return self._face
+
+    def _split_flat_face(self) -> None:
+        hit = self.hit
+        flat = np.where(hit, self.flat_face, 0)
+        body = np.searchsorted(self._face_offset, flat, side="right") - 1
+        self._face = np.where(hit, flat - self._face_offset[body], -1).astype(np.int32)
+        self._body = np.where(hit, body, -1).astype(np.int32)
 
 
 class RayCaster:
@@ -46,7 +71,6 @@ class RayCaster:
         self.bodies = bodies
         self.scenes = []
         self.face_normals = []
-        self.face_normals32 = []
         for b in bodies:
             scene = o3d.t.geometry.RaycastingScene()
             scene.add_triangles(
@@ -56,15 +80,6 @@ class RayCaster:
             tri = b.vertices[b.triangles]
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             self.face_normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12))
-            self.face_normals32.append(self.face_normals[-1].astype(np.float32))
-        # The same as rows padded to 16 bytes (one gather of a row costs less than three of a
-        # float each), and a zero normal last: a miss's face, -1, reads it, so misses get cos 0
-        # with no mask.
-        self.face_normals32_rows = []
-        for n in self.face_normals32:
-            rows = np.zeros((len(n) + 1, 4), dtype=np.float32)
-            rows[:-1, :3] = n
-            self.face_normals32_rows.append(rows)
         # Bounding boxes, padded well beyond float32 rounding of rays out to kilometres.
         lo = np.array([b.vertices.min(axis=0) for b in bodies])
         hi = np.array([b.vertices.max(axis=0) for b in bodies])
@@ -137,13 +152,11 @@ class RayCaster:
             best_body[closer] = b
             face = ans["primitive_ids"].numpy()[closer]
             best_face[closer] = face
-            # Incidence in the body frame, where ray and face normal already are (no rotation);
-            # one gather of the rays, float32 throughout. Rotated unit rays stay unit; only a
-            # stretched body's rays need normalising.
-            d_b = rays[closer][:, 3:]
-            c = np.abs(np.einsum("ij,ij->i", self.face_normals32[b][face], d_b))
+            # Incidence in the body frame, where ray and face normal already are (no rotation).
+            n_b, d_b = ans["primitive_normals"].numpy()[closer], rays[closer][:, 3:]
+            c = np.abs(np.einsum("ij,ij->i", n_b, d_b))
             if scale is not None:
-                c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
+                c /= stretched_normal_norm(n_b, scale[0] if pose_index is None else scale[idx[closer]])
             cos_inc[closer] = c
         range_m = np.where(best_body >= 0, best_t.astype(np.float64), np.inf)
         if not want_normals:
@@ -200,9 +213,11 @@ class RayCaster:
                     pending = None
                 t, face, c = fixed_hits[b]
                 closer = np.flatnonzero(t < best_t)
-                best_t[closer], best_body[closer], best_face[closer], cos_inc[closer] = t[closer], b, face[closer], c[closer]
+                best_t[closer], cos_inc[closer] = t[closer], c[closer]
                 if best_flat is not None:
                     best_flat[closer] = face[closer] + self.face_offset[b]
+                else:
+                    best_body[closer], best_face[closer] = b, face[closer]
                 nearest = min(nearest, self._fixed_nearest(b, t))
                 continue
             if best_t is None and fans.wide:
@@ -217,6 +232,7 @@ class RayCaster:
                     cos_inc = np.zeros(k, dtype=np.float32)
             R, p = R_world_body[b], p_world_body[b]
             scale = None if scale_body is None else scale_body[b]
+            s_ray = None  # a stretched body's scale, per ray or for all
             # Sensor frame -> body frame: x_b = A x_s + o with A = R_b^T R_s, o = R_b^T (p_s - p_b)
             # (then divided by the body's scale, if stretched).
             if m == 1:  # transpose_times' sums in the same order, on Python floats: no numpy call on 3-vectors
@@ -257,53 +273,51 @@ class RayCaster:
                 # incidence reads the zero normal), and the fixed hits before it, few, go back
                 # where they are at least as close.
                 best_t, best_face = t, ans["primitive_ids"].numpy().view(np.int32)
-                cos_inc = self._incidence(b, best_face, rays, None, scale)
+                cos_inc = self._incidence(ans["primitive_normals"].numpy(), rays, None, s_ray)
+                best_flat = np.add(best_face, int(self.face_offset[b]), dtype=np.int32)  # (any value on a miss)
                 if len(t) < k:
-                    best_t, best_face, cos_inc = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (best_face, -1), (cos_inc, 0)))
-                best_flat = np.add(best_face, self.face_offset[b], dtype=np.int64)  # (any value on a miss)
-                best_body = np.right_shift(best_face, 31)  # -1 on a miss, else 0 ...
-                best_body |= b  # ... then b (-1 stays -1)
+                    best_t, cos_inc, best_flat = (self._pad(x, first, k, fill) for x, fill in ((best_t, np.inf), (cos_inc, 0), (best_flat, -1)))
+                best_body = best_face = None  # from best_flat if asked for (see Hits)
                 if pending is not None:
                     k_f, t_k, face_k, c_k, flat_k = self._fixed_compact(pending, fixed_hits[pending])
                     farther = best_t.take(k_f) < t_k  # ties to the fixed body, as `cast` (the lower index)
                     if farther.any():
                         nearer = ~farther
                         k_f, t_k, face_k, c_k, flat_k = k_f[nearer], t_k[nearer], face_k[nearer], c_k[nearer], flat_k[nearer]
-                    best_t[k_f], best_body[k_f], best_face[k_f], cos_inc[k_f], best_flat[k_f] = t_k, pending, face_k, c_k, flat_k
+                    best_t[k_f], cos_inc[k_f], best_flat[k_f] = t_k, c_k, flat_k
                     pending = None
                 continue
             nearest = 0.0  # (not worth a pass over the hits: later bodies test every ray)
             closer = np.flatnonzero(t < (best_t[first:first + len(t)] if ray_k is None else best_t.take(ray_k)))
             hit_k = closer + first if ray_k is None else ray_k.take(closer)
             best_t[hit_k] = t.take(closer)
-            best_body[hit_k] = b
             face = ans["primitive_ids"].numpy().take(closer)
-            best_face[hit_k] = face
             if best_flat is not None:
                 best_flat[hit_k] = face + self.face_offset[b]
-            cos_inc[hit_k] = self._incidence(b, face, rays, closer, scale)
+            else:
+                best_body[hit_k], best_face[hit_k] = b, face
+            cos_inc[hit_k] = self._incidence(ans["primitive_normals"].numpy().take(closer, axis=0), rays, closer, s_ray)
         if best_t is None and pending is not None:  # no body cast: the fixed hits alone
             best_t, best_body, best_face, cos_inc = self._fixed_arrays(pending, fixed_hits[pending])
         elif best_t is None:  # no ray could reach a body
             best_t, cos_inc = np.full(k, np.inf, dtype=np.float32), np.zeros(k, dtype=np.float32)
             best_body, best_face = np.full(k, -1, dtype=np.int32), np.full(k, -1, dtype=np.int32)
-        return Hits(best_t, best_body, best_face, cos_inc, flat_face=best_flat)
+        return Hits(best_t, best_body, best_face, cos_inc, flat_face=best_flat, face_offset=self.face_offset)
 
-    def _incidence(self, b: int, face: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
-                   scale: np.ndarray | None) -> np.ndarray:
-        """|cos| of the incidence of `rays` (all, or rows ray_i) on body b's faces `face`, in
-        the body frame (as in `cast`), one component at a time in float32. Rotated unit rays
-        stay unit; only a stretched body's rays need normalising."""
-        n_b = self.face_normals32_rows[b].take(face, axis=0)
+    def _incidence(self, n_b: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
+                   s_ray: np.ndarray | None) -> np.ndarray:
+        """|cos| of the incidence of `rays` (all, or rows ray_i) on the faces hit, whose unit
+        normals `n_b` Embree gave with the hits (zero on a miss), in the body frame (as in
+        `cast`), one component at a time in float32; a stretched body's (scale `s_ray`, (3,) or
+        per ray of `rays`) as `stretched_normal_norm` says."""
         c = n_b[:, 0] * (rays[:, 3] if ray_i is None else rays[:, 3].take(ray_i))
         ci = np.empty_like(c)
         for i in (1, 2):
             np.multiply(n_b[:, i], rays[:, 3 + i] if ray_i is None else rays[:, 3 + i].take(ray_i), out=ci)
             c += ci
         np.abs(c, out=c)
-        if scale is not None:
-            d_b = rays[:, 3:] if ray_i is None else rays.take(ray_i, axis=0)[:, 3:]
-            c /= np.sqrt(np.einsum("ij,ij->i", d_b, d_b))
+        if s_ray is not None:
+            c /= stretched_normal_norm(n_b, s_ray if s_ray.ndim == 1 or ray_i is None else s_ray[ray_i])
         return c
 
     def _pad(self, x: np.ndarray, first: int, k: int, fill) -> np.ndarray:
@@ -336,7 +350,7 @@ class RayCaster:
         if len(cached) == 3:
             k = np.flatnonzero(fixed[1] >= 0)
             face = cached[2][k]
-            cached = self._fixed_body_cache[b] = (*cached, (k, fixed[0][k], face, fixed[2][k], face + self.face_offset[b]))
+            cached = self._fixed_body_cache[b] = (*cached, (k, fixed[0][k], face, fixed[2][k], face + int(self.face_offset[b])))
         return cached[3]
 
     def _fixed_body_face(self, b: int, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -361,6 +375,16 @@ class RayCaster:
         cos_inc = np.zeros(len(t), dtype=np.float32)
         cos_inc[hit] = np.abs(np.einsum("ij,ij->i", self.face_normals[b][face[hit]], dirs_body[hit]))
         return t, face, cos_inc
+
+
+def stretched_normal_norm(n_b: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """|S^-1 n| for unit face normals n (K,3) of a body stretched by S = diag(scale) ((3,) or
+    (K,3)); 1 where n is 0 (a miss). A ray cast as d' = S^-1 R^T d (unit d) meets a face whose
+    world normal is R S^-1 n (the inverse transpose), so |cos| = |n . d'| / |S^-1 n|."""
+    m = n_b / scale
+    norm = np.sqrt(np.einsum("ij,ij->i", m, m))
+    norm[norm == 0] = 1
+    return norm
 
 
 def face_offsets(bodies: list[Body]) -> np.ndarray:

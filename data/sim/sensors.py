@@ -10,6 +10,7 @@ ray-cast hits into what the sensor reports (noise, quantisation, intensity, drop
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
@@ -112,19 +113,38 @@ class FaceLookup:
         return self.offset[hits.body[mask]] + hits.face[mask]
 
 
+def random_words32(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n uniform uint32 words: the generator's raw 64-bit outputs seen as pairs of 32-bit
+    words. Numpy's float draws take their words one at a time through a function pointer;
+    the raw outputs come at about half the cost, and a probability or a 24-bit uniform needs
+    no more than a word."""
+    return rng.bit_generator.random_raw((n + 1) // 2).view(np.uint32)[:n]
+
+
+@lru_cache(maxsize=16)
+def word_threshold(probability: float) -> int:
+    """T with P(word < T) = T / 2^32 the probability to within 2^-32: a draw `word < T` is an
+    event of that probability."""
+    return math.ceil(probability * 2.0 ** 32)  # (2^32 for a probability of 1: every word is below)
+
+
 def standard_normal32(rng: np.random.Generator, n: int) -> np.ndarray:
-    """n standard normal draws (float32) by Box-Muller from n float32 uniforms. Written out
-    because it takes about half the time of `Generator.standard_normal` (float32 or 64) on
-    the LiDAR's tens of thousands of draws per frame; float32 limits the tails to 5.7 sigma,
-    plenty for per-cent intensity and centimetre range noise."""
+    """n standard normal draws (float32) by Box-Muller from n 24-bit uniforms (`random_words32`
+    shifted). Written out because it takes about half the time of `Generator.standard_normal`
+    (float32 or 64) on the LiDAR's tens of thousands of draws per frame; 24-bit uniforms limit
+    the tails to 5.8 sigma, plenty for per-cent intensity and centimetre range noise."""
     half = (n + 1) // 2
-    u = rng.random(2 * half, dtype=np.float32)
+    words = random_words32(rng, 2 * half)
+    np.right_shift(words, 8, out=words)
+    u = words.astype(np.float32)  # exact below 2^24: a uniform in [0, 1) is u 2^-24
     radius, angle = u[:half], u[half:]
-    np.subtract(np.float32(1), radius, out=radius)  # in (0, 1]: a finite log
+    # 1 - u in (0, 1] (a finite log) and the angle 2 pi u, each scaled by 2^-24 in one product.
+    np.subtract(np.float32(2.0 ** 24), radius, out=radius)
+    radius *= np.float32(2.0 ** -24)
     np.log(radius, out=radius)
     radius *= np.float32(-2)
     np.sqrt(radius, out=radius)
-    angle *= np.float32(2 * np.pi)
+    angle *= np.float32(2 * np.pi * 2.0 ** -24)
     out = np.empty(2 * half, dtype=np.float32)
     np.cos(angle, out=out[:half])
     np.sin(angle, out=out[half:])
@@ -161,28 +181,29 @@ def lidar_measure(
     """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label. With `spray`
     (world.sea.spray) some rays return early from droplets in its height band (world z), given
     the rays' directions `dirs_world` and origin heights `origin_z_world` (needed only then).
-    The arithmetic runs in place on the returns kept, in the dtypes of the expressions it
-    stands for (intensity float32, range float64), so frames do not depend on how it is laid out."""
-    r_all = hits.range_m  # float32 or 64; compared and used as float64
+    The arithmetic runs in place on the returns kept, in float32 for the fans' ranges (Embree's
+    t: its rounding, 4 um at 50 m, is far below any range noise or resolution) and the
+    intensities; the points are float64."""
+    r_all = hits.range_m  # float32 (the fans') or float64 (`cast`'s), compared as float64
     lo, hi = range_window(cfg.min_range_m, cfg.max_range_m, r_all.dtype)
     keep = r_all >= lo
     keep &= r_all <= hi  # a miss (inf) fails the max
     idx = keep.nonzero()[0]  # (np.flatnonzero's result, without its two Python wrappers)
     # The clutter and dropout draws are made for the returns in range only (most of a
-    # spinning LiDAR's rays miss), in float32: a probability needs no more.
+    # spinning LiDAR's rays miss), as 32-bit words: a probability needs no more.
     if sea_body is not None:  # sea clutter: only a fraction of sea hits return
         not_sea = hits.body.take(idx) != sea_body
-        idx = idx[not_sea | (rng.random(len(idx), dtype=np.float32) < sea_probability)]
+        idx = idx[not_sea | (random_words32(rng, len(idx)) < word_threshold(sea_probability))]
     if cfg.dropout_probability > 0:
-        idx = idx[rng.random(len(idx), dtype=np.float32) >= cfg.dropout_probability]
+        idx = idx[random_words32(rng, len(idx)) >= word_threshold(cfg.dropout_probability)]
     if hits.flat_face is not None:  # the caster's, one gather (the same face_offsets)
-        f = hits.flat_face.take(idx)
+        f = hits.flat_face.take(idx).astype(np.intp)  # (int32: widened once for both lookups)
     else:
         f = faces.offset.take(hits.body.take(idx))
         f += hits.face.take(idx)
-    r = r_all.take(idx).astype(np.float64, copy=False)
-    cos_inc = hits.cos_incidence.take(idx)
-    np.minimum(np.maximum(cos_inc, 1e-3, out=cos_inc), 1.0, out=cos_inc)  # np.clip's values, without its Python wrapper
+    r = r_all.take(idx)
+    cos_inc = hits.cos_incidence.take(idx)  # |n . d| of unit vectors: at most 1 but for rounding
+    np.maximum(cos_inc, 1e-3, out=cos_inc)  # (the retro lobe's arccos clips its few at 1)
     intensity = faces.reflectivity_signed.take(f)  # negative on retro-reflectors, made positive below
     intensity *= cos_inc  # diffuse (Lambert)
     label = faces.label.take(f)
@@ -193,17 +214,17 @@ def lidar_measure(
         z = rng.uniform(*spray.height_m, len(idx))
         r_spray = np.where(down > 1e-3, (z0 - z) / np.maximum(down, 1e-3), np.inf)
         hit = (rng.random(len(idx)) < spray.probability) & (r_spray > cfg.min_range_m) & (r_spray < r)
-        r = np.where(hit, r_spray, r)
+        r = np.where(hit, r_spray.astype(r.dtype), r)  # (the returns' own dtype, spray or not)
         intensity = np.where(hit, spray.reflectivity, intensity)  # (a droplet is no retro-reflector)
         label = np.where(hit, int(Label.SPRAY), label)
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
     # incidence. Only the few retro hits need the transcendental functions.
     retro_i = np.signbit(intensity).nonzero()[0]
     if len(retro_i):
-        inc = np.arccos(cos_inc[retro_i])
-        lobe = cfg.retro_gain * np.exp(-((inc / np.deg2rad(cfg.retro_lobe_deg)) ** 2))
-        intensity[retro_i] = np.maximum(lobe, -intensity[retro_i])
-    spread = np.divide(INTENSITY_REFERENCE_RANGE_M, r)
+        inc = np.arccos(np.minimum(cos_inc.take(retro_i), 1.0))
+        lobe = cfg.retro_gain * np.exp(-((inc / math.radians(cfg.retro_lobe_deg)) ** 2))
+        intensity[retro_i] = np.maximum(lobe, -intensity.take(retro_i))
+    spread = np.divide(r.dtype.type(INTENSITY_REFERENCE_RANGE_M), r)
     spread *= spread
     intensity *= spread  # (r_ref / r)^2
     if cfg.extinction_per_km > 0:  # rain or fog: the light is attenuated out and back
@@ -217,15 +238,16 @@ def lidar_measure(
         factor += 1
         intensity *= np.maximum(factor, 0.05, out=factor)
     if cfg.range_noise_m > 0:
-        # Weaker returns are noisier: sigma grows as 1/sqrt(intensity), capped.
-        gain = np.maximum(intensity, 1e-9)
-        np.sqrt(gain, out=gain)
-        np.divide(1.0, gain, out=gain)
-        np.minimum(np.maximum(gain, 1.0, out=gain), cfg.weak_return_noise_gain, out=gain)
-        gain *= cfg.range_noise_m
-        gain *= noise[n:]
-        r += gain  # r is this function's own array from here on (a gather or np.where)
-    if cfg.range_resolution_m > 0:
+        # Weaker returns are noisier: sigma grows as 1/sqrt(intensity) from 1 at intensity 1
+        # up to the gain's cap, i.e. sigma / sqrt(intensity clipped to [cap^-2, 1]).
+        sigma = np.maximum(intensity, max(cfg.weak_return_noise_gain ** -2, 1e-9))
+        np.minimum(sigma, 1.0, out=sigma)
+        np.sqrt(sigma, out=sigma)
+        np.divide(r.dtype.type(cfg.range_noise_m), sigma, out=sigma)
+        sigma *= noise[n:]
+        r += sigma  # r is this function's own array from here on (a gather or np.where)
+    r = r.astype(np.float64, copy=False)
+    if cfg.range_resolution_m > 0:  # in float64: float32's steps of the resolution would bias ranges by 2e-8
         np.divide(r, cfg.range_resolution_m, out=r)
         np.rint(r, out=r)
         r *= cfg.range_resolution_m

@@ -11,6 +11,7 @@ import pytest
 
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.fans import Fans
+from boomtip.data.sim.raycast import Hits
 from boomtip.data.sim.sensors import spherical_dirs
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.bench_raycast import SPINNING_128x1024, hits_difference, reference_lidar_hits
@@ -29,8 +30,8 @@ def assert_same_hits(sim, times, fixed):
         np.testing.assert_allclose(fans.cos_incidence, ref.cos_incidence, atol=1e-6)
         assert fans.hit.sum() > 0.1 * len(fans.range_m)  # the frame really sees the scene
         if fans.flat_face is not None:  # the materials' index, as the sensor model's lookup has it
-            hit = fans.body >= 0
-            assert np.array_equal(fans.flat_face[hit], sim.world.faces.offset[fans.body[hit]] + fans.face[hit])
+            hit = ref.body >= 0
+            assert np.array_equal(fans.flat_face[hit], sim.world.faces.offset[ref.body[hit]] + ref.face[hit])
 
 
 @pytest.mark.parametrize("overrides", [
@@ -231,3 +232,36 @@ def test_fans_need_ascending_elevations():
     az_g, el_g = np.meshgrid(az, el, indexing="ij")
     with pytest.raises(ValueError, match="ascending"):
         Fans(spherical_dirs(az_g.ravel(), el_g.ravel()), az, el)
+
+
+def test_hits_body_and_face_from_the_flat_face_index():
+    """Given the flat face index and the bodies' face offsets, a hit's body is the last offset
+    at or below it and its face the rest; a miss (inf) reads -1 whatever its index says."""
+    offsets = np.array([0, 10, 25])  # bodies of 10, 15 and more faces
+    flat = np.array([3, 12, 9, 30, 25, 10, 7], dtype=np.int32)
+    range_m = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, np.inf], dtype=np.float32)
+    hits = Hits(range_m, None, None, np.zeros(7, dtype=np.float32), flat_face=flat, face_offset=offsets)
+    np.testing.assert_array_equal(hits.body, [0, 1, 0, 2, 2, 1, -1])
+    np.testing.assert_array_equal(hits.face, [3, 2, 9, 5, 0, 0, -1])
+    with pytest.raises(ValueError, match="flat face index"):
+        Hits(range_m, None, None, np.zeros(7, dtype=np.float32))
+
+
+def test_incidence_on_a_stretched_body_is_that_of_its_world_normal():
+    """The rope is its mesh stretched along its axis: a hit's |cos| of incidence is that of the
+    ray's world direction with the face's world normal (the inverse transpose of the stretch),
+    in `cast` and in the fans' cast alike."""
+    from boomtip.data.sim.hook_world import HookSimulation
+
+    sim = HookSimulation(load_scenario("hook-2", ["duration_s=2", "lidar.channels=32", "lidar.columns=256"]))
+    R_ws, p_ws, Rs, ps, scales = sim._scene_poses(np.array([0.5]), "lidar")
+    rope = next(b for b, s in enumerate(scales) if s is not None and np.ptp(s[0]) > 1)  # unequal stretch
+    dirs_w = sim.lidar_pattern.dirs_sensor @ R_ws[0].T
+    hits = sim.world.caster.cast(p_ws[0], dirs_w, Rs, ps, None, scales, None, want_normals=True)
+    on_rope = hits.body == rope
+    assert on_rope.sum() > 20
+    true_cos = np.abs(np.einsum("ij,ij->i", hits.normal_world[on_rope], dirs_w[on_rope]))
+    np.testing.assert_allclose(hits.cos_incidence[on_rope], true_cos, atol=1e-5)
+    assert np.ptp(true_cos) > 0.3  # grazing and head-on returns both
+    fans, *_ = sim._lidar_hits(0.5, sim._scene_poses, None)
+    np.testing.assert_allclose(fans.cos_incidence[on_rope], true_cos, atol=1e-5)

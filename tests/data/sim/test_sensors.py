@@ -21,7 +21,8 @@ from scipy.spatial.transform import Rotation
 from boomtip.data.scenario import load_scenario
 from boomtip.data.sim.world import DOFS
 from boomtip.data.sim.scene import Label, build_bodies
-from boomtip.data.sim.sensors import FaceLookup, lidar_pattern, radar_pattern, standard_normal32
+from boomtip.data.sim.sensors import (FaceLookup, lidar_pattern, radar_pattern, random_words32, standard_normal32,
+                                      word_threshold)
 from boomtip.data.sim.simulator import FrameRng, SimScene, Simulation
 
 ALL_ZERO = [f"{ship}.motion.{dof}.amplitude=0" for ship in ("crane", "feeder") for dof in DOFS]
@@ -676,6 +677,27 @@ def test_standard_normal32_is_standard_normal_and_seeded(n):
         assert stats.kstest(x, "norm").pvalue > 1e-3
         assert np.mean(np.abs(x) > 3) == pytest.approx(2 * stats.norm.sf(3), rel=0.1)
         assert abs(np.corrcoef(x[: n // 2], x[n // 2:])[0, 1]) < 5 / np.sqrt(n / 2)  # the cos and sin halves
+
+
+@pytest.mark.parametrize("n", [1, 7, 200_001])
+def test_random_words32_are_uniform_seeded_and_continue_the_stream(n):
+    words = random_words32(np.random.default_rng(3), n)
+    assert words.dtype == np.uint32 and words.shape == (n,)
+    rng = np.random.default_rng(3)
+    np.testing.assert_array_equal(words, random_words32(rng, n))  # seeded: the same words
+    assert not np.array_equal(random_words32(rng, n), words)  # the next draw goes on
+    if n > 1000:
+        for p in (0.02, 0.5):  # `word < word_threshold(p)` has probability p
+            assert np.mean(words < word_threshold(p)) == pytest.approx(p, abs=5 * np.sqrt(p * (1 - p) / n))
+        assert stats.kstest(words / 2.0 ** 32, "uniform").pvalue > 1e-3
+
+
+@pytest.mark.parametrize("p", [0.0, 2.0 ** -32, 0.25, 1 - 1e-12, 1.0])
+def test_word_threshold_is_the_probability_in_words(p):
+    t = word_threshold(p)
+    assert 0 <= t <= 2 ** 32 and abs(t / 2.0 ** 32 - p) <= 2.0 ** -32
+    extremes = np.array([0, 2 ** 32 - 1], dtype=np.uint32)
+    np.testing.assert_array_equal(extremes < t, [p > 0, p > 1 - 2.0 ** -32])  # p = 0: never; p = 1: always
 
 
 def test_intensity_noise_is_relative(bodies_empty, sim_empty):
