@@ -138,6 +138,7 @@ class RayCaster:
                 rays[:, :3] = np.einsum("kji,kj->ki", R[idx], origins_world - p[idx])  # R^T (o - p)
                 rays[:, 3:] = np.einsum("kji,kj->ki", R[idx], dirs_world)
             scale = None if scale_body is None else scale_body[b]
+            s_ray = None  # a stretched body's scale, per ray or for all
             if scale is not None:
                 # A body stretched along its axes (the rope): x_world = R (S x_b) + p. The ray
                 # parameter t is preserved by this affine map, so casting S^-1 R^T (o - p) along
@@ -152,12 +153,7 @@ class RayCaster:
             best_body[closer] = b
             face = ans["primitive_ids"].numpy()[closer]
             best_face[closer] = face
-            # Incidence in the body frame, where ray and face normal already are (no rotation).
-            n_b, d_b = ans["primitive_normals"].numpy()[closer], rays[closer][:, 3:]
-            c = np.abs(np.einsum("ij,ij->i", n_b, d_b))
-            if scale is not None:
-                c /= stretched_normal_norm(n_b, scale[0] if pose_index is None else scale[idx[closer]])
-            cos_inc[closer] = c
+            cos_inc[closer] = self._incidence(ans["primitive_normals"].numpy().take(closer, axis=0), rays, closer, s_ray)
         range_m = np.where(best_body >= 0, best_t.astype(np.float64), np.inf)
         if not want_normals:
             return Hits(range_m, best_body, best_face, cos_inc)
@@ -307,8 +303,8 @@ class RayCaster:
     def _incidence(self, n_b: np.ndarray, rays: np.ndarray, ray_i: np.ndarray | None,
                    s_ray: np.ndarray | None) -> np.ndarray:
         """|cos| of the incidence of `rays` (all, or rows ray_i) on the faces hit, whose unit
-        normals `n_b` Embree gave with the hits (zero on a miss), in the body frame (as in
-        `cast`), one component at a time in float32; a stretched body's (scale `s_ray`, (3,) or
+        normals `n_b` Embree gave with the hits (zero on a miss), in the body frame, where ray
+        and face normal already are (no rotation), one component at a time in float32; a stretched body's (scale `s_ray`, (3,) or
         per ray of `rays`) as `stretched_normal_norm` says."""
         c = n_b[:, 0] * (rays[:, 3] if ray_i is None else rays[:, 3].take(ray_i))
         ci = np.empty_like(c)
