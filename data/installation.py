@@ -20,19 +20,19 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from scipy.spatial.transform import Rotation
 
 
-class _Model(BaseModel):
+class StrictModel(BaseModel):
     # Unknown keys are errors: a misspelt key silently falling back to a default is the worst
     # kind of configuration bug.
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
 
-def _finite(values, what: str):
+def require_finite(values, what: str):
     if not all(math.isfinite(float(v)) for v in values):
         raise ValueError(f"{what} must be finite, got {list(values)}")
     return values
 
 
-class Mount(_Model):
+class Mount(StrictModel):
     """A sensor's pose on the boom tip as surveyed: T_boomtip_sensor."""
 
     xyz_m: tuple[float, float, float] = (0.0, 0.0, -0.5)
@@ -43,7 +43,7 @@ class Mount(_Model):
     @field_validator("xyz_m", "rpy_deg")
     @classmethod
     def _is_finite(cls, v):
-        return _finite(v, "a mount")
+        return require_finite(v, "a mount")
 
     def matrix(self) -> np.ndarray:
         return mount_matrix(self.xyz_m, self.rpy_deg)
@@ -57,7 +57,7 @@ def mount_matrix(xyz_m, rpy_deg) -> np.ndarray:
     return T
 
 
-class LidarSpec(_Model):
+class LidarSpec(StrictModel):
     enabled: bool = True
     pattern: Literal["grid", "spinning"] = "grid"
     rate_hz: float = Field(10.0, gt=0, le=1000)
@@ -92,7 +92,7 @@ class LidarSpec(_Model):
         return math.radians(max(self.res_h_deg, self.res_v_deg))
 
 
-class RadarSpec(_Model):
+class RadarSpec(StrictModel):
     enabled: bool = True
     rate_hz: float = Field(20.0, gt=0, le=1000)
     latency_s: float = Field(0.0, ge=0, le=10)
@@ -123,7 +123,7 @@ class RadarSpec(_Model):
         return self
 
 
-class MruSpec(_Model):
+class MruSpec(StrictModel):
     """A motion reference unit (the crane vessel's; `feeder_mru`: one on the feeder), as its
     data sheet states it."""
 
@@ -134,7 +134,7 @@ class MruSpec(_Model):
     bias_accuracy_deg: float = Field(0.0, ge=0, le=10, description="1-sigma of the roll/pitch static error (data sheet)")
 
 
-class EncoderSpec(_Model):
+class EncoderSpec(StrictModel):
     """Crane joint encoders (document 002, 4.5.1): slew, luff, hoist."""
 
     rate_hz: float = Field(100.0, gt=0, le=10000)
@@ -143,7 +143,7 @@ class EncoderSpec(_Model):
     hoist_noise_m: float = Field(0.01, ge=0, le=10)
 
 
-class CraneGeometry(_Model):
+class CraneGeometry(StrictModel):
     """Where the boom tip is (ship-to-ship runs: a fixed tip) and, for the hook chain, the
     crane's geometry of document 002 Table 4.1."""
 
@@ -158,10 +158,10 @@ class CraneGeometry(_Model):
     @field_validator("boom_tip_m", "crane_base_m")
     @classmethod
     def _is_finite(cls, v):
-        return _finite(v, "a crane position")
+        return require_finite(v, "a crane position")
 
 
-class CraneDynamics(_Model):
+class CraneDynamics(StrictModel):
     """Nominal dynamics (document 002 Table 4.1): what the filter's model assumes."""
 
     hook_mass_kg: float = Field(1e6, gt=0, description="nominal hook and load mass")
@@ -170,7 +170,7 @@ class CraneDynamics(_Model):
     boom_damping: float = Field(2e9, ge=0, description="c_f, J s/rad")
 
 
-class CraneSpec(_Model):
+class CraneSpec(StrictModel):
     geometry: CraneGeometry = CraneGeometry()
     dynamics: CraneDynamics = CraneDynamics()
     rope_radius_m: float = Field(0.04, gt=0, le=0.5, description="hoist rope's nominal radius")
@@ -180,14 +180,14 @@ class CraneSpec(_Model):
     block_height_m: float = Field(4.0, gt=1, le=8, description="height of the known block model")
 
 
-class MarkerSpec(_Model):
+class MarkerSpec(StrictModel):
     """Retro-reflective deck markers the crew lays on the feeder deck (known tape)."""
 
     enabled: bool = Field(True, description="markers are laid on the deck (false: the reflectors method does not run)")
     height_m: float = Field(0.002, ge=0, le=0.5, description="markers' height above the deck (tape thickness)")
 
 
-class Installation(_Model):
+class Installation(StrictModel):
     lidar: LidarSpec = LidarSpec()
     radar: RadarSpec = RadarSpec()
     mru: MruSpec = MruSpec()

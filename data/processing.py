@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from boomtip.data.installation import _Model
+from boomtip.data.installation import StrictModel
 from boomtip.fusion.feeder_filter import FeederFilterConfig
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.solutions import FusionConfig
@@ -23,21 +23,21 @@ from boomtip.perception.rope import RopeConfig
 HOOK_ESTIMATORS = ("ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid")
 
 
-class SeaStatePrior(_Model):
+class SeaStatePrior(StrictModel):
     """A forecast's significant wave height and peak period."""
 
     hs_m: float = Field(gt=0, le=20)
     tp_s: float = Field(gt=1, le=30)
 
 
-class HookProcessing(_Model):
+class HookProcessing(StrictModel):
     detector: HookConfig = HookConfig()
     rope: RopeConfig = RopeConfig()
     filter: HookFilterConfig = HookFilterConfig()
     estimators: tuple[Literal["ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"], ...] = HOOK_ESTIMATORS
 
 
-class MruGapConfig(_Model):
+class MruGapConfig(StrictModel):
     """The feeder chain through a gap in the crane MRU's log (tools/feeder_mru_gap)."""
 
     enabled: bool = Field(False, description="predict the crane's attitude through an MRU gap from its own samples before it "
@@ -50,7 +50,7 @@ class MruGapConfig(_Model):
                                  "(0.05 deg moves the deck 45 m below by 4 cm)")
 
 
-class FeederProcessing(_Model):
+class FeederProcessing(StrictModel):
     enabled: bool = Field(True, description="run the feeder's 6-DOF chain beside the heave chain when there is a LiDAR")
     perception: FeederConfig = FeederConfig()
     filter: FeederFilterConfig = FeederFilterConfig()
@@ -73,7 +73,7 @@ class FeederProcessing(_Model):
     calibration_min_s: float = Field(30.0, gt=0, description="deck planes needed before the levelling calibration applies")
 
 
-class Processing(_Model):
+class Processing(StrictModel):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the stages' random draws (RANSAC, ...)")
     chain: Literal["heave", "hook"] | None = Field(
         None, description="which chain runs; null: the hook chain when the source has an encoder stream, else heave"

@@ -18,7 +18,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
-from boomtip.data.installation import Installation, _Model
+from boomtip.data.installation import Installation, StrictModel
 from boomtip.data.keys import format_validation, leaf_keys, nearest_keys
 from boomtip.data.processing import Processing
 from boomtip.data.sim.world import World
@@ -30,7 +30,7 @@ class ScenarioError(ValueError):
     """A scenario could not be loaded: unknown name or key, bad value. The message names it."""
 
 
-class Scenario(_Model):
+class Scenario(StrictModel):
     """A simulated run: the world (simulation only), the installation (what processing may
     know) and, optionally, processing settings that differ from the defaults."""
 

@@ -14,7 +14,7 @@ from boomtip.perception.cloud import as_points
 from boomtip.perception.geometry import heave_distance, prediction_sigma
 from boomtip.perception.multi_plane import MultiPlaneConfig, multi_plane_deck
 from boomtip.perception.plane import PlaneFit, RansacConfig, ransac_plane_cols
-from boomtip.perception.plane_moments import _moments_cols, _select_inliers, eigh3
+from boomtip.perception.plane_moments import moments_cols, select_inliers, eigh3
 from boomtip.perception.plane_refine import refine_plane_biweight_cols
 from boomtip.perception.preprocess import PreprocessConfig, preprocess
 from boomtip.perception.timing import StageTimes
@@ -143,7 +143,7 @@ def detect_deck(
         with times.stage(f"{prefix}.refine"):
             thr = cfg.multi_plane.ransac.distance_threshold_m
             plane = refine_plane_biweight_cols(cols, deck.plane, cfg.biweight_scale * thr, cfg.biweight_iterations)
-            idx = _select_inliers(cols, plane, thr)
+            idx = select_inliers(cols, plane, thr)
             if len(idx) >= 3:
                 x_in = cols.take(idx, axis=1)
                 mask = np.zeros(cols.shape[1], dtype=bool)
@@ -169,7 +169,7 @@ def detect_deck(
 
 def _inlier_moments(x_in: np.ndarray) -> dict:
     """A PlaneFit's moment fields for the inliers stored column-wise, (3, M)."""
-    centroid, scatter = _moments_cols(x_in)
+    centroid, scatter = moments_cols(x_in)
     evals, evecs = eigh3(scatter)
     return {"centroid": centroid, "scatter_evals": evals, "scatter_evecs": evecs}
 

@@ -285,10 +285,10 @@ def plane_sigma_at(points_on_plane: np.ndarray, plane: np.ndarray, query: np.nda
     c = points_on_plane.mean(axis=0)
     X = points_on_plane - c
     evals, evecs = np.linalg.eigh(X.T @ X)
-    return _prediction_sigma(points_on_plane, plane, c, evals, evecs, query)
+    return prediction_sigma_of_points(points_on_plane, plane, c, evals, evecs, query)
 
 
-def _prediction_sigma(pts, plane, c, evals, evecs, query) -> float:
+def prediction_sigma_of_points(pts, plane, c, evals, evecs, query) -> float:
     resid = pts @ plane[:3] + plane[3]
     return prediction_sigma(len(pts), float(resid @ resid), c, evals, evecs, query)
 

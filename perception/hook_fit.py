@@ -154,7 +154,7 @@ def score_poses(p: np.ndarray, T: np.ndarray, yaws: np.ndarray, model: BlockMode
     return out
 
 
-def _initial_guesses(p: np.ndarray, cfg: HookConfig) -> list[tuple[np.ndarray, float]]:
+def initial_guesses(p: np.ndarray, cfg: HookConfig) -> list[tuple[np.ndarray, float]]:
     """Starting poses (t, yaw) from the cluster: its highest points and its long axis."""
     # Hanging direction: tip -> cluster centroid (off the rope by at most the block's size / range).
     u0 = p.mean(axis=0)
@@ -211,7 +211,7 @@ def fit_block(p: np.ndarray, cfg: HookConfig, rng: np.random.Generator, prior_t:
                 best = cand
         return best
 
-    starts = _initial_guesses(ps, cfg)
+    starts = initial_guesses(ps, cfg)
     if prior_t is not None:
         starts += [(np.asarray(prior_t, float), starts[0][1] + dy) for dy in (0.0, math.pi / 2)]
     T, Y = icp_4dof_starts(ps, np.array([s[0] for s in starts]), np.array([s[1] for s in starts]), model, cfg,

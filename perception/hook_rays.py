@@ -115,7 +115,7 @@ def ray_sigma(cfg: HookConfig, t: np.ndarray) -> float:
     return max(cfg.ray_sigma_m, min(cfg.ray_sigma_per_m * r, cfg.ray_sigma_max_m))
 
 
-def _prior_nats(refs: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+def prior_nats(refs: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """-log N(ref; prior) up to a constant for each row of refs (0 without a prior)."""
     if prior is None:
         return np.zeros(len(refs))
@@ -136,7 +136,7 @@ def ray_pick(rays: RayEvidence, t: np.ndarray, yaw: float, model: BlockModel, cf
     cands = np.array([t] + [t + R @ np.asarray(sh) for sh in AMBIGUOUS_SHIFTS_M])
     cost, refs, _ = _ray_costs(model, cands, np.full(len(cands), yaw), np.zeros((1, 2)), np.zeros(1), rays.s, rays.d,
                                rays.r, rays.blk, cfg)
-    nats = cost / (2 * ray_sigma(cfg, t) ** 2) + _prior_nats(refs, prior)
+    nats = cost / (2 * ray_sigma(cfg, t) ** 2) + prior_nats(refs, prior)
     k = int(np.argmin(nats))
     return (t, yaw) if k == 0 else (refs[k], yaw)
 
@@ -174,12 +174,12 @@ def ray_refine(rays: RayEvidence, t0: np.ndarray, yaw0: float, half1: float, mod
     cost, refs, yaws = grid(t0, yaw0, half1, n1, yaw1, ny1)
     step1, ystep1 = 2 * half1 / (n1 - 1), 2 * yaw1 / max(ny1 - 1, 1)
     best = (np.inf, t0, yaw0)
-    ks = np.argsort(cost * inv2s2 + _prior_nats(refs, prior))[: cfg.ray_starts]
+    ks = np.argsort(cost * inv2s2 + prior_nats(refs, prior))[: cfg.ray_starts]
     c2, r2, y2 = grid(refs[ks], yaws[ks], step1, n2, ystep1, ny2)  # the local grids together
     per = len(c2) // len(ks)
     for a in range(0, len(c2), per):  # each local grid's best, in the coarse order
         j = a + int(np.argmin(c2[a:a + per]))
-        score = float(c2[j]) * inv2s2 + float(_prior_nats(r2[j:j + 1], prior)[0])
+        score = float(c2[j]) * inv2s2 + float(prior_nats(r2[j:j + 1], prior)[0])
         if score < best[0]:
             best = (score, r2[j], float(y2[j]))
     step2, ystep2 = 2 * step1 / (n2 - 1), 2 * ystep1 / max(ny2 - 1, 1)

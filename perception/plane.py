@@ -41,7 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.perception.cloud import as_points
-from boomtip.perception.plane_moments import _fit_plane_cols, _moments_cols, _plane_and_eig, _select_inliers, eigh3
+from boomtip.perception.plane_moments import fit_plane_cols, moments_cols, plane_and_eig, select_inliers, eigh3
 
 __all__ = [
     "RansacConfig",
@@ -141,7 +141,7 @@ def fit_plane_lsq(points: np.ndarray) -> np.ndarray:
         raise ValueError("fit_plane_lsq needs at least 3 points")
     if not np.isfinite(pts).all():
         raise ValueError("fit_plane_lsq needs finite points (preprocess drops the others)")
-    return _fit_plane_cols(np.ascontiguousarray(pts.T))
+    return fit_plane_cols(np.ascontiguousarray(pts.T))
 
 
 def plane_tilt_deg(plane: np.ndarray, up: np.ndarray) -> float:
@@ -190,7 +190,7 @@ def transform_plane(plane: np.ndarray, T_a_b: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 # RANSAC
 # --------------------------------------------------------------------------------------
-def _needed_iterations(inlier_ratio: float, confidence: float, sample_size: int = 3) -> float:
+def needed_iterations(inlier_ratio: float, confidence: float, sample_size: int = 3) -> float:
     """Hypotheses needed to draw one all-inlier minimal sample with probability ``confidence``."""
     if inlier_ratio <= 0.0:
         return math.inf
@@ -281,7 +281,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
         cos_max = math.cos(math.radians(max_axis_angle_deg))
 
     best_count, best_n, best_d, drawn = -1, None, 0.0, 0
-    needed = min(float(cfg.max_iterations), _needed_iterations(min_support, cfg.confidence))
+    needed = min(float(cfg.max_iterations), needed_iterations(min_support, cfg.confidence))
     deadline = time.perf_counter() + 1e-3 * cfg.max_time_ms if cfg.max_time_ms is not None else math.inf
     timed_out = False
     while drawn < min(needed, cfg.max_iterations):
@@ -337,7 +337,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
             best_count = int(counts[k])
             best_n = nrm[:, k].copy()
             best_d = float(d[k])
-            needed = _needed_iterations(max(best_count / s, min_support), cfg.confidence)
+            needed = needed_iterations(max(best_count / s, min_support), cfg.confidence)
 
     if best_n is None:
         return None
@@ -347,22 +347,22 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     full_rounds = cfg.refit_iterations
     if cfg.refit_first_on_subsample and full_rounds >= 1:
         full_rounds -= 1
-        idx_s = _select_inliers(sub_c, plane_c, thr)
+        idx_s = select_inliers(sub_c, plane_c, thr)
         if len(idx_s) >= 3:
-            plane_c = _fit_plane_cols(sub_c.take(idx_s, axis=1))
+            plane_c = fit_plane_cols(sub_c.take(idx_s, axis=1))
     plane = np.concatenate([plane_c[:3], [plane_c[3] - plane_c[:3] @ centre]])  # sensor frame
-    idx = _select_inliers(cols, plane, thr)
+    idx = select_inliers(cols, plane, thr)
     x_in = None  # the columns of idx, once gathered
     moments = None  # (centroid, evals, evecs) of x_in, once fitted
     for r in range(full_rounds):
         if r > 0:  # re-select with the previous round's fit
-            idx = _select_inliers(cols, plane, thr)
+            idx = select_inliers(cols, plane, thr)
             x_in = None
         if len(idx) < 3:
             break
         x_in = cols.take(idx, axis=1)
-        centroid, scatter = _moments_cols(x_in)
-        plane, evals, evecs = _plane_and_eig(centroid, scatter)
+        centroid, scatter = moments_cols(x_in)
+        plane, evals, evecs = plane_and_eig(centroid, scatter)
         moments = (centroid, evals, evecs)
     n_in = len(idx)
     if n_in < max(cfg.min_inliers, 3):
@@ -377,7 +377,7 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
         rms = math.sqrt(max(float(moments[1][0]), 0.0) / n_in)
     else:  # no full round ran (refit_iterations <= 1): the plane was fitted to others
         x_in = cols.take(idx, axis=1)
-        centroid, scatter = _moments_cols(x_in)
+        centroid, scatter = moments_cols(x_in)
         moments = (centroid, *eigh3(scatter))
         r_in = plane[:3] @ x_in + plane[3]
         rms = float(np.sqrt(np.einsum("i,i->", r_in, r_in) / n_in))

@@ -31,7 +31,7 @@ def eigh3(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.linalg.eigh(a)
 
 
-def _plane_and_eig(centroid: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def plane_and_eig(centroid: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Plane through ``centroid`` whose normal is the smallest-eigenvalue eigenvector of
     ``scatter``, oriented towards the sensor origin (d >= 0); with the eigenvalues and vectors."""
     evals, vecs = eigh3(scatter)
@@ -45,7 +45,7 @@ def _plane_and_eig(centroid: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarra
     return plane, evals, vecs
 
 
-def _moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centroid and scatter about it of points stored COLUMN-wise, (3, M) C-contiguous float64.
 
     The scatter is the raw second-moment matrix of the rows minus the centroid term.
@@ -62,17 +62,17 @@ def _moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s / m, raw
 
 
-def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
+def fit_plane_cols(cols: np.ndarray) -> np.ndarray:
     """Least-squares plane through points stored COLUMN-wise, (3, M) C-contiguous float64, M >= 3.
 
     The normal is the right singular vector of the centred points with the smallest singular value,
     computed as the smallest-eigenvalue eigenvector of the 3x3 scatter matrix of the centred points
     (mathematically identical to the SVD, and 10-20x faster than an SVD of an (M, 3) matrix).
     """
-    return _plane_and_eig(*_moments_cols(cols))[0]
+    return plane_and_eig(*moments_cols(cols))[0]
 
 
-def _select_inliers(cols: np.ndarray, plane: np.ndarray, thr: float) -> np.ndarray:
+def select_inliers(cols: np.ndarray, plane: np.ndarray, thr: float) -> np.ndarray:
     """Indices of the points (columns of (3, N) ``cols``) with |n . p + d| < thr."""
     r = plane[:3] @ cols
     r += plane[3]

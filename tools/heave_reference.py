@@ -13,7 +13,7 @@ import numpy as np
 from boomtip.perception.cloud import as_points
 from boomtip.perception.doppler import DopplerConfig, DopplerFit
 from boomtip.perception.doppler import doppler_velocity as current_doppler_velocity
-from boomtip.perception.geometry import NormalRate, _prediction_sigma, heave_distance, inv3, sym3_eigvals
+from boomtip.perception.geometry import NormalRate, heave_distance, prediction_sigma_of_points, inv3, sym3_eigvals
 from boomtip.perception.reflectors import (
     INTENSITY_REFERENCE_RANGE_M,
     ReflectorConfig,
@@ -51,7 +51,7 @@ def fit_plane_heave(points: np.ndarray, wire_dir: np.ndarray, p_tip: np.ndarray,
     D = heave_distance(plane, wire_dir, p_tip)
     if not np.isfinite(D) or len(points) < 4:
         return plane, D, float("nan")
-    return plane, D, _prediction_sigma(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
+    return plane, D, prediction_sigma_of_points(points, fitted, c, evals, evecs, p_tip + D * wire_dir)
 
 
 def group_markers(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

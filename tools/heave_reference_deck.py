@@ -14,7 +14,7 @@ import numpy as np
 from boomtip.perception.cloud import as_points
 from boomtip.perception.deck import DeckConfig, DeckResult
 from boomtip.perception.geometry import heave_distance, plane_sigma_at
-from boomtip.perception.plane import PlaneFit, RansacConfig, _needed_iterations, _select_inliers, orient_plane_towards
+from boomtip.perception.plane import PlaneFit, RansacConfig, needed_iterations, select_inliers, orient_plane_towards
 from boomtip.perception.preprocess import PreprocessConfig
 from boomtip.perception.timing import StageTimes
 
@@ -45,7 +45,7 @@ def _plane_from_scatter(centroid: np.ndarray, scatter: np.ndarray) -> np.ndarray
     return orient_plane_towards(plane)
 
 
-def _fit_plane_cols(cols: np.ndarray) -> np.ndarray:
+def fit_plane_cols(cols: np.ndarray) -> np.ndarray:
     m = cols.shape[1]
     s = cols.sum(axis=1)
     raw = np.einsum("ij,kj->ik", cols, cols)
@@ -88,7 +88,7 @@ def ransac_plane(
     best_n = None
     best_d = 0.0
     drawn = 0
-    needed = min(float(cfg.max_iterations), _needed_iterations(min_support, cfg.confidence))
+    needed = min(float(cfg.max_iterations), needed_iterations(min_support, cfg.confidence))
     deadline = time.perf_counter() + 1e-3 * cfg.max_time_ms if cfg.max_time_ms is not None else math.inf
     timed_out = False
     while drawn < min(needed, cfg.max_iterations):
@@ -128,27 +128,27 @@ def ransac_plane(
             best_count = int(counts[k])
             best_n = nrm[k]
             best_d = float(d[k])
-            needed = _needed_iterations(max(best_count / s, min_support), cfg.confidence)
+            needed = needed_iterations(max(best_count / s, min_support), cfg.confidence)
     if best_n is None:
         return None
     plane_c = np.concatenate([best_n, [best_d]])
     full_rounds = cfg.refit_iterations
     if cfg.refit_first_on_subsample and full_rounds >= 1:
         full_rounds -= 1
-        idx_s = _select_inliers(sub_c, plane_c, thr)
+        idx_s = select_inliers(sub_c, plane_c, thr)
         if len(idx_s) >= 3:
-            plane_c = _fit_plane_cols(sub_c.take(idx_s, axis=1))
+            plane_c = fit_plane_cols(sub_c.take(idx_s, axis=1))
     plane = np.concatenate([plane_c[:3], [plane_c[3] - plane_c[:3] @ centre]])
-    idx = _select_inliers(cols, plane, thr)
+    idx = select_inliers(cols, plane, thr)
     x_in = None
     for r in range(full_rounds):
         if r > 0:
-            idx = _select_inliers(cols, plane, thr)
+            idx = select_inliers(cols, plane, thr)
             x_in = None
         if len(idx) < 3:
             break
         x_in = cols.take(idx, axis=1)
-        plane = _fit_plane_cols(x_in)
+        plane = fit_plane_cols(x_in)
     n_in = len(idx)
     if n_in < max(cfg.min_inliers, 3):
         return None

@@ -14,8 +14,8 @@ import open3d as o3d
 
 from boomtip.data.block_model import AMBIGUOUS_SHIFTS_M, BODY_XY_M
 from boomtip.perception.hook_block import BlockModel, block_model, hanging_pose, rot_z, rotation_hanging
-from boomtip.perception.hook_fit import BlockFit, _initial_guesses
-from boomtip.perception.hook_rays import RayEvidence, _prior_nats, ray_sigma
+from boomtip.perception.hook_fit import BlockFit, initial_guesses
+from boomtip.perception.hook_rays import RayEvidence, prior_nats, ray_sigma
 from boomtip.perception.hook_types import HookConfig
 
 __all__ = ["reference_stage", "fit_block", "ray_pick", "ray_refine"]
@@ -84,7 +84,7 @@ def fit_block(p: np.ndarray, cfg: HookConfig, rng: np.random.Generator, prior_t:
         return a is None or (b.inliers.sum(), -b.rms) > (a.inliers.sum(), -a.rms)
 
     best: BlockFit | None = None
-    starts = _initial_guesses(ps, cfg)
+    starts = initial_guesses(ps, cfg)
     if prior_t is not None:
         starts += [(np.asarray(prior_t, float), starts[0][1] + dy) for dy in (0.0, math.pi / 2)]
     for t0, y0 in starts:
@@ -150,7 +150,7 @@ def ray_pick(rays: RayEvidence, t: np.ndarray, yaw: float, model: BlockModel, cf
     costs = [_ray_costs(model, c, yaw, np.zeros((1, 2)), np.zeros(1), rays.s, rays.d, rays.r, rays.blk, cfg)
              for c in cands]
     refs = np.array([c[1][0] for c in costs])
-    nats = np.array([c[0][0] for c in costs]) / (2 * ray_sigma(cfg, t) ** 2) + _prior_nats(refs, prior)
+    nats = np.array([c[0][0] for c in costs]) / (2 * ray_sigma(cfg, t) ** 2) + prior_nats(refs, prior)
     k = int(np.argmin(nats))
     return (t, yaw) if k == 0 else (refs[k], yaw)
 
@@ -171,10 +171,10 @@ def ray_refine(rays: RayEvidence, t0: np.ndarray, yaw0: float, half1: float, mod
     cost, refs, yaws = grid(t0, yaw0, half1, n1, yaw1, ny1)
     step1, ystep1 = 2 * half1 / (n1 - 1), 2 * yaw1 / max(ny1 - 1, 1)
     best = (np.inf, t0, yaw0)
-    for k in np.argsort(cost * inv2s2 + _prior_nats(refs, prior))[: cfg.ray_starts]:
+    for k in np.argsort(cost * inv2s2 + prior_nats(refs, prior))[: cfg.ray_starts]:
         c2, r2, y2 = grid(refs[k], float(yaws[k]), step1, n2, ystep1, ny2)
         j = int(np.argmin(c2))
-        score = float(c2[j]) * inv2s2 + float(_prior_nats(r2[j:j + 1], prior)[0])
+        score = float(c2[j]) * inv2s2 + float(prior_nats(r2[j:j + 1], prior)[0])
         if score < best[0]:
             best = (score, r2[j], float(y2[j]))
     step2, ystep2 = 2 * step1 / (n2 - 1), 2 * ystep1 / max(ny2 - 1, 1)

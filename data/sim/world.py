@@ -17,18 +17,18 @@ import math
 from pydantic import Field, field_validator, model_validator
 from scipy.spatial.transform import Rotation
 
-from boomtip.data.installation import LidarSpec, Mount, RadarSpec, _finite, _Model
+from boomtip.data.installation import LidarSpec, Mount, RadarSpec, require_finite, StrictModel
 
 DOFS = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 
 
-class Sinusoid(_Model):
+class Sinusoid(StrictModel):
     amplitude: float = Field(0.0, description="m for surge/sway/heave, deg for roll/pitch/yaw")
     period_s: float = Field(10.0, gt=0)
     phase_deg: float = 0.0
 
 
-class Motion(_Model):
+class Motion(StrictModel):
     surge: Sinusoid = Sinusoid()
     sway: Sinusoid = Sinusoid()
     heave: Sinusoid = Sinusoid()
@@ -37,7 +37,7 @@ class Motion(_Model):
     yaw: Sinusoid = Sinusoid()
 
 
-class IrregularSea(_Model):
+class IrregularSea(StrictModel):
     """Irregular sea added on top of the sinusoids: a JONSWAP spectrum of wave elevation,
     turned into each DOF through a per-DOF gain (m or deg per metre of wave)."""
 
@@ -51,7 +51,7 @@ class IrregularSea(_Model):
     )
 
 
-class CraneHull(_Model):
+class CraneHull(StrictModel):
     length_m: float = Field(216.0, gt=0)
     beam_m: float = Field(49.0, gt=0)
     freeboard_m: float = Field(10.0, gt=0, description="main deck above the waterline")
@@ -59,7 +59,7 @@ class CraneHull(_Model):
     pedestal_m: tuple[float, float] = (10.0, -8.0)
 
 
-class FeederGeometry(_Model):
+class FeederGeometry(StrictModel):
     length_m: float = Field(95.0, gt=0)
     beam_m: float = Field(22.0, gt=0)
     freeboard_m: float = Field(4.0, gt=0)
@@ -70,7 +70,7 @@ class FeederGeometry(_Model):
     )
 
 
-class Reflectors(_Model):
+class Reflectors(StrictModel):
     """Retro-reflective deck markers (tape patches) along both deck edges, as laid."""
 
     enabled: bool = True
@@ -81,7 +81,7 @@ class Reflectors(_Model):
     false_bright_points: int = Field(0, ge=0, description="extra bright patches on cargo/bulwarks that are not markers")
 
 
-class Vessel(_Model):
+class Vessel(StrictModel):
     motion: Motion = Motion()
     irregular: IrregularSea = IrregularSea()
 
@@ -93,7 +93,7 @@ class CraneVessel(Vessel):
 Windows = list[tuple[float, float]]
 
 
-class _Outages(_Model):
+class _Outages(StrictModel):
     """A sensor that can go silent: [start, end] windows (seconds) in which it gives nothing."""
 
     outages_s: Windows = Field(default_factory=list, description="[start, end] windows in which the sensor gives nothing")
@@ -120,7 +120,7 @@ class FeederMru(_Outages):
 
     @model_validator(mode="after")
     def _check(self) -> "FeederMru":
-        _finite(self.bias_deg, "feeder.mru.bias_deg")
+        require_finite(self.bias_deg, "feeder.mru.bias_deg")
         return self
 
 
@@ -131,7 +131,7 @@ class FeederVessel(Vessel):
     mru: FeederMru = FeederMru()
 
 
-class Spray(_Model):
+class Spray(StrictModel):
     """Spray in the air above the sea: a fraction of the LiDAR's rays return early and weakly
     from droplets at a height within the band (world z above the waterline)."""
 
@@ -147,7 +147,7 @@ class Spray(_Model):
         return self
 
 
-class Sea(_Model):
+class Sea(StrictModel):
     clutter: bool = Field(False, description="LiDAR/radar returns from the sea surface")
     clutter_probability: float = Field(0.02, ge=0, le=1)
     reflectivity: float = Field(0.05, ge=0, le=1)
@@ -175,7 +175,7 @@ class LidarBehaviour(_Outages):
     motion_during_sweep: bool = Field(False, description="move the scene while the frame is scanned")
 
 
-class HookScene(_Model):
+class HookScene(StrictModel):
     """The hook scene (document 002): enabled, the scene is the crane vessel with a moving
     boom, rope and block instead of the ship-to-ship pair; the vessel's waves are
     `crane.motion.roll` and `crane.motion.pitch` (about the vessel origin)."""
@@ -189,12 +189,12 @@ class HookScene(_Model):
     drag_area_m2: float = Field(8.0, ge=0, description="block and load area the wind sees")
 
 
-class EncoderBias(_Model):
+class EncoderBias(StrictModel):
     slew: float = 0.0
     luff: float = 0.0
 
 
-class Mismatch(_Model):
+class Mismatch(StrictModel):
     """How reality deviates from the installation. Defaults: none."""
 
     lidar_mount_rpy_deg: tuple[float, float, float] = Field(
@@ -216,9 +216,9 @@ class Mismatch(_Model):
     encoder_bias_deg: EncoderBias = EncoderBias()
 
     @model_validator(mode="after")
-    def _finite(self) -> "Mismatch":
+    def _angles_and_wind_finite(self) -> "Mismatch":
         for name in ("lidar_mount_rpy_deg", "radar_mount_rpy_deg", "mru_bias_deg", "wind_mps"):
-            _finite(getattr(self, name), f"mismatch.{name}")
+            require_finite(getattr(self, name), f"mismatch.{name}")
         return self
 
 
@@ -232,7 +232,7 @@ DEFAULT_MISMATCH = Mismatch(
 )
 
 
-class World(_Model):
+class World(StrictModel):
     truth_rate_hz: float = Field(200.0, gt=0, le=10000)
     crane: CraneVessel = CraneVessel()
     feeder: FeederVessel = FeederVessel()

@@ -23,18 +23,18 @@ from boomtip.fusion.models.crane_pendulum import IF, IFD
 __all__ = ["accel_jacobian"]
 
 
-class _TraceNode:
+class TraceNode:
     """A traced value: the arithmetic operators record the operation on the tape; float-only
     sub-expressions (the crane parameters) are evaluated by Python, as in the real call."""
 
     __slots__ = ("tape", "op", "args", "id")
 
-    def __init__(self, tape: "_Tape", op: str, args: tuple) -> None:
+    def __init__(self, tape: "Tape", op: str, args: tuple) -> None:
         self.tape, self.op, self.args = tape, op, args
         self.id = len(tape.nodes)
 
     def _bin(self, op, other, swap=False):
-        o = other if isinstance(other, _TraceNode) else _Tape.const(other)
+        o = other if isinstance(other, TraceNode) else Tape.const(other)
         return self.tape.node(op, (o, self) if swap else (self, o))
 
     def __add__(self, o):
@@ -71,10 +71,10 @@ class _TraceNode:
         raise TypeError("cannot trace a branch on a traced value")
 
 
-class _Tape:
+class Tape:
     def __init__(self) -> None:
-        self.nodes: list[_TraceNode] = []
-        self._index: dict[tuple, _TraceNode] = {}
+        self.nodes: list[TraceNode] = []
+        self._index: dict[tuple, TraceNode] = {}
 
     @staticmethod
     def const(v) -> float:
@@ -82,22 +82,22 @@ class _Tape:
             return float(v)
         raise TypeError("cannot trace this operand")
 
-    def node(self, op: str, args: tuple) -> _TraceNode:
-        key = (op,) + tuple(a.id if isinstance(a, _TraceNode) else repr(a) for a in args)
+    def node(self, op: str, args: tuple) -> TraceNode:
+        key = (op,) + tuple(a.id if isinstance(a, TraceNode) else repr(a) for a in args)
         nd = self._index.get(key)  # the same operation on the same operands: reuse it
         if nd is None:
-            nd = self._index[key] = _TraceNode(self, op, args)
+            nd = self._index[key] = TraceNode(self, op, args)
             self.nodes.append(nd)
         return nd
 
-    def inputs(self, k: int) -> list[_TraceNode]:
+    def inputs(self, k: int) -> list[TraceNode]:
         return [self.node("in", (float(i),)) for i in range(k)]
 
     def sin(self, v):
-        return self.node("sin", (v,)) if isinstance(v, _TraceNode) else math.sin(v)
+        return self.node("sin", (v,)) if isinstance(v, TraceNode) else math.sin(v)
 
     def cos(self, v):
-        return self.node("cos", (v,)) if isinstance(v, _TraceNode) else math.cos(v)
+        return self.node("cos", (v,)) if isinstance(v, TraceNode) else math.cos(v)
 
 
 
@@ -109,7 +109,7 @@ def ancestors(roots) -> set[int]:
         nd = stack.pop()
         if nd.id not in seen:
             seen.add(nd.id)
-            stack.extend(a for a in nd.args if isinstance(a, _TraceNode))
+            stack.extend(a for a in nd.args if isinstance(a, TraceNode))
     return seen
 
 
@@ -123,7 +123,7 @@ def node_expression(op: str, refs: list[str]) -> str:
     return f"({refs[0]} {op} {refs[1]})"
 
 
-def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
+def _compile_jacobian(tape: Tape, n_in: int, outs: list):
     """Python source for ``jac(x) -> [d outs[r] / d x_k for r for k < n_in]``, compiled:
     the forward sweep (values used once are inlined into their consumer's expression) and
     one reverse sweep per output (an adjoint reached by a single path is passed on as an
@@ -137,7 +137,7 @@ def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
     for nd in nodes:
         if nd.id in live:
             for a in nd.args:
-                if isinstance(a, _TraceNode):
+                if isinstance(a, TraceNode):
                     uses[a.id] += 1
                     if nd.op in ("*", "/"):
                         uses[a.id] += 2
@@ -151,7 +151,7 @@ def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
     depth: dict[int, int] = {}
 
     def ref(a):
-        return expr[a.id] if isinstance(a, _TraceNode) else repr(a)
+        return expr[a.id] if isinstance(a, TraceNode) else repr(a)
 
     lines = ["def _jac(x):", "    sin = _sin; cos = _cos",
              "    " + "".join(f"v{k}, " for k in range(n_in)) + "= x"]
@@ -162,7 +162,7 @@ def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
             continue
         a = nd.args
         e = node_expression(nd.op, [ref(x) for x in a])
-        d = 1 + max((depth[x.id] for x in a if isinstance(x, _TraceNode)), default=0)
+        d = 1 + max((depth[x.id] for x in a if isinstance(x, TraceNode)), default=0)
         if uses[nd.id] > 1 or d > 40:
             lines.append(f"    v{nd.id} = {e}")
             e, d = f"v{nd.id}", 0
@@ -194,7 +194,7 @@ def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
             terms = contrib.pop(nd.id, None)
             if nd.id not in need or terms is None:
                 continue
-            node_args = [a for a in nd.args if isinstance(a, _TraceNode)]
+            node_args = [a for a in nd.args if isinstance(a, TraceNode)]
             neg, g = terms[0]
             simple = len(terms) == 1 and (g.isidentifier() or g == "1.0" or (len(node_args) == 1 and len(g) < 200))
             if not simple:
@@ -204,7 +204,7 @@ def _compile_jacobian(tape: _Tape, n_in: int, outs: list):
             a = nd.args
 
             def push(arg, n2, text):
-                if isinstance(arg, _TraceNode):
+                if isinstance(arg, TraceNode):
                     contrib.setdefault(arg.id, []).append((n2, text))
 
             if nd.op == "+":
@@ -242,11 +242,11 @@ def _build_accel_jacobian(prm: tuple, flex: bool) -> Callable | None:
     n = 21 if flex else 19
     n_acc = 3 if flex else 2
     try:
-        tape = _Tape()
+        tape = Tape()
         xs = tape.inputs(n)
         outs = pendulum_accelerations_core(tape.sin, tape.cos, prm, flex, *xs[:19],
                                            *((xs[IF], xs[IFD]) if flex else (0.0, 0.0)))[:n_acc]
-        if not all(isinstance(o, _TraceNode) for o in outs):
+        if not all(isinstance(o, TraceNode) for o in outs):
             return None
         jac = _compile_jacobian(tape, n, list(outs))
     except Exception:  # not traceable: the caller falls back to the complex step

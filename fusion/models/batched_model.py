@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from boomtip.data.crane_model import pendulum_accelerations_core
-from boomtip.fusion.models.autodiff import _Tape, _TraceNode, ancestors, node_expression
+from boomtip.fusion.models.autodiff import Tape, TraceNode, ancestors, node_expression
 from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD
 from boomtip.fusion.models.jacobian import constant_part
 
@@ -40,29 +40,29 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
     n = 21 if flex else 19
     n_acc = 3 if flex else 2
     try:
-        tape = _Tape()
+        tape = Tape()
         xs = tape.inputs(n)
         outs = list(pendulum_accelerations_core(tape.sin, tape.cos, prm, flex, *xs[:19],
                                                 *((xs[IF], xs[IFD]) if flex else (0.0, 0.0)))[:n_acc])
     except Exception:  # not traceable: the caller uses the core itself
         return None
-    if not all(isinstance(o, _TraceNode) for o in outs):
+    if not all(isinstance(o, TraceNode) for o in outs):
         return None
     nodes = tape.nodes
     live = ancestors(outs)
     sway = set(i for i in _SWAY if i < n)
     for nd in nodes[n:]:
-        if any(isinstance(a, _TraceNode) and a.id in sway for a in nd.args):
+        if any(isinstance(a, TraceNode) and a.id in sway for a in nd.args):
             sway.add(nd.id)
     uses = [0] * len(nodes)
     for nd in nodes:
         if nd.id in live:
             for a in nd.args:
-                if isinstance(a, _TraceNode):
+                if isinstance(a, TraceNode):
                     uses[a.id] += 1
     # input-only values the sway part reads: the inputs part's results
     handed = sorted({a.id for nd in nodes if nd.id in live and nd.id in sway
-                     for a in nd.args if isinstance(a, _TraceNode) and a.id not in sway})
+                     for a in nd.args if isinstance(a, TraceNode) and a.id not in sway})
     for o in outs:  # (an output of the inputs only would be handed over too)
         if o.id not in sway and o.id not in handed:
             handed.append(o.id)
@@ -77,8 +77,8 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
 
     def emit(lines, expr, depth, nd, keep):
         a = nd.args
-        e = node_expression(nd.op, [expr[x.id] if isinstance(x, _TraceNode) else const(x) for x in a])
-        d = 1 + max((depth[x.id] for x in a if isinstance(x, _TraceNode)), default=0)
+        e = node_expression(nd.op, [expr[x.id] if isinstance(x, TraceNode) else const(x) for x in a])
+        d = 1 + max((depth[x.id] for x in a if isinstance(x, TraceNode)), default=0)
         if keep or uses[nd.id] > 1 or d > 40:
             lines.append(f"    v{nd.id} = {e}")
             e, d = f"v{nd.id}", 0

@@ -367,12 +367,12 @@ def test_select_deck_plane_rules():
 def test_ransac_budget_follows_a_small_inlier_share_and_a_cap_is_reported():
     """5 % of the points on the plane: about 55,000 hypotheses for a 1e-3 chance of missing it
     (a fixed 1,000 would find it in 12 % of the searches); a smaller cap says it stopped short."""
-    from boomtip.perception.plane import _needed_iterations
+    from boomtip.perception.plane import needed_iterations
 
     rng = np.random.default_rng(5)
     plane_pts = np.column_stack([rng.uniform(-10, 10, (500, 2)), np.zeros(500)])
     pts = np.vstack([plane_pts, rng.uniform(-10, 10, (9500, 3))])
-    assert 5.4e4 < _needed_iterations(0.05, 0.999) < 5.6e4
+    assert 5.4e4 < needed_iterations(0.05, 0.999) < 5.6e4
     fit = ransac_plane(pts, RansacConfig(distance_threshold_m=0.02), rng)
     assert fit is not None and not fit.capped and abs(fit.plane[2]) > 0.9999 and abs(fit.plane[3]) < 0.005
     assert fit.iterations >= 0.9 * fit.needed

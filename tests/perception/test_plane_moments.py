@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from boomtip.perception.plane_moments import _fit_plane_cols, _select_inliers, eigh3
+from boomtip.perception.plane_moments import fit_plane_cols, select_inliers, eigh3
 
 
 def test_eigh3_is_numpys_eigh_bit_for_bit_and_fails_as_it_does():
@@ -28,7 +28,7 @@ def test_fit_and_inliers_on_columns():
     pts[:, 2] += rng.normal(0, 0.01, 400)
     pts[:40, 2] += 3.0  # off the plane
     cols = np.ascontiguousarray(pts.T)
-    plane = _fit_plane_cols(cols[:, 40:])
+    plane = fit_plane_cols(cols[:, 40:])
     assert plane[3] > 0 and abs(abs(plane[2]) - 1.0) < 1e-5 and abs(plane[3] - 20.0) < 0.01
-    idx = _select_inliers(cols, plane, 0.05)
+    idx = select_inliers(cols, plane, 0.05)
     assert idx.dtype == np.intp and np.array_equal(idx, np.arange(40, 400))
