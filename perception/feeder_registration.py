@@ -40,7 +40,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from boomtip.perception.geometry import rpy_matrix
+from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
 from boomtip.perception.point_to_plane import Surface, cross_rows, icp_point_to_plane
 
 
@@ -141,32 +141,6 @@ class Registration6:
     fitness: float  # fraction of the frame's points matched in the keyframe
     status: str  # "ok" or why there is no registration
     kiss: bool = False  # kiss-icp registered it first (re-acquisition, or its method)
-
-
-def pose_matrix(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """4x4 from a position and R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    T = np.eye(4)
-    T[:3, :3] = rpy_matrix((roll, pitch, yaw))
-    T[:3, 3] = (x, y, z)
-    return T
-
-
-def pose_vector(T: np.ndarray) -> np.ndarray:
-    """(x, y, z, roll, pitch, yaw) of a 4x4 with R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    R = T[:3, :3]
-    return np.array([T[0, 3], T[1, 3], T[2, 3], np.arctan2(R[2, 1], R[2, 2]),
-                     -np.arcsin(np.clip(R[2, 0], -1.0, 1.0)), np.arctan2(R[1, 0], R[0, 0])])
-
-
-def inverse(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
-
-
-def transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ T[:3, :3].T + T[:3, 3]
 
 
 def pose_information(points_level: np.ndarray, normals_level: np.ndarray, origin_level: np.ndarray, sigma_m: float) -> np.ndarray:

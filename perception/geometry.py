@@ -11,21 +11,10 @@ import math
 
 import numpy as np
 
+from boomtip.data.poses import rpy_matrix  # noqa: F401 - part of this module's API
 from boomtip.perception.plane_moments import eigh3
 
 E_Z = np.array([0.0, 0.0, 1.0])
-
-
-def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
-    """R = Rz(yaw) Ry(pitch) Rx(roll) for one attitude. Written out because building a scipy
-    Rotation costs ~50x more than the nine products, once per frame."""
-    r, p, y = rpy_rad.tolist() if isinstance(rpy_rad, np.ndarray) else (float(v) for v in rpy_rad)
-    cr, cp, cy, sr, sp, sy = math.cos(r), math.cos(p), math.cos(y), math.sin(r), math.sin(p), math.sin(y)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
 
 
 def level_rotation_rows(rpy_rad, R_crane_sensor_rows: list[list[float]]) -> list[list[float]]:

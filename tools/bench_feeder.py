@@ -20,7 +20,7 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     from boomtip.data.scenario import load_scenario
     from boomtip.data.sources import simulation_for
     from boomtip.perception.feeder import FeederPerception
-    from boomtip.perception.feeder_registration import inverse, pose_matrix, pose_vector
+    from boomtip.data.poses import inverse, pose_matrix, pose_vector
     from boomtip.tools.feeder_outputs import WARMUP_S, feeder_kpis
     from boomtip.tools.feeder_truth import feeder_origin_body, feeder_pose_truth
     from boomtip.tools.runner import ChainError, build_chain, processing_for

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
 from boomtip.fusion.models.relative_motion import rotation
-from boomtip.perception.feeder_registration import inverse, pose_matrix, pose_vector, transform
+from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
 
 UPDATE_EVERY_S = 1.0  # the causal definition is recomputed this often (and at the last row)
 

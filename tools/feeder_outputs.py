@@ -311,7 +311,7 @@ def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_ma
     rr, rec = vars(viz).get("rr"), vars(viz).get("rec")  # the null visualiser has neither
     if rr is None or rec is None or len(res.t_s) == 0:
         return
-    from boomtip.perception.feeder_registration import inverse, pose_matrix, transform
+    from boomtip.data.poses import inverse, pose_matrix, transform
     from boomtip.tools.visualise import TIMELINE
 
     keep = np.r_[True, np.diff(np.floor(res.t_s * 10.0)) > 0]  # the pose series at 10 Hz: the file stays small
@@ -349,7 +349,7 @@ def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_ma
 def _log_feeder_mesh(rr, rec, timeline: str, t_s: np.ndarray, pose: np.ndarray, truth_pose: np.ndarray | None, rpy_yaw,
                      mesh_feeder: tuple[np.ndarray, np.ndarray]) -> None:
     """The mesh once (static), then only its transforms: the file grows by a pose per sample."""
-    from boomtip.perception.feeder_registration import pose_matrix
+    from boomtip.data.poses import pose_matrix
     from scipy.spatial.transform import Rotation
 
     vertices, triangles = mesh_feeder

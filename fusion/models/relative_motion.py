@@ -40,6 +40,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.linalg import expm
 
+from boomtip.data.poses import rpy_matrix
+
 N_MOTION = 18  # pose, rates, accelerations
 N_STATE = 22  # and the feeder MRU's offsets
 POSE, RATE, ACC, OFFSETS = slice(0, 6), slice(6, 12), slice(12, 18), slice(18, 22)
@@ -76,10 +78,8 @@ def transition(dt_s: float, tau_s: np.ndarray, sigma_acc: np.ndarray, rate_tau_s
 
 
 def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, cp, cy, sr, sp, sy = math.cos(roll), math.cos(pitch), math.cos(yaw), math.sin(roll), math.sin(pitch), math.sin(yaw)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
+    """R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    return rpy_matrix((roll, pitch, yaw))
 
 
 def omega(pose: np.ndarray, rates: np.ndarray) -> np.ndarray:

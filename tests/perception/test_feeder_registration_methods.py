@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 from boomtip.data.processing import Processing
-from boomtip.perception.feeder_registration import FeederModel, RegistrationConfig, inverse, pose_matrix, pose_vector, transform
+from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
+from boomtip.perception.feeder_registration import FeederModel, RegistrationConfig
 from pydantic import ValidationError
 
 

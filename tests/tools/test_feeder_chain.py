@@ -206,7 +206,7 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
     import open3d as o3d
     import rerun as rr
 
-    from boomtip.perception.feeder_registration import inverse, transform
+    from boomtip.data.poses import inverse, transform
     from boomtip.tools.feeder_outputs import log_feeder, truth_of
     from boomtip.tools.runner import build_chain, processing_for
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
-from boomtip.perception.feeder_registration import pose_matrix
+from boomtip.data.poses import pose_matrix
 from boomtip.tools.feeder_frame import (
     FrameData,
     estimates_in_feeder_frame,
