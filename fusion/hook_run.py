@@ -11,6 +11,7 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 
 from boomtip.data.crane_model import CraneParams
+from boomtip.data.hook_streams import HookMeasurements
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
 from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch, sway_angles_from_directions
@@ -31,24 +32,6 @@ def with_levelling_bias(p_rel: np.ndarray, cov_p: np.ndarray, sigma_rad: float) 
     u = p_rel / np.sqrt(np.maximum(l2[:, :, 0], 1e-12))
     across = np.eye(3) - u[:, :, None] * u[:, None, :]
     return cov_p + (sigma_rad**2) * l2 * across
-
-
-@dataclass
-class HookMeasurements:
-    """Time-stamped sensor streams.  A LiDAR row of NaN means "no detection"."""
-
-    t_lidar: np.ndarray
-    lidar_p_rel_tip_world: np.ndarray  # (K, 3)
-    t_encoders: np.ndarray
-    encoders: np.ndarray  # (K, 3): slew rad, luff rad, hoist m
-    t_mru: np.ndarray
-    mru: np.ndarray  # (K, 4): roll, pitch, roll rate, pitch rate
-    lidar_sigma_m: np.ndarray | None = None  # (K,) per-fix 1-sigma; None: the config's
-    lidar_cov_m2: np.ndarray | None = None  # (K, 3, 3) per-fix covariance; rows with NaN: lidar_sigma_m
-    # the rope's direction in the same LiDAR frames (perception.rope), applied before the frame's
-    # block fix: (K, 3) unit vectors, world axes (NaN rows: no rope fit), and (K, 3, 3) covariances
-    rope_direction: np.ndarray | None = None
-    rope_cov: np.ndarray | None = None
 
 
 @dataclass

@@ -31,7 +31,7 @@ def _imports(path: Path) -> list[tuple[int, str]]:
     return out
 
 
-FORBIDDEN_FOR_PROCESSING = ("boomtip.data.sim", "boomtip.data.scenario")
+FORBIDDEN_FOR_PROCESSING = ("boomtip.data.sim", "boomtip.tools.config.scenario")
 
 
 @pytest.mark.parametrize("root", ["perception", "fusion"])

@@ -10,7 +10,7 @@ from pydantic import BaseModel
 
 from boomtip.data.crane_model import DEG
 from boomtip.data.sim.crane_truth import CraneTruth
-from boomtip.fusion.hook_run import HookMeasurements
+from boomtip.data.hook_streams import HookMeasurements
 
 __all__ = ["SensorSimConfig", "measurements_from_truth"]
 

@@ -27,7 +27,7 @@ from boomtip.data.sim.crane_truth import crane_truth_chunks
 from boomtip.data.sim.vessel_waves import CallableVesselMotion
 from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Frame, MruLog, Truth
 from boomtip.data.block_model import lower_block_parts, rope_mesh
-from boomtip.data.scenario import Scenario
+from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
 from boomtip.data.sim.simulator import SENSOR_IDS, SimScene, Simulation, frame_times
 from boomtip.data.sim.world import in_windows
@@ -39,7 +39,7 @@ KEPT_TRACKS = ("roll", "pitch", "nu", "mu", "l", "nu_f", "a", "b", "p_tip_world"
                "p_hook_rel_tip", "v_hook_rel_tip")
 
 
-def crane_params(s: Scenario) -> CraneParams:
+def crane_params(s: SimulatedRun) -> CraneParams:
     """The crane as it really is: the installation's nominal parameters times the world's
     mismatch factors (geometry as surveyed)."""
     c, mm = s.installation.crane, s.world.mismatch
@@ -50,7 +50,7 @@ def crane_params(s: Scenario) -> CraneParams:
     )
 
 
-def _hook_vessel(s: Scenario) -> Body:
+def _hook_vessel(s: SimulatedRun) -> Body:
     """The crane vessel: hull, deck, accommodation, pedestal and crane house (no boom: the
     boom is its own moving body), and cargo on deck for the hook to pass over."""
     g = s.world.crane.geometry
@@ -70,7 +70,7 @@ def _hook_vessel(s: Scenario) -> Body:
     return Body.from_parts("crane", parts)
 
 
-def hook_bodies(s: Scenario) -> list[Body]:
+def hook_bodies(s: SimulatedRun) -> list[Body]:
     L = s.installation.crane.geometry.boom_length_m
     boom = lattice_boom([0.0, 0.0, 0.0], [L - BOOM_SHORT_OF_TIP_M, 0.0, 0.0], 6.0, 2.0, panels=48, member=0.5)
     return [
@@ -216,7 +216,7 @@ class FrameSchedule(Sequence):
 class HookSimulation(Simulation):
     """A hook scenario simulated in memory: LiDAR frames, MRU and encoder logs, hook truth."""
 
-    def __init__(self, scenario: Scenario) -> None:
+    def __init__(self, scenario: SimulatedRun) -> None:
         if not scenario.world.hook.enabled:
             raise ValueError(f"scenario '{scenario.name}': world.hook.enabled is false; use Simulation")
         self.params = crane_params(scenario)

@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 
 from boomtip.data.meshes import Body, Label, Part, RcsClass, box, cylinder
-from boomtip.data.scenario import Scenario
+from boomtip.data.sim.run import SimulatedRun
 
 
 def lofted_hull(
@@ -121,7 +121,7 @@ def beam_between(p0, p1, width: float) -> trimesh.Trimesh:
 # The two vessels
 
 
-def crane_vessel(s: Scenario) -> Body:
+def crane_vessel(s: SimulatedRun) -> Body:
     g = s.world.crane.geometry
     deck_z = g.freeboard_m
     h, is_deck = lofted_hull(g.length_m, g.beam_m, -g.draft_m, deck_z, bow_length_m=0.15 * g.length_m, n_stations=90)
@@ -167,7 +167,7 @@ def _blade(length_m: float, root_chord_m: float, tip_chord_m: float, center, sta
     return m.apply_translation(center)
 
 
-def _cargo_parts(s: Scenario) -> list[Part]:
+def _cargo_parts(s: SimulatedRun) -> list[Part]:
     """Wind-turbine parts and containers on the feeder deck (body frame)."""
     g = s.world.feeder.geometry
     z = g.freeboard_m
@@ -194,13 +194,13 @@ def _cargo_parts(s: Scenario) -> list[Part]:
     return parts
 
 
-def _cargo_deck_x(s: Scenario) -> tuple[float, float]:
+def _cargo_deck_x(s: SimulatedRun) -> tuple[float, float]:
     """Fore and aft limits of the open cargo deck (between accommodation and forecastle)."""
     g = s.world.feeder.geometry
     return -g.length_m / 2 + 0.16 * g.length_m, g.length_m / 2 - 0.15 * g.length_m
 
 
-def _marker_centers(s: Scenario) -> np.ndarray:
+def _marker_centers(s: SimulatedRun) -> np.ndarray:
     g, r = s.world.feeder.geometry, s.world.feeder.reflectors
     x0, x1 = _cargo_deck_x(s)
     xs = np.arange(x0 + r.size_m, x1 - r.size_m / 2, r.spacing_m)
@@ -208,7 +208,7 @@ def _marker_centers(s: Scenario) -> np.ndarray:
     return np.array([[x, sy * y] for sy in (-1, 1) for x in xs])
 
 
-def feeder_vessel(s: Scenario) -> Body:
+def feeder_vessel(s: SimulatedRun) -> Body:
     g = s.world.feeder.geometry
     z = g.freeboard_m
     h, is_deck = lofted_hull(g.length_m, g.beam_m, -g.draft_m, z, bow_length_m=0.15 * g.length_m)
@@ -246,17 +246,17 @@ def feeder_vessel(s: Scenario) -> Body:
     return body
 
 
-def sea_surface(s: Scenario, half_size_m: float = 2000.0) -> Body:
+def sea_surface(s: SimulatedRun, half_size_m: float = 2000.0) -> Body:
     m = box([0, 0, -0.05], [2 * half_size_m, 2 * half_size_m, 0.1])
     return Body.from_parts("sea", [Part(m, Label.SEA, s.world.sea.reflectivity, rcs=RcsClass.WEAK)], static_in_world=True)
 
 
-def feeder_deck_plane_body(s: Scenario) -> np.ndarray:
+def feeder_deck_plane_body(s: SimulatedRun) -> np.ndarray:
     """The feeder's cargo deck plane [a, b, c, d] (n.x + d = 0) in the feeder body frame."""
     return np.array([0.0, 0.0, 1.0, -s.world.feeder.geometry.freeboard_m])
 
 
-def build_bodies(s: Scenario) -> list[Body]:
+def build_bodies(s: SimulatedRun) -> list[Body]:
     bodies = [crane_vessel(s), feeder_vessel(s)]
     if s.world.sea.clutter:
         bodies.append(sea_surface(s))

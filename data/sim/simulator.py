@@ -14,7 +14,7 @@ import numpy as np
 from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.sim.motion import BodyStates, ShiftedSines, ShipMotion, rpy_matrices
 from boomtip.data.sim.raycast import RayCaster
-from boomtip.data.scenario import Scenario
+from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
 from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
 from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, radar_measure, radar_pattern
@@ -106,7 +106,7 @@ class SimScene:
     """Bodies, their motion, and the TRUE mount chain crane -> boom tip -> sensor (the
     installation's surveyed mounts rotated by the world's mount errors)."""
 
-    def __init__(self, scenario: Scenario, bodies: list[Body] | None = None) -> None:
+    def __init__(self, scenario: SimulatedRun, bodies: list[Body] | None = None) -> None:
         s = scenario
         w, inst = s.world, s.installation
         self.scenario = s
@@ -178,14 +178,14 @@ class SimScene:
         return R_wc @ T_cs[:3, :3], R_wc @ T_cs[:3, 3] + crane.position_m
 
 
-def source_meta(scenario: Scenario) -> SourceMeta:
+def source_meta(scenario: SimulatedRun) -> SourceMeta:
     """What a simulated source tells processing: the installation and the scenario's own
     processing settings; the full scenario only as provenance."""
     return SourceMeta(
         installation=scenario.installation,
         duration_s=scenario.duration_s,
         name=scenario.name,
-        processing=scenario.processing.model_dump(mode="json", exclude_unset=True),
+        processing=scenario.processing_settings(),
         provenance=scenario.model_dump(mode="json"),
     )
 
@@ -193,7 +193,7 @@ def source_meta(scenario: Scenario) -> SourceMeta:
 class Simulation(FrameSource):
     """A scenario simulated in memory, frame by frame."""
 
-    def __init__(self, scenario: Scenario, world: SimScene | None = None) -> None:
+    def __init__(self, scenario: SimulatedRun, world: SimScene | None = None) -> None:
         self.scenario = scenario
         self.world = world or SimScene(scenario)
         self.meta = source_meta(scenario)

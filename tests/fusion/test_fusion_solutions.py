@@ -10,14 +10,14 @@ import pytest
 from typer.testing import CliRunner
 
 from boomtip.data.io.recording import write_recording
-from boomtip.data.scenario import load_scenario
+from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.simulator import Simulation
 from boomtip.fusion.solutions import FusionConfig, jerk_psd, run_solution
 from boomtip.fusion.tuning import default_jerk_psd, relative_heave_jerk_psd
 from boomtip.perception.pipeline import HeavePipeline
-from boomtip.tools.cli import app
-from boomtip.tools.heave_chain import to_fusion
-from boomtip.tools.kpis import error_stats
+from boomtip.tools.cli.commands import app
+from boomtip.tools.chains.heave import to_fusion
+from boomtip.tools.report.kpis import error_stats
 
 NO_LATENCY = {"lidar": 0.0, "radar": 0.0}
 

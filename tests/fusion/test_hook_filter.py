@@ -24,7 +24,7 @@ from boomtip.fusion.models.batched_model import midpoint_linearised_sigma_points
 from boomtip.fusion.models.crane_pendulum import (hook_pos_vel, hook_pos_vel_batch, midpoint_batch, midpoint_float, rk4_batch,
                                                    rk4_float, rk4_step, sway_angles_from_direction,
                                                    sway_angles_from_directions)
-from boomtip.tools.hook_eval import rmse_per_axis, world_hook_from_states
+from boomtip.tools.report.hook_eval import rmse_per_axis, world_hook_from_states
 
 DEG = math.pi / 180
 T_CONVERGE = 5.0  # document 002 6.2: the first 5 s are excluded from the metrics

@@ -56,15 +56,15 @@ def test_the_run_reports_the_bias_and_the_chain_takes_it_from_the_installation()
     import math
 
     from boomtip.data.crane_model import CraneParams
-    from boomtip.data.scenario import load_scenario
+    from boomtip.tools.config.scenario import load_scenario
     from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
     from boomtip.data.sim.crane_truth import simulate_crane
     from boomtip.data.sim.hook_measurements import measurements_from_truth
     from boomtip.data.sim.hook_world import HookSimulation
-    from boomtip.data.processing import Processing
+    from boomtip.tools.config.processing import Processing
     from boomtip.fusion.hook_config import HookFilterConfig
     from boomtip.fusion.hook_run import run_hook_filter
-    from boomtip.tools.hook_chain import HookChain
+    from boomtip.tools.chains.hook import HookChain
 
     params = CraneParams()
     spec = HOOK_SCENARIOS["hook-2"](params)

@@ -174,7 +174,7 @@ def test_import_is_cheap_and_never_touches_the_simulator():
         "print(callable(bp.preprocess) and not isinstance(bp.preprocess, type(sys)))\n"
         "missing = [n for n in bp.__all__ if getattr(bp, n, None) is None]\n"
         "print(missing)\n"
-        "print(sorted(m for m in sys.modules if m.startswith(('boomtip.data.sim', 'boomtip.data.scenario'))))\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('boomtip.data.sim', 'boomtip.tools.config.scenario'))))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[:4] == ["False", "True", "[]", "[]"], out
@@ -203,7 +203,7 @@ def test_a_prior_keeps_the_deck_from_being_taken_for_the_sea_below_it():
 def test_sea_clutter_is_not_taken_for_the_deck(tmp_path):
     from typer.testing import CliRunner
 
-    from boomtip.tools.cli import app
+    from boomtip.tools.cli.commands import app
 
     out = tmp_path / "clutter"
     r = CliRunner().invoke(app, ["run", "-s", "sts-loaded", "--duration", "6", "--set", "sea.clutter=true",

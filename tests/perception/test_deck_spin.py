@@ -105,7 +105,7 @@ def test_the_feeders_lidar_observation_has_a_spin_only_with_times_that_span_the_
     plane alone."""
     from types import SimpleNamespace
 
-    from boomtip.data.scenario import load_scenario
+    from boomtip.tools.config.scenario import load_scenario
     from boomtip.perception.feeder import FeederConfig, FeederPerception
 
     inst = load_scenario("sts-loaded").installation

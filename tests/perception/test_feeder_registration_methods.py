@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from boomtip.data.processing import Processing
+from boomtip.tools.config.processing import Processing
 from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
 from boomtip.perception.feeder_registration import FeederModel, RegistrationConfig
 from pydantic import ValidationError

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from boomtip.data.frames import Frame, MruLog
-from boomtip.data.scenario import load_scenario
+from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.simulator import Simulation
 from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, detect_deck
 from boomtip.perception.doppler import doppler_velocity

@@ -11,9 +11,9 @@ from typer.testing import CliRunner
 
 from boomtip.data.io.pcd import read_pcd, write_pcd
 from boomtip.data.io.recording import Recording, RecordingError, write_recording
-from boomtip.data.scenario import ScenarioError, load_scenario
+from boomtip.tools.config.scenario import ScenarioError, load_scenario
 from boomtip.data.sim.simulator import Simulation
-from boomtip.tools.cli import app
+from boomtip.tools.cli.commands import app
 
 runner = CliRunner()
 
@@ -159,7 +159,7 @@ def test_sigterm_leaves_no_staging_folder(tmp_path):
     import time
 
     out = tmp_path / "rec"
-    proc = subprocess.Popen([sys.executable, "-m", "boomtip.tools.cli", "simulate", "-s", "sts-loaded", "--out", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "boomtip.tools.cli.commands", "simulate", "-s", "sts-loaded", "--out", str(out),
                              "--duration", "600"],  # long enough that the signal always lands mid-run
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.time() + 240  # the import and the scene's set-up on a loaded 2-core CI machine

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from boomtip.data.frames import MRU_COLUMNS
 from boomtip.data.io.installation_file import load_installation
 from boomtip.data.io.recording import Recording, RecordingError, read_csv, write_recording
-from boomtip.data.scenario import ScenarioError, load_scenario
+from boomtip.tools.config.scenario import ScenarioError, load_scenario
 from boomtip.data.sim.simulator import Simulation
 
 FUZZ = settings(max_examples=150, derandomize=True, deadline=None,

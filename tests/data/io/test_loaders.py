@@ -15,7 +15,7 @@ from boomtip.data.io.installation_file import installation_template, load_instal
 from boomtip.data.io.loaders import guess_format, open_source
 from boomtip.data.io.pcd import write_pcd
 from boomtip.data.io.recording import RecordingError
-from boomtip.tools.cli import app
+from boomtip.tools.cli.commands import app
 
 runner = CliRunner()
 

@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 from boomtip.data.io.loaders import guess_format, open_source
 from boomtip.data.io.ouster import OusterPcapSource
 from boomtip.data.io.recording import RecordingError
-from boomtip.tools.bench_io import PCAPS, REAL, level_installation, open3d_ground
-from boomtip.tools.cli import app
+from boomtip.tools.bench.io import PCAPS, REAL, level_installation, open3d_ground
+from boomtip.tools.cli.commands import app
 
 runner = CliRunner()
 OS1 = REAL / PCAPS[0]
@@ -112,7 +112,7 @@ def test_the_ground_below_ten_percent_is_found(tmp_path):
 def test_bench_io_runs_and_reports_its_ratios():
     """The bench's wiring (its speed is the bench's own figure, not a test's: a loaded machine
     reads slower than the sensor)."""
-    from boomtip.tools.bench_io import bench_io
+    from boomtip.tools.bench.io import bench_io
 
     r = bench_io(frames=6, rate_hz=20.0, mcap_s=0)
     assert r["frames"] == 6 and r["ratio"] > 0 and r["overhead_vs_ouster_sdk"] > 0

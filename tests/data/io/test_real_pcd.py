@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from boomtip.data.io.pcd import read_pcd
 from boomtip.perception.plane import ransac_plane
-from boomtip.tools.cli import app
+from boomtip.tools.cli.commands import app
 
 PCL = Path(__file__).resolve().parents[2] / "data" / "real" / "pcl"
 FIELDS = {"bun0.pcd": {"normal_x", "normal_y", "normal_z", "curvature"}, "bunny.pcd": set(),

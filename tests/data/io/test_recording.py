@@ -13,9 +13,9 @@ from typer.testing import CliRunner
 from boomtip.data.frames import MRU_COLUMNS, TRUTH_COLUMNS
 from boomtip.data.io.pcd import PcdError, read_pcd, write_pcd
 from boomtip.data.io.recording import FORMAT_VERSION, Recording, RecordingError, frame_file_name, write_recording
-from boomtip.data.scenario import load_scenario
+from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.simulator import Simulation
-from boomtip.tools.cli import app
+from boomtip.tools.cli.commands import app
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +124,7 @@ def test_meta_json(rec_dir, sim, scenario):
 
 def test_D_recomputed_from_truth_poses_and_meta_equals_truth_D(rec_dir):
     """Only the files: truth.csv poses + the tip and the deck plane give back D."""
-    from boomtip.data.scenario import scenario_from_dict
+    from boomtip.tools.config.scenario import scenario_from_dict
     from boomtip.data.sim.scene import feeder_deck_plane_body
 
     meta = json.loads((rec_dir / "meta.json").read_text())

@@ -17,7 +17,7 @@ from boomtip.data.io.installation_file import installation_template
 from boomtip.data.io.loaders import guess_format, open_source
 from boomtip.data.io.recording import RecordingError
 from boomtip.data.io.ros_messages import encode_cloud
-from boomtip.tools.cli import app
+from boomtip.tools.cli.commands import app
 
 runner = CliRunner()
 

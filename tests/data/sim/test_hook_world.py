@@ -60,7 +60,7 @@ def test_stored_truth_is_the_truth_in_memory(grid):
 def test_mru_log_in_chunks_is_the_simulations(monkeypatch, outages):
     """The hook simulation's MRU log, its vessel states made a chunk at a time, is the base
     simulation's to the last bit: the same states, the same noise draws, the same outages."""
-    from boomtip.data.scenario import load_scenario
+    from boomtip.tools.config.scenario import load_scenario
     from boomtip.data.sim import hook_world
     from boomtip.data.sim.simulator import Simulation
 

@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from boomtip.data.scenario import load_scenario
+from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.fans import Fans
 from boomtip.data.sim.raycast import Hits
 from boomtip.data.sim.sensors import spherical_dirs
 from boomtip.data.sim.simulator import Simulation
-from boomtip.tools.bench_raycast import SPINNING_128x1024, hits_difference, reference_lidar_hits
+from boomtip.tools.bench.raycast import SPINNING_128x1024, hits_difference, reference_lidar_hits
 
 SPIN_SMALL = ["lidar.pattern=spinning", "lidar.channels=32", "lidar.columns=256"]
 

@@ -18,7 +18,7 @@ import trimesh
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from boomtip.data.scenario import load_scenario
+from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.world import DOFS
 from boomtip.data.sim.scene import Label, build_bodies
 from boomtip.data.sim.sensors import (FaceLookup, lidar_pattern, radar_pattern, random_words32, standard_normal32,

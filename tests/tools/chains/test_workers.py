@@ -1,0 +1,131 @@
+"""A hook run on two cores gives the serial run's outputs: the frames made in a child process,
+the estimators split between two processes."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from boomtip.data.frames import Frame, FrameSource
+from boomtip.tools.config.scenario import load_scenario
+from boomtip.data.sim.sources import simulation_for
+from boomtip.tools.chains import workers
+from boomtip.tools.chains.runner import run_into
+
+TIMING_KEYS = {"runtime_fraction", "apt_ms", "time_ms"}
+
+
+def _without_timings(x):
+    if isinstance(x, dict):
+        return {k: _without_timings(v) for k, v in x.items() if k not in TIMING_KEYS}
+    return x
+
+
+def _rows(path):
+    with open(path) as fh:
+        return [{k: v for k, v in row.items() if k not in TIMING_KEYS} for row in csv.DictReader(fh)]
+
+
+@pytest.mark.skipif(not workers.parallel_enabled(), reason="one core, or no fork: nothing runs in parallel")
+def test_a_run_on_two_cores_writes_what_the_serial_run_writes(tmp_path):
+    outs = {}
+    for label in ("serial", "parallel"):
+        sim = simulation_for(load_scenario("hook-2", ["duration_s=1.5"]))
+        out = tmp_path / label
+        out.mkdir()
+        if label == "serial":
+            with workers.serial():
+                assert not workers.parallel_enabled()
+                run_into(sim, out, report=False)
+        else:
+            run_into(sim, out, report=False)
+        outs[label] = out
+    s, p = outs["serial"], outs["parallel"]
+    assert (s / "hook_estimates.csv").read_bytes() == (p / "hook_estimates.csv").read_bytes()
+    rows = _rows(s / "hook_measurements.csv")
+    assert len(rows) == 30 and rows == _rows(p / "hook_measurements.csv")
+    ks, kp = json.loads((s / "kpis.json").read_text()), json.loads((p / "kpis.json").read_text())
+    assert _without_timings(ks) == _without_timings(kp)
+    assert set(ks["hook"]) >= {"ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"}
+
+
+class _Counting(FrameSource):
+    """Frames 0..n-1; fails at ``fail_at``."""
+
+    def __init__(self, n: int, fail_at: int | None = None) -> None:
+        self.n, self.fail_at = n, fail_at
+
+    def __iter__(self):
+        for k in range(self.n):
+            if k == self.fail_at:
+                raise KeyError(f"frame {k} is broken")
+            yield Frame("lidar", k, 0.05 * k, np.full((1000, 3), float(k)))
+
+    def __len__(self) -> int:
+        return self.n
+
+
+def test_the_childs_frames_come_in_order_and_whole():
+    frames = list(workers.frames_in_child(_Counting(12)))
+    assert [f.index for f in frames] == list(range(12))
+    assert all(f.points_sensor.shape == (1000, 3) and np.all(f.points_sensor == f.index) for f in frames)
+
+
+def test_the_childs_failure_is_raised_here_after_the_frames_before_it():
+    got = []
+    with pytest.raises(KeyError, match="frame 5 is broken"):
+        for f in workers.frames_in_child(_Counting(12, fail_at=5)):
+            got.append(f.index)
+    assert got == [0, 1, 2, 3, 4]
+
+
+def test_stopping_early_ends_the_child():
+    import multiprocessing as mp
+
+    it = workers.frames_in_child(_Counting(1000))
+    assert next(it).index == 0
+    it.close()
+    assert not [p for p in mp.active_children() if p.name == "boomtip-frames"]
+
+
+def test_the_split_balances_the_costs_and_keeps_every_job():
+    a, b = workers.split_by_cost({"ukf_flexible": 5.3, "ukf_rigid": 2.9, "ekf_flexible": 0.95, "ekf_rigid": 0.85})
+    assert a == ["ukf_flexible"] and b == ["ukf_rigid", "ekf_flexible", "ekf_rigid"]
+    a, b = workers.split_by_cost({"x": 1.0, "y": 1.0, "z": 1.0, "w": 1.0})
+    assert sorted(a + b) == ["w", "x", "y", "z"] and len(a) == len(b) == 2
+
+
+def test_run_split_returns_each_jobs_result_in_the_given_order():
+    out = workers.run_split(["a", "bb", "ccc"], {"a": 3.0}, lambda name: (name, len(name), np.arange(len(name))))
+    assert list(out) == ["a", "bb", "ccc"]
+    assert [out[k][1] for k in out] == [1, 2, 3] and np.array_equal(out["ccc"][2], [0, 1, 2])
+
+    def fails_on_bb(name):
+        if name == "bb":
+            raise ValueError("no job bb")
+        return name
+
+    for costs in ({"bb": 2.0}, {"a": 2.0}):  # the failing job in the first child, then in the second
+        with pytest.raises(ValueError, match="no job bb"):
+            workers.run_split(["a", "bb"], costs, fails_on_bb)
+
+
+def test_stopping_early_ends_the_child_under_the_clis_sigterm_handler():
+    """The CLI turns SIGTERM into KeyboardInterrupt; the child, blocked on a full queue, still ends."""
+    import multiprocessing as mp
+    import signal
+
+    from boomtip.tools.cli.common import terminate_like_interrupt
+
+    saved = signal.getsignal(signal.SIGTERM)
+    try:
+        terminate_like_interrupt()
+        it = workers.frames_in_child(_Counting(1000))
+        assert next(it).index == 0
+        it.close()
+    finally:
+        signal.signal(signal.SIGTERM, saved)
+    assert not [p for p in mp.active_children() if p.name == "boomtip-frames"]

@@ -1,0 +1,1 @@
+"""Benchmarks: each measures boomtip against a baseline in the same run and reports the ratio."""

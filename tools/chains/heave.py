@@ -1,0 +1,160 @@
+"""The relative-heave chain: frames -> D and D-dot measurements (perception) -> the
+solutions' estimates (fusion). Built from the installation and the processing settings.
+
+OUT/measurements.csv   t, method, quantity, value, time_ms, status, sigma
+OUT/estimates.csv      t, solution, D, D_dot, D_ddot, var_D, var_D_dot
+kpis.json              measurements.<method> and, with truth, solutions.<solution>
+OUT/report.md + plots  Table 5.4 layout beside document 000 (tools/report.py)
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from boomtip.data.frames import Frame, FrameSource, Truth
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.tools.config.processing import Processing
+from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
+from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
+from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
+from boomtip.tools.chains.runner import ChainError
+from boomtip.tools.report.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
+
+MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
+
+
+@dataclass
+class HeaveResult:
+    rows: list[Measurement]
+    estimates: dict[str, Estimates]
+    sources: dict[str, dict[str, list[str]]] = field(default_factory=dict)  # per solution, what fed D and D-dot
+    warnings: list[str] = field(default_factory=list)
+
+
+LIDAR_D = ("deck_lidar", "reflectors_lidar")
+
+
+def solution_sources(name: str, have: set[str]) -> tuple[str, ...]:
+    """The methods a solution fuses: its own, except that the fused solution falls back on the
+    radar's deck for D when the run has no LiDAR distance (a lost or absent LiDAR)."""
+    if name == "fused" and not (set(LIDAR_D) & have) and "deck_radar" in have:
+        return ("deck_radar", "doppler_radar_rot")
+    return SOLUTIONS[name]
+
+
+def to_fusion(row: Measurement, latency_s: dict[str, float]) -> FusionMeasurement:
+    """A perception row as fusion's plain measurement, arriving after its sensor's latency."""
+    return FusionMeasurement(row.t_s, row.t_s + latency_s[SENSOR_OF[row.method]], row.quantity, row.value,
+                             row.sigma, row.method, row.sigma_systematic)
+
+
+class HeaveChain:
+    name = "heave"
+
+    def __init__(self, source: FrameSource, processing: Processing) -> None:
+        inst = source.meta.installation
+        if not inst.sensors():
+            raise ChainError("installation.lidar.enabled and installation.radar.enabled are both false: "
+                             "the heave chain needs a LiDAR or a radar")
+        self.pipeline = HeavePipeline(inst, source.mru, processing.heave, seed=processing.seed)
+        self.fusion = processing.fusion
+        self.sea_state = (processing.sea_state.hs_m, processing.sea_state.tp_s) if processing.sea_state else None
+        self.latency_s = {"lidar": inst.lidar.latency_s, "radar": inst.radar.latency_s}
+        self.rows: list[Measurement] = []
+        self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
+                      if inst.attitude == "level" else [])
+        self.source_notes = source.meta.notes  # the loader may add to it while frames are read
+
+    def process(self, frame: Frame) -> FrameResult:
+        res = self.pipeline.process(frame)
+        self.rows.extend(res.measurements)
+        return res
+
+    def finish(self, duration_s: float, t_start_s: float = 0.0) -> HeaveResult:
+        duration = max((r.t_s for r in self.rows), default=0.0) if duration_s <= 0 else duration_s
+        meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
+        have = {m.source for m in meas}
+        ran = {r.method for r in self.rows}
+        estimates, sources, warnings = {}, {}, list(self.notes) + list(self.source_notes)
+        for name in self.fusion.solutions:
+            methods = solution_sources(name, have)
+            if methods != SOLUTIONS[name]:
+                warnings.append(f"{name}: no LiDAR distance in this run; it fuses {', '.join(methods)} instead")
+            d_sources = [m for m in methods if QUANTITY[m] == "D" and m in have]
+            if name == "doppler_radar" and "deck_radar" in have:
+                d_sources = ["deck_radar (start only)"]
+            sources[name] = {"D": d_sources, "D_dot": [m for m in methods if QUANTITY[m] == "D_dot" and m in have]}
+            if not d_sources:
+                # a filter with nothing that measures D would report D with a sigma of 100 m
+                if set(methods) & ran:  # its sensor ran but never measured D: say so
+                    warnings.append(f"{name}: no distance source in this run; no estimate")
+                continue
+            estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods, t_start_s)
+        return HeaveResult(self.rows, estimates, sources, warnings)
+
+    # -- outputs -------------------------------------------------------------------------
+    def write(self, out: Path, result: HeaveResult) -> list[str]:
+        write_measurements(out / "measurements.csv", result.rows)
+        write_estimates(out / "estimates.csv", result.estimates)
+        return ["measurements.csv", "estimates.csv"]
+
+    def kpis(self, result: HeaveResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
+        warnings = list(result.warnings)
+        if truth is not None and not {"D", "D_dot"} <= set(truth.columns):
+            warnings.append("the truth has no D and D_dot columns (a hook recording?): nothing scored")
+            truth = None
+        kpis: dict = {"measurements": measurement_kpis(result.rows, truth), "sources": result.sources}
+        if warnings:
+            kpis["warnings"] = warnings
+        if truth is not None:
+            used = {n: tuple(v["D"] + v["D_dot"]) for n, v in result.sources.items()}  # the methods each one fused
+            kpis["solutions"] = {n: solution_kpis(e, truth, result.rows, used.get(n, SOLUTIONS[n]), windows)
+                                 for n, e in result.estimates.items()}
+            kpis["solutions_note"] = f"solution errors exclude the first {WARMUP_S:g} s (filter convergence)"
+            kpis["truth_max_amplitude"] = truth_amplitudes(truth)
+        return kpis
+
+    def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:
+        if truth is None:
+            from boomtip.tools.report.estimates import write_estimates_report
+
+            inst = self.pipeline.installation
+            return write_estimates_report(out, kpis, result.estimates, result.rows, self.pipeline.mru,
+                                          {"lidar": inst.lidar.rate_hz, "radar": inst.radar.rate_hz})
+        from boomtip.tools.report.heave import write_report
+
+        write_report(out, kpis, result.estimates, truth, result.rows)
+        return ["report.md", "plots"]
+
+    def visualiser(self, path: Path, source: FrameSource):
+        from boomtip.tools.report.rerun import RerunLogger
+
+        return RerunLogger(path, source)
+
+    def visualise_result(self, viz, result: HeaveResult, truth: Truth | None) -> None:
+        viz.log_estimates(result.estimates, truth)
+
+
+def write_measurements(path: Path, rows: list[Measurement]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(MEASUREMENT_COLUMNS)
+    for r in rows:
+        w.writerow([f"{r.t_s:.6f}", r.method, r.quantity, "" if not np.isfinite(r.value) else f"{r.value:.6f}",
+                    f"{r.time_ms:.4f}", r.status, "" if not np.isfinite(r.sigma) else f"{r.sigma:.6g}"])
+    atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def write_estimates(path: Path, estimates: dict[str, Estimates]) -> None:
+    buf = io.StringIO()
+    buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot\n")
+    for name, e in estimates.items():
+        ok = np.isfinite(e.x[:, 0])
+        for t, x, v in zip(e.t_s[ok], e.x[ok], e.var[ok]):
+            buf.write(f"{t:.4f},{name},{x[0]:.6f},{x[1]:.6f},{x[2]:.6f},{v[0]:.6g},{v[1]:.6g}\n")
+    atomic_write_bytes(path, buf.getvalue().encode())

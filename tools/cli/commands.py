@@ -1,0 +1,330 @@
+"""The `boomtip` command line: a thin layer over data/, perception/, fusion/ and tools/."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from boomtip.tools.config.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
+from rich.markup import escape
+
+from boomtip.tools.cli.bench import bench_app
+from boomtip.tools.cli.common import (ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario,
+                                       terminate_like_interrupt, user_errors)
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
+app.add_typer(bench_app, name="bench")
+
+
+@app.callback()
+def _main(
+    no_thread_tuning: bool = typer.Option(False, "--no-thread-tuning", help="Keep the environment's BLAS and OpenMP "
+                                          "threading (by default the command sets OPENBLAS_NUM_THREADS=1, "
+                                          "MKL_NUM_THREADS=1 and OMP_WAIT_POLICY=PASSIVE where unset)"),
+) -> None:
+    """Point-cloud perception for offshore cranes."""
+    terminate_like_interrupt()
+
+
+@app.command()
+def scenarios(
+    show: Optional[str] = typer.Option(None, "--show", help="Print one scenario, fully resolved, as YAML."),
+    keys: bool = typer.Option(False, "--keys", help="List every valid dotted scenario key."),
+) -> None:
+    """List the built-in scenarios (or show one)."""
+    with user_errors():
+        if keys:
+            print("\n".join(valid_keys()))
+            return
+        if show:
+            print(scenario_to_yaml(load_scenario(show)), end="")
+            return
+        for name, path in available_scenarios().items():
+            s = load_scenario(path)
+            print(f"{name:16s} {s.duration_s:6.0f} s  {s.description}")
+
+
+@app.command()
+def simulate(
+    scenario: str = ScenarioOpt,
+    out: Path = typer.Option(..., "--out", "-o", help="Recording folder to write."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Seconds to simulate (overrides duration_s)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (overrides seed)."),
+    set_: Optional[list[str]] = SetOpt,
+    format: str = typer.Option("boomtip", "--format", help="boomtip (PCD folder), mcap, ros2 (sqlite3) or ros1 (.bag)."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+) -> None:
+    """Simulate a scenario and write a recording (frames, MRU log, encoders, ground truth)."""
+    from boomtip.data.io.recording import write_recording
+    from boomtip.data.io.ros_writer import KINDS, write_bag
+    from boomtip.data.sim.sources import simulation_for
+
+    with user_errors():
+        if format not in ("boomtip", *KINDS):
+            raise ScenarioError(f"--format {format!r}: expected boomtip, {', '.join(KINDS)}")
+        s = resolve_scenario(scenario, set_, duration, seed)
+        t0 = time.perf_counter()
+        sim = simulation_for(s)
+        with progress_bar(len(sim), "simulating") as advance:
+            if format == "boomtip":
+                meta = write_recording(sim, out, force=force, progress=advance)
+            else:
+                meta = write_bag(sim, out, format, force=force, progress=advance)
+        wall = time.perf_counter() - t0
+    frames = meta["frames"]
+    console.print(
+        f"wrote {out}: {frames['lidar']} LiDAR + {frames['radar']} radar frames, {s.duration_s:g} s simulated "
+        f"in {wall:.1f} s ({s.duration_s / wall:.1f}x real time)"
+    )
+
+
+def _print_kpis(kpis: dict) -> None:
+    from boomtip.tools.report.heave import kpi_table, measurement_table
+
+    seed = kpis['seed'] if kpis.get('seed') is not None else '-'
+    print(f"\n{kpis['scenario']} (seed {seed}, {kpis['duration_s']:.0f} s)\n")
+    for w in kpis.get("warnings", []):
+        console.print("[bold yellow]warning:[/] " + escape(w), highlight=False)
+    if "hook" in kpis:
+        h = kpis["hook"]
+        seg = h["segmentation"]
+        print(f"hook segmentation: model fit in {100 * seg['found_fraction']:.1f} % and sparse fix in "
+              f"{100 * seg.get('sparse_fraction', 0.0):.1f} % of {seg['frames']} frames, "
+              f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
+              f"{seg['apt_ms']:.1f} ms/frame")
+        if "rope" in h:
+            from boomtip.tools.report.hook import rope_summary
+
+            print(rope_summary(h["rope"]))
+        print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}"
+              f" {'rel. tip pos [cm]':>20s}")
+        for name, k in h.items():
+            if isinstance(k, dict) and "rmse_pos_m" in k:
+                f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
+                print(f"{name:14s} {f(k['rmse_pos_m']):>24s} {f(k['rmse_vel_mps']):>24s} {100 * k['runtime_fraction']:8.2f}% "
+                      f"{k.get('nees_pos_mean', float('nan')):9.2f} {f(k.get('rmse_rel_pos_m', [float('nan')] * 3)):>20s}")
+        return
+    print("Raw measurements (before any filter):")
+    print(measurement_table(kpis))
+    if "solutions" in kpis:
+        print("\nSolutions after the Kalman filter (" + kpis["solutions_note"] + "), document 000's Table 5.4 beside ours:")
+        print(kpi_table(kpis))
+    f = kpis.get("feeder")
+    side = (f or {}).get("D_side_by_side", {})
+    if f and "rmse_pos_m" in f:
+        mm = lambda v: " / ".join(f"{1000 * x:.1f}" for x in v)  # noqa: E731
+        print(f"\nFeeder 6-DOF relative to the crane vessel ({f['note']}): position RMSE x/y/z {mm(f['rmse_pos_m'])} mm "
+              f"(max {mm(f['max_pos_m'])}), angles r/p/y {' / '.join(f'{x:.3f}' for x in f['rmse_rpy_deg'])} deg, "
+              f"NEES {f['nees_mean']:.2f} (6), {f['apt_ms']:.1f} ms per LiDAR frame")
+        online = feeder_online_line(f)
+        if online:
+            print(online)
+        if "feeder_rmse_m" in side:
+            print(f"D from the feeder's pose {1000 * side['feeder_rmse_m']:.2f} mm RMSE; the heave chain's fused D "
+                  f"{1000 * side['heave_fused_rmse_m']:.2f} mm")
+    elif f:
+        why = f"nothing scored: {f['note']}" if "note" in f else "no truth to score"
+        print(f"\nFeeder 6-DOF: {f.get('apt_ms', float('nan')):.1f} ms per LiDAR frame ({why})")
+    if side and "feeder_rmse_m" not in side:
+        print(f"D from the feeder's pose and the heave chain's fused D: {1000 * side['feeder_minus_fused_rms_m']:.2f} mm RMS apart")
+
+
+def feeder_online_line(f: dict) -> str | None:
+    """The feeder's figures as a live controller had them (kpis' `feeder.online`: each row
+    levelled and defined with what was known at its time), for the line beside the offline
+    ones; None when the run has no scored online block."""
+    o = f.get("online") or {}
+    if "rmse_pos_m" not in o:
+        return None
+    mm = " / ".join(f"{1000 * x:.1f}" for x in o["rmse_pos_m"])
+    deg = " / ".join(f"{x:.3f}" for x in o["rmse_rpy_deg"])
+    return f"  online (causal calibration): position RMSE x/y/z {mm} mm, angles r/p/y {deg} deg, NEES {o['nees_mean']:.2f} (6)"
+
+
+def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> None:
+    from boomtip.tools.chains.runner import run
+
+    with progress_bar(len(source), "processing") as advance:
+        result = run(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance)
+    _print_kpis(result.kpis)
+    console.print(f"\nwrote {out}: " + ", ".join(result.written))
+
+
+@app.command()
+def run(
+    scenario: str = ScenarioOpt,
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Seconds to simulate (overrides duration_s)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (overrides seed)."),
+    set_: Optional[list[str]] = SetOpt,
+    rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+) -> None:
+    """Simulate a scenario in memory and run perception + fusion on it (no recording on disk)."""
+    from boomtip.data.sim.sources import simulation_for
+
+    with user_errors():
+        s = resolve_scenario(scenario, set_, duration, seed)
+        _run_and_report(simulation_for(s), out, force, rerun)
+
+
+@app.command()
+def process(
+    recording: Path = typer.Argument(..., help="A boomtip recording, a folder of .pcd/.ply/.bin clouds, an Ouster "
+                                     ".pcap, a ROS 1 .bag, a ROS 2 bag folder or an .mcap."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
+    format: Optional[str] = typer.Option(None, "--format", help="Force a loader: boomtip, folder, ouster, ros1, ros2, "
+                                         "mcap (default: guessed from the path)."),
+    installation: Optional[Path] = typer.Option(None, "--installation", help="Installation YAML (sensors, mounts, crane)."),
+    topic: Optional[list[str]] = typer.Option(None, "--topic", help="Bags: ROLE=NAME for lidar, radar, mru, encoders "
+                                              "(default: guessed by message type)."),
+    meta: Optional[Path] = typer.Option(None, "--meta", help="Ouster: the sensor-metadata JSON (default: beside the pcap)."),
+    start: Optional[float] = typer.Option(None, "--start", help="Skip the frames before this time (s)."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Process this many seconds from --start."),
+    every: int = typer.Option(1, "--every", help="Every N-th frame of each sensor."),
+    rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+) -> None:
+    """Run perception + fusion on a recording (any format the loaders read)."""
+    from boomtip.data.io.installation_file import load_installation
+    from boomtip.data.io.loaders import open_source, parse_topics
+
+    with user_errors():
+        inst = load_installation(installation) if installation else None
+        source = open_source(recording, format, inst, start, duration, every, topics=parse_topics(topic), meta=meta)
+        _run_and_report(source, out, force, rerun, inputs=(recording,))
+
+
+@app.command("installation")
+def installation_cmd(
+    template: bool = typer.Option(False, "--template", help="Print a commented template of every installation key."),
+    check: Optional[Path] = typer.Option(None, "--check", help="Validate an installation file and print it resolved."),
+) -> None:
+    """Installation files: a template to fill in, or a check of one."""
+    import yaml
+
+    from boomtip.data.io.installation_file import installation_template, load_installation
+
+    with user_errors():
+        if check is not None:
+            print(yaml.safe_dump(load_installation(check).model_dump(mode="json"), sort_keys=False), end="")
+        elif template:
+            print(installation_template(), end="")
+        else:
+            raise ScenarioError("boomtip installation: pass --template or --check FILE")
+
+
+@app.command()
+def view(
+    out: Path = typer.Argument(..., help="An output folder of `boomtip run --rerun` or `boomtip process --rerun`."),
+    spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer on it (needs a display)."),
+) -> None:
+    """Show where a run's rerun recording is, or open it in the rerun viewer."""
+    rrd = out / "boomtip.rrd"
+    if not rrd.is_file():
+        console.print(f"[bold red]error:[/] {rrd} not found; run `boomtip run ... --rerun` or `boomtip process ... --rerun` first")
+        raise typer.Exit(2)
+    if spawn:
+        import subprocess
+
+        raise typer.Exit(subprocess.call([sys.executable, "-m", "rerun", str(rrd)]))
+    print(f"{rrd} ({rrd.stat().st_size / 1e6:.1f} MB): open it with `rerun {rrd}` or `boomtip view {out} --spawn`")
+
+
+DEFAULT_KPIS = ("solutions.fused.mae_D_m", "solutions.fused.mae_D_dot_mps", "solutions.deck_lidar.mae_D_m",
+                "solutions.reflectors_lidar.mae_D_m", "hook.ekf_flexible.rmse_pos_m.0", "hook.ekf_flexible.rmse_pos_m.1",
+                "hook.ekf_flexible.rmse_pos_m.2")
+WorkersOpt = typer.Option(None, "--workers", "-j", min=1, help="Worker processes (default: the number of cores).")
+ExecutorOpt = typer.Option("local", "--executor", help="local (processes) or dask.")
+SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address tcp://HOST:PORT (default: a LocalCluster).")
+
+
+def _study(tasks, out: Path, grid_keys: list[str], labels: dict, kpis: list[str], executor: str, workers, scheduler,
+           resume: bool, force: bool, scenario_dump: dict | None, inputs: tuple[Path, ...] = ()) -> list[dict]:
+    from boomtip.tools.study.executor import (check_executor, make_executor, plot_kpis, prepare_study_dir, run_study,
+                                         write_summary, write_sweep_json)
+
+    check_executor(executor)
+    study = {"scenario": scenario_dump, "grid": grid_keys, "tasks": [[t.id, list(t.overrides), t.duration_s, t.recording]
+                                                                     for t in tasks]}
+    done = prepare_study_dir(out, force, resume, json.loads(json.dumps(study)), inputs)
+    with progress_bar(len(tasks), "tasks") as advance, make_executor(executor, workers, scheduler) as pool:
+        rows = run_study(tasks, out, grid_keys, pool, done, advance)
+    summary = write_summary(out, rows, grid_keys)
+    present = {r["kpi"] for r in summary}
+    plots = plot_kpis(out, summary, grid_keys, [k for k in (kpis or DEFAULT_KPIS) if k in present], labels)
+    write_sweep_json(out, sys.argv, scenario_dump, tasks, rows)
+    failed = [r for r in rows if r["status"] != "ok"]
+    console.print(f"wrote {out}: runs.csv ({len(rows)} runs, {len(failed)} failed), summary.csv, sweep.json"
+                  + "".join(f", {p.name}" for p in plots))
+    for r in failed[:5]:
+        console.print("  failed: " + escape(f"{r['task']}: {r['error']}"), highlight=False)
+    return rows
+
+
+@app.command()
+def sweep(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    grid: Optional[list[str]] = typer.Option(None, "--grid", help="KEY=V1,V2,... (repeatable: the product of the grids)."),
+    preset: Optional[list[str]] = typer.Option(None, "--preset", help="A named axis of document 000's study: "
+                                               "delay, mru_noise, mru_bias, rate, density, fov, false_reflectors, clock_offset."),
+    seeds: int = typer.Option(1, "--seeds", min=1, help="Runs per grid point (Monte Carlo), seeds derived from the scenario's."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Seconds per run (default: the scenario's)."),
+    set_: Optional[list[str]] = SetOpt,
+    out: Path = typer.Option(..., "--out", "-o"),
+    kpi: Optional[list[str]] = typer.Option(None, "--kpi", help="KPI to plot (flattened kpis.json key; repeatable)."),
+    workers: Optional[int] = WorkersOpt,
+    executor: str = ExecutorOpt,
+    scheduler: Optional[str] = SchedulerOpt,
+    resume: bool = typer.Option(False, "--resume", help="Keep the finished runs in --out and do the rest."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+) -> None:
+    """Sweeps and Monte Carlo over any scenario keys: one task per run, on local processes or Dask."""
+    from boomtip.tools.study.tasks import axis_from_grid, axis_from_preset, sweep_tasks
+
+    with user_errors():
+        try:
+            axes = [axis_from_preset(p) for p in preset or []] + [axis_from_grid(g) for g in grid or []]
+        except ValueError as exc:
+            raise ScenarioError(str(exc)) from None
+        base = resolve_scenario(scenario, set_, duration)
+        for ax in axes:  # refuse a bad key or value before spawning anything
+            for over in ax.overrides:
+                load_scenario(scenario, list(set_ or []) + list(over))
+        tasks = sweep_tasks(scenario, axes, seeds, list(set_ or []), duration, base.seed)
+        _study(tasks, out, [a.name for a in axes], {a.name: a.label for a in axes}, list(kpi or []), executor, workers,
+               scheduler, resume, force, base.model_dump(mode="json"))
+
+
+@app.command()
+def batch(
+    paths: list[Path] = typer.Argument(..., help="Recording folders."),
+    out: Path = typer.Option(..., "--out", "-o"),
+    kpi: Optional[list[str]] = typer.Option(None, "--kpi"),
+    workers: Optional[int] = WorkersOpt,
+    executor: str = ExecutorOpt,
+    scheduler: Optional[str] = SchedulerOpt,
+    resume: bool = typer.Option(False, "--resume"),
+    force: bool = typer.Option(False, "--force"),
+) -> None:
+    """Process many recordings the same way, one task each, one summary."""
+    from boomtip.data.io.recording import Recording
+    from boomtip.tools.study.tasks import Task
+
+    with user_errors():
+        for p in paths:
+            Recording(p)  # refuse an unreadable recording before spawning anything
+        tasks = [Task(f"{i}:{p}", "", (), None, 0, {"recording": str(p)}, recording=str(p.resolve())) for i, p in enumerate(paths)]
+        _study(tasks, out, ["recording"], {}, list(kpi or []), executor, workers, scheduler, resume, force, None,
+               inputs=tuple(paths))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from boomtip.tools.cli import main
+
+    main()

@@ -1,0 +1,68 @@
+"""What every `boomtip` command shares: the console, user-error handling, the progress bar,
+scenario resolution and the common options."""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from typing import Iterator
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from boomtip.data.io.pcd import PcdError
+from boomtip.data.io.recording import RecordingError
+from boomtip.tools.config.scenario import ScenarioError, load_scenario
+from boomtip.tools.chains.runner import ChainError
+
+console = Console(stderr=True, soft_wrap=True)
+
+ScenarioOpt = typer.Option(..., "--scenario", "-s", help="Built-in scenario name or a YAML file.")
+SetOpt = typer.Option(None, "--set", help="Override a scenario key: dotted.key=value (repeatable).")
+
+
+@contextmanager
+def user_errors() -> Iterator[None]:
+    """Turn expected user-input errors into one clear message and exit code 2."""
+    try:
+        yield
+    except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
+        console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)  # a key's [a, b] is not markup
+        raise typer.Exit(2) from None
+    except OSError as exc:  # a read-only or full disk: say so; the staging folder is already gone
+        where = f" {exc.filename}" if exc.filename else ""
+        console.print("[bold red]error:[/] " + escape(f"cannot read or write{where}: {exc.strerror or exc}; nothing was replaced"),
+                      highlight=False)
+        raise typer.Exit(2) from None
+
+
+def terminate_like_interrupt() -> None:
+    """SIGTERM (a job scheduler, `kill`) unwinds like Ctrl-C, so a run removes its staging
+    folder instead of leaving a half-written one behind."""
+    import signal
+
+    def _raise(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, _raise)
+
+
+@contextmanager
+def progress_bar(total: int, label: str) -> Iterator:
+    quiet = not sys.stderr.isatty()
+    with Progress(
+        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console, disable=quiet
+    ) as prog:
+        task = prog.add_task(label, total=total)
+        yield lambda n=1: prog.advance(task, n)
+
+
+def resolve_scenario(scenario: str, overrides: list[str] | None, duration: float | None = None, seed: int | None = None):
+    extra = list(overrides or [])
+    if duration is not None:
+        extra.append(f"duration_s={duration}")
+    if seed is not None:
+        extra.append(f"seed={seed}")
+    return load_scenario(scenario, extra)

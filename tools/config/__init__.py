@@ -1,0 +1,1 @@
+"""Run configuration: the processing settings and scenario files (world + installation + processing)."""

@@ -1,0 +1,1 @@
+"""What a run writes beside its estimates: KPIs, report.md and plots, the rerun recording."""

@@ -1,0 +1,93 @@
+"""report.md for a run without truth (a real recording): what was estimated. D and D-dot per
+solution with their sigma, each method's valid fraction, time and the reasons for its invalid
+frames, and the gaps in each stream."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from boomtip.data.frames import MruLog
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.fusion.solutions import Estimates
+from boomtip.perception.pipeline import Measurement
+from boomtip.tools.report.heave import COLORS
+
+
+def stream_gaps(t_s: np.ndarray, nominal_dt_s: float, factor: float = 1.5) -> list[tuple[float, float]]:
+    """Intervals between consecutive samples longer than factor x the nominal period."""
+    t = np.sort(np.asarray(t_s, dtype=float))
+    if len(t) < 2:
+        return []
+    d = np.diff(t)
+    idx = np.flatnonzero(d > factor * nominal_dt_s)
+    return [(float(t[i]), float(t[i + 1])) for i in idx]
+
+
+def method_table(rows: list[Measurement]) -> list[str]:
+    lines = ["| method | frames | valid | APT [ms] | why not valid (frames) |", "|---|---|---|---|---|"]
+    for m in sorted({r.method for r in rows}):
+        mine = [r for r in rows if r.method == m]
+        bad = Counter(r.status.split(":")[0][:80] for r in mine if not r.ok)
+        why = "; ".join(f"{k} ({v})" for k, v in bad.most_common(4)) or "-"
+        lines.append(f"| {m} | {len(mine)} | {100 * sum(r.ok for r in mine) / len(mine):.1f} % | "
+                     f"{np.mean([r.time_ms for r in mine]):.2f} | {why} |")
+    return lines
+
+
+def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates], rows: list[Measurement],
+                           mru: MruLog, rates_hz: dict[str, float]) -> list[str]:
+    lines = [f"# boomtip relative-heave report: {kpis['scenario']} ({kpis['duration_s']:.0f} s, no truth)", "",
+             *[f"**Warning:** {w}" for w in kpis.get("warnings", [])], "",
+             "No truth came with this recording: this report says what was estimated, not how well.", "",
+             "## Solutions", "", "| solution | D from | D-dot from | D range [m] | median sigma D [mm] | median sigma D-dot [mm/s] |",
+             "|---|---|---|---|---|---|"]
+    for name, e in estimates.items():
+        ok = np.isfinite(e.x[:, 0])
+        src = kpis.get("sources", {}).get(name, {})
+        if not ok.any():
+            continue
+        lines.append(f"| {name} | {', '.join(src.get('D', [])) or '-'} | {', '.join(src.get('D_dot', [])) or 'D'} | "
+                     f"{np.min(e.x[ok, 0]):.3f} to {np.max(e.x[ok, 0]):.3f} | {1e3 * np.sqrt(np.median(e.var[ok, 0])):.2f} | "
+                     f"{1e3 * np.sqrt(np.median(e.var[ok, 1])):.2f} |")
+    lines += ["", "## Measurements", "", *method_table(rows), "", "## Gaps in the streams", ""]
+    streams = {s: np.array(sorted({r.t_s for r in rows if r.method.endswith(s)})) for s in ("lidar", "radar")}
+    for s, t in streams.items():
+        if len(t):
+            gaps = stream_gaps(t, 1.0 / rates_hz[s])
+            lines.append(f"- {s}: {len(t)} frames, {len(gaps)} gaps" + "".join(f"; {a:.2f}-{b:.2f} s" for a, b in gaps[:10]))
+    gaps = stream_gaps(mru.t_s, float(np.median(np.diff(mru.t_s))) if len(mru.t_s) > 1 else 1.0)
+    lines.append(f"- MRU: {len(mru.t_s)} samples, {len(gaps)} gaps" + "".join(f"; {a:.2f}-{b:.2f} s" for a, b in gaps[:10]))
+    plot = _plot(out, estimates)
+    lines += ["", f"![estimates]({plot.name})", ""]
+    atomic_write_bytes(out / "report.md", "\n".join(lines).encode())
+    return ["report.md", plot.name]
+
+
+def _plot(out: Path, estimates: dict[str, Estimates]) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
+    for qi, label in enumerate(("D [m]", "D-dot [m/s]")):
+        for name, e in estimates.items():
+            if name == "doppler_radar" and qi == 0:
+                continue  # integrated D drifts by design
+            c = COLORS.get(name)
+            ax[qi].plot(e.t_s, e.x[:, qi], lw=1, color=c, label=name)
+            if name == "fused":
+                s = 3 * np.sqrt(e.var[:, qi])
+                ax[qi].fill_between(e.t_s, e.x[:, qi] - s, e.x[:, qi] + s, color=c, alpha=0.2, label="fused +-3 sigma")
+        ax[qi].set_ylabel(label)
+        ax[qi].legend(fontsize=8, ncol=4)
+    ax[1].set_xlabel("t [s]")
+    ax[0].set_title("Estimates (no truth)")
+    fig.tight_layout()
+    path = out / "estimates.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

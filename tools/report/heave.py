@@ -1,0 +1,175 @@
+"""report.md in document 000's Table 5.4 layout, with its published row beside ours, and plots."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from boomtip.data.frames import Truth
+from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.fusion.solutions import Estimates
+from boomtip.perception.pipeline import Measurement
+from boomtip.tools.report.kpis import WARMUP_S
+
+# Document 000, Table 5.4 (after its Kalman filter) and its truth amplitudes (section 5.1.2).
+DOC000 = {
+    "deck_lidar": {"mae_D": 0.010, "max_D": 0.045, "mae_V": 0.048, "max_V": 0.225, "apt": 91.7},
+    "deck_radar": {"mae_D": 0.018, "max_D": 0.128, "mae_V": 0.098, "max_V": 0.522, "apt": 34.8},
+    "reflectors_lidar": {"mae_D": 0.013, "max_D": 0.088, "mae_V": 0.068, "max_V": 0.396, "apt": 1.9},
+    "doppler_radar": {"mae_D": 0.159, "max_D": None, "mae_V": 0.018, "max_V": 0.057, "apt": 2.4},
+}
+DOC000_AMPLITUDE = {"D_m": 3.06, "D_dot_mps": 2.3}
+COLORS = {"deck_lidar": "#1f77b4", "deck_radar": "#ff7f0e", "reflectors_lidar": "#2ca02c", "doppler_radar": "#9467bd", "fused": "#d62728",
+          "doppler_radar_rot": "#8c564b"}
+
+
+def _fmt(v, pct_of=None, unit_mm=False) -> str:
+    if v is None or not np.isfinite(v):
+        return "-"
+    s = f"{v * 1e3:.1f}" if unit_mm else f"{v:.3f}"
+    if pct_of:
+        s += f" ({100 * v / pct_of:.2f} %)"
+    return s
+
+
+def kpi_table(kpis: dict) -> str:
+    amp = kpis.get("truth_max_amplitude", {})
+    aD, aV = amp.get("D_m"), amp.get("D_dot_mps")
+    lines = [
+        "| solution | MAE D [mm] | max D [mm] | MAE D-dot [mm/s] | max D-dot [mm/s] | APT [ms] | doc 000: MAE D / max D [mm] | doc 000: MAE / max D-dot [mm/s] | doc 000 APT [ms] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, k in kpis.get("solutions", {}).items():
+        d = DOC000.get(name)
+        doc_d = f"{_fmt(d['mae_D'], DOC000_AMPLITUDE['D_m'], True)} / {_fmt(d['max_D'], None, True)}" if d else "not built"
+        doc_v = f"{_fmt(d['mae_V'], DOC000_AMPLITUDE['D_dot_mps'], True)} / {_fmt(d['max_V'], None, True)}" if d else "not built"
+        lines.append(
+            f"| {name} | {_fmt(k['mae_D_m'], aD, True)} | {_fmt(k['max_D_m'], aD, True)} | {_fmt(k['mae_D_dot_mps'], aV, True)} | "
+            f"{_fmt(k['max_D_dot_mps'], aV, True)} | {k['apt_ms']:.2f} | {doc_d} | {doc_v} | {d['apt'] if d else '-'} |"
+        )
+    return "\n".join(lines)
+
+
+def measurement_table(kpis: dict) -> str:
+    lines = ["| method | quantity | MAE | max | APT [ms] | valid |", "|---|---|---|---|---|---|"]
+    for m, k in kpis.get("measurements", {}).items():
+        unit = "mm" if k["quantity"] == "D" else "mm/s"
+        lines.append(f"| {m} | {k['quantity']} | {_fmt(k.get('mae'), None, True)} {unit} | {_fmt(k.get('max'), None, True)} {unit} | "
+                     f"{k['apt_ms']:.2f} | {100 * k['valid_fraction']:.1f} % |")
+    return "\n".join(lines)
+
+
+def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: Truth, rows: list[Measurement]) -> None:
+    plots = write_plots(out, estimates, truth, rows)
+    amp = kpis.get("truth_max_amplitude", {})
+    text = [
+        f"# boomtip relative-heave report: {kpis['scenario']} (seed {kpis['seed']}, {kpis['duration_s']:.0f} s)",
+        "",
+        *[f"**Warning:** {w}" for w in kpis.get("warnings", [])],
+        "",
+        "Sources: " + "; ".join(f"{n}: D from {', '.join(v['D']) or 'none'}, D-dot from {', '.join(v['D_dot']) or 'D'}"
+                                for n, v in kpis.get("sources", {}).items()),
+        "",
+        "## Solutions after the Kalman filter (document 000, Table 5.4 layout)",
+        "",
+        f"Errors against the closed-form truth, first {WARMUP_S:g} s excluded (filter convergence). Percentages are of the",
+        f"truth's maximum amplitude: here {amp.get('D_m', float('nan')):.2f} m for D and {amp.get('D_dot_mps', float('nan')):.2f} m/s for D-dot",
+        f"(document 000: {DOC000_AMPLITUDE['D_m']} m and {DOC000_AMPLITUDE['D_dot_mps']} m/s). APT is perception plus filter time per measurement cycle.",
+        "",
+        kpi_table(kpis),
+        "",
+        "## Raw measurements (before any filter)",
+        "",
+        measurement_table(kpis),
+        "",
+        "## Plots",
+        "",
+        *[f"![{p.stem}]({p.name})" for p in plots],
+        "",
+    ]
+    atomic_write_bytes(out / "report.md", "\n".join(text).encode())
+
+
+def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: list[Measurement]) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    for qi, (q, unit, scale) in enumerate((("D", "mm", 1e3), ("D_dot", "mm/s", 1e3))):
+        fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(12, 7), sharex=True, gridspec_kw={"height_ratios": [1, 1.3]})
+        ax0.plot(truth.t_s, truth.columns[q], color="black", lw=2.5, label="truth")
+        for name, e in estimates.items():
+            c = COLORS.get(name)
+            ax0.plot(e.t_s, e.x[:, qi], lw=1, color=c, label=name)
+            err = (e.x[:, qi] - truth.at(q, e.t_s)) * scale
+            ax1.plot(e.t_s, err, lw=0.9, color=c, label=name)
+        ax0.set_ylabel(f"{q} [{'m' if q == 'D' else 'm/s'}]")
+        ax0.legend(ncol=6, fontsize=8, loc="upper right")
+        ax0.set_title(f"{q}: truth and estimates")
+        # Doppler-only D drifts by design; the limit follows the others so their errors stay readable.
+        lim = _robust_limit([((e.x[:, qi] - truth.at(q, e.t_s)) * scale, e.t_s >= WARMUP_S) for n, e in estimates.items()
+                             if not (q == "D" and n == "doppler_radar") or len(estimates) == 1])
+        ax1.set_ylim(-lim, lim)
+        ax1.axvspan(0, WARMUP_S, color="0.9", label="not scored")
+        ax1.axhline(0, color="black", lw=0.5)
+        ax1.set_ylabel(f"error [{unit}]")
+        ax1.set_xlabel("t [s]")
+        ax1.set_title(f"{q} error (estimate - truth); y-axis clipped to the bulk of the scored errors"
+                      + ("; doppler_radar's D drifts off-scale" if q == "D" and "doppler_radar" in estimates else ""))
+        fig.tight_layout()
+        p = out / f"heave_{q}.png"
+        fig.savefig(p, dpi=90)
+        plt.close(fig)
+        paths.append(p)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    for qi, (q, unit) in enumerate((("D", "mm"), ("D_dot", "mm/s"))):
+        for name, e in estimates.items():
+            keep = e.t_s >= WARMUP_S
+            err = (e.x[keep, qi] - truth.at(q, e.t_s[keep])) * 1e3
+            err = err[np.isfinite(err)]
+            if name == "doppler_radar" and q == "D":
+                continue  # drifts by design; it would swamp the others
+            axes[qi].hist(err, bins=80, histtype="step", lw=1.5, color=COLORS.get(name), label=name)
+        axes[qi].set_xlabel(f"{q} error [{unit}]")
+        axes[qi].set_title(f"{q} error histogram (t >= {WARMUP_S:g} s)")
+        axes[qi].legend(fontsize=8)
+    fig.tight_layout()
+    p = out / "error_histograms.png"
+    fig.savefig(p, dpi=90)
+    plt.close(fig)
+    paths.append(p)
+    # Raw measurement errors per method.
+    fig, ax = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
+    methods = sorted({r.method for r in rows})
+    for m in methods:
+        ok = [r for r in rows if r.method == m and r.ok]
+        if not ok:
+            continue
+        t = np.array([r.t_s for r in ok])
+        err = (np.array([r.value for r in ok]) - truth.at(ok[0].quantity, t)) * 1e3
+        ax[0 if ok[0].quantity == "D" else 1].plot(t, err, ".", ms=2, label=m, color=COLORS.get(m))
+    ax[0].set_ylabel("D error [mm]")
+    ax[1].set_ylabel("D-dot error [mm/s]")
+    ax[1].set_xlabel("t [s]")
+    ax[0].set_title("Raw measurements minus truth (before filtering)")
+    for a in ax:
+        a.legend(fontsize=8, ncol=3)
+        a.axhline(0, color="black", lw=0.5)
+    fig.tight_layout()
+    p = out / "measurements.png"
+    fig.savefig(p, dpi=90)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def _robust_limit(errs: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """A y-limit for the bulk of the scored errors: (errors, kept mask) per estimate."""
+    if not errs:
+        return 1.0
+    vals = np.concatenate([np.abs(e[keep]) for e, keep in errs])
+    vals = vals[np.isfinite(vals)]
+    return float(np.percentile(vals, 99.5) * 1.2) if len(vals) else 1.0

@@ -1,0 +1,1 @@
+"""Studies at scale: sweeps over scenario keys and seeds, batches of recordings."""
