@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Iterator, NamedTuple
 
 import numpy as np
 
@@ -91,6 +91,43 @@ class MruLog:
         rpy = [x0 + w * ((x1 - x0 + math.pi) % (2 * math.pi) - math.pi) for x0, x1 in zip(a0, a1)]
         rate = [x0 + w * (x1 - x0) for x0, x1 in zip(r0, r1)]
         return np.array(rpy), np.array(rate)
+
+
+class AttitudeNoise(NamedTuple):
+    """1-sigma of the attitude processing levels its clouds with: of the angles, of the rates, and
+    of the boom tip's velocity relative to the vessel that the rates give at the tip's lever."""
+
+    angle_rad: float
+    rate_radps: float
+    tip_velocity_mps: float
+
+    @classmethod
+    def of_installation(cls, installation: Installation, angle_sigma_rad: float | None = None,
+                        rates_averaged_over: int = 1) -> "AttitudeNoise":
+        """The MRU's stated noise, its rates averaged over `rates_averaged_over` samples, its angles
+        `angle_sigma_rad` when the caller filters them (else the stated angle noise)."""
+        rate_sigma = math.radians(installation.mru.rate_noise_degps)
+        lever_m = float(np.linalg.norm(installation.T_crane_boomtip()[:3, 3]))
+        return cls(math.radians(installation.mru.angle_noise_deg) if angle_sigma_rad is None else angle_sigma_rad,
+                   rate_sigma / math.sqrt(rates_averaged_over),
+                   lever_m * rate_sigma / math.sqrt(rates_averaged_over))
+
+    def with_forecast(self, var: np.ndarray, lever_m: float) -> "AttitudeNoise":
+        """This noise with a forecast attitude's error added (var: the variances of roll, pitch,
+        yaw and their rates; the larger of roll's and pitch's for the tilt)."""
+        angle_var, rate_var = max(var[0], var[1]), max(var[3], var[4])
+        return AttitudeNoise(math.sqrt(self.angle_rad ** 2 + angle_var), math.sqrt(self.rate_radps ** 2 + rate_var),
+                             math.sqrt(self.tip_velocity_mps ** 2 + lever_m ** 2 * rate_var))
+
+
+class LevellingAttitude(NamedTuple):
+    """The attitude a frame is levelled with, its noise, and, through a gap in the MRU's log,
+    the variances of the forecast it is (None where the MRU measured it)."""
+
+    rpy_rad: np.ndarray
+    rpy_rate_radps: np.ndarray
+    noise: AttitudeNoise
+    forecast_var: np.ndarray | None = None
 
 
 def sample_after(t_log_s: np.ndarray, max_gap_s: float, t_s: float) -> int | None:

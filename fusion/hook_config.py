@@ -7,6 +7,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from boomtip.data.crane_model import CraneParams
+from boomtip.data.installation import CraneSpec
+
 __all__ = ["ProcessNoiseConfig", "MeasurementNoiseConfig", "InitialUncertaintyConfig", "HookFilterConfig"]
 
 
@@ -110,3 +113,10 @@ class HookFilterConfig(BaseModel):
     ukf_alpha: float = 1e-3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0
+
+
+def nominal_crane_params(crane: CraneSpec, flexible: bool = True) -> CraneParams:
+    """The filter's crane: the installation's nominal geometry and dynamics (Table 4.1)."""
+    return CraneParams(m=crane.dynamics.hook_mass_kg, m_b=crane.dynamics.boom_mass_kg, L=crane.geometry.boom_length_m,
+                       b=crane.geometry.boom_foot_offset_m, h=crane.geometry.boom_foot_height_m, c=crane.geometry.crane_base_m,
+                       k_f=crane.dynamics.boom_stiffness_nm_per_rad, c_f=crane.dynamics.boom_damping, flexible=flexible)

@@ -49,6 +49,15 @@ class HookTracker:
     def started(self) -> bool:
         return self.filter.initialized
 
+    def hoist_at(self, t: float) -> float:
+        """The hoist encoder (column 3 of the encoder table) interpolated at t, from the two rows
+        about t: np.interp's value depends on those alone, so the same number as over the whole
+        log, a frame's rows read at a time."""
+        i0 = max(int(np.searchsorted(self._t_enc, t, "right")) - 1, 0)
+        # at least one row: a time stamp repeated at t would otherwise leave an empty slice
+        i1 = max(min(int(np.searchsorted(self._t_enc, t, "left")) + 1, len(self._t_enc)), i0 + 1)
+        return float(np.interp(t, self._t_enc[i0:i1], np.asarray(self._enc[i0:i1])[:, 2]))
+
     def _start(self, t: float) -> None:
         ie = max(0, int(np.searchsorted(self._t_enc, t, "right")) - 1)
         im = max(0, int(np.searchsorted(self._t_mru, t, "right")) - 1)

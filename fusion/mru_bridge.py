@@ -18,6 +18,22 @@ from boomtip.data.frames import MruLog
 from scipy.interpolate import CubicHermiteSpline
 from scipy.ndimage import uniform_filter1d
 from boomtip.fusion.wave_predictor import backtest_variance, fit_ar, forecast
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class MruGapConfig(BaseModel):
+    """The feeder estimate through a gap in the crane MRU's log (fusion/feeder_estimator)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = Field(False, description="predict the crane's attitude through an MRU gap from its own samples before it "
+                          "and process the frames with it (off: the chain pauses until the MRU is back). Off by default: "
+                          "better than the pause on a regular sea, mixed on an irregular one (fusion/feeder_estimator)")
+    history_s: float = Field(20.0, gt=2, description="the MRU samples before the gap the AR model is fitted to")
+    rate_hz: float = Field(10.0, gt=0, description="the AR model's sample rate")
+    order: int = Field(20, ge=2, le=64, description="the AR model's order")
+    max_sigma_deg: float = Field(0.05, gt=0, description="past this 1-sigma of the predicted roll or pitch the chain pauses "
+                                 "(0.05 deg moves the deck 45 m below by 4 cm)")
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from boomtip.data.frames import AttitudeNoise
 from boomtip.data.installation import Installation
 from boomtip.perception.deck_spin import DeckSpin, deck_point_times, level_at_own_time, spin_plane_in_level
 from boomtip.perception.feeder_registration import RegistrationConfig
@@ -75,6 +76,7 @@ class LidarObservation:
     sample_returns_sensor: np.ndarray | None = None  # the measured return each sample stands for (its voxel's first): beams for the static test
     static_keys: tuple | None = None  # those returns' keys in the static test, computed once when counted
     spin: DeckSpin | None = None  # the deck plane and its rates from the returns' times, when they span the sweep
+    noise: AttitudeNoise | None = None  # the attitude's noise as the frame was levelled
 
 
 @dataclass
@@ -89,6 +91,8 @@ class RadarObservation:
     tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     detections_sensor: np.ndarray | None = None  # the frame's points, for a registration to the feeder model
     R_level_sensor: np.ndarray | None = None  # the radar's axes in the level frame (its origin: xi_level)
+    noise: AttitudeNoise | None = None  # the attitude's noise as the frame was levelled
+    lidar_level: np.ndarray | None = None  # the LiDAR's position in the level frame at the frame's attitude
 
 
 def plane_in_level(points_level: np.ndarray, inflation: float) -> PlaneLevel:
@@ -121,16 +125,24 @@ class FeederPerception:
         # the sensors' positions relative to the tip, crane-vessel axes
         self.t_crane_sensor = {s: (T_cb @ T_bs[s])[:3, 3] - T_cb[:3, 3] for s in ("lidar", "radar")}
         self.t_crane_tip = T_cb[:3, 3]
-        # the MRU's stated rate noise, over the samples the caller averages each rate of
-        rate_sigma = math.radians(installation.mru.rate_noise_degps)
-        self.rate_sigma_radps = rate_sigma / math.sqrt(rates_averaged_over)
-        # the attitude's angle noise as the caller levels with it: the MRU's stated noise, or less
-        # when the caller filters the angles (the chain: attitude_filter, 0.02 -> 0.0016 deg)
-        self.angle_sigma_rad = math.radians(installation.mru.angle_noise_deg) if angle_sigma_rad is None else angle_sigma_rad
+        # The attitude's noise as the caller levels with it: the MRU's stated rate noise over the
+        # samples the caller averages each rate of, its angle noise (less when the caller filters
+        # the angles: the feeder estimator's attitude_filter, 0.02 -> 0.0016 deg), the tip's
+        # velocity at the boom's lever. A frame may bring its own (a forecast through an MRU gap).
+        self.noise = AttitudeNoise.of_installation(installation, angle_sigma_rad, rates_averaged_over)
         self.mount_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
-        self.mru_bias_sigma_rad = math.radians(installation.mru.bias_accuracy_deg)
-        # 1-sigma of the tip's velocity from the MRU's rates (its stated rate noise at the tip's lever)
-        self.tip_velocity_sigma = float(np.linalg.norm(self.t_crane_tip)) * rate_sigma / math.sqrt(rates_averaged_over)
+
+    @property
+    def angle_sigma_rad(self) -> float:
+        return self.noise.angle_rad
+
+    @property
+    def rate_sigma_radps(self) -> float:
+        return self.noise.rate_radps
+
+    @property
+    def tip_velocity_sigma(self) -> float:
+        return self.noise.tip_velocity_mps
 
     @staticmethod
     def R_level(rpy: np.ndarray) -> np.ndarray:
@@ -177,7 +189,7 @@ class FeederPerception:
         return plane
 
     def deck_spin(self, deck, pts_level: np.ndarray, points_sensor: np.ndarray, point_times: np.ndarray,
-                  t_ls: np.ndarray, omega_level: np.ndarray) -> DeckSpin | None:
+                  t_ls: np.ndarray, omega_level: np.ndarray, noise: AttitudeNoise | None = None) -> DeckSpin | None:
         """The heave chain's deck inliers (pts_level: levelled at the frame's time), each moved
         to its own time, fitted with the plane and its rates (perception/deck_spin); None
         without times that span the sweep."""
@@ -191,15 +203,18 @@ class FeederPerception:
             return None
         # The levelling's noise tilts the plane about the sensor (as deck_plane's), the MRU rates'
         # the spin removed from it; the tip's velocity (the rate's reference) is known to its sigma.
+        noise = noise or self.noise
         J = np.array([[1.0, 0.0], [0.0, 1.0], [-t_ls[0], -t_ls[1]]])
-        spin.cov[:3, :3] += self.angle_sigma_rad ** 2 * (J @ J.T)
-        spin.cov[3:, 3:] += self.rate_sigma_radps ** 2 * (J @ J.T)
-        spin.cov[5, 5] += self.tip_velocity_sigma ** 2
+        spin.cov[:3, :3] += noise.angle_rad ** 2 * (J @ J.T)
+        spin.cov[3:, 3:] += noise.rate_radps ** 2 * (J @ J.T)
+        spin.cov[5, 5] += noise.tip_velocity_mps ** 2
         return spin
 
     def lidar(self, t_s: float, points_sensor: np.ndarray, rpy: np.ndarray, rpy_rate: np.ndarray, deck,
-              point_times: np.ndarray | None = None) -> LidarObservation:
-        """point_times: each point's time from t_s (the frame's `t` field), when the sensor has them."""
+              point_times: np.ndarray | None = None, noise: AttitudeNoise | None = None) -> LidarObservation:
+        """point_times: each point's time from t_s (the frame's `t` field), when the sensor has them;
+        noise: the attitude's, when not the nominal one."""
+        noise = noise or self.noise
         R_ls, t_ls = self.sensor_in_level("lidar", rpy)
         finite = np.isfinite(np.einsum("ij->i", points_sensor))  # a non-finite coordinate makes the row's sum so
         pts = points_sensor if finite.all() else points_sensor[finite]
@@ -208,13 +223,13 @@ class FeederPerception:
             sample, first = voxel_downsample(pts, self.cfg.registration.sample_m)
             returns = pts[first]
         pts_level = self.deck_points_level(deck, R_ls, t_ls)
-        plane = self.deck_plane("lidar", deck, R_ls, t_ls, extra_tilt_sigma_rad=self.angle_sigma_rad, pts_level=pts_level)
+        plane = self.deck_plane("lidar", deck, R_ls, t_ls, extra_tilt_sigma_rad=noise.angle_rad, pts_level=pts_level)
         status = "ok" if plane is not None else (f"no deck plane ({deck.status})" if deck is not None else "no deck plane")
         spin = None
         if plane is not None and self.cfg.spin and point_times is not None and len(point_times) == len(points_sensor):
-            spin = self.deck_spin(deck, pts_level, points_sensor, point_times, t_ls, self.omega_level(rpy, rpy_rate))
+            spin = self.deck_spin(deck, pts_level, points_sensor, point_times, t_ls, self.omega_level(rpy, rpy_rate), noise)
         return LidarObservation(t_s, sample, R_ls, t_ls, plane, status, *self.tip_motion(rpy, rpy_rate),
-                                sample_returns_sensor=returns, spin=spin)
+                                sample_returns_sensor=returns, spin=spin, noise=noise)
 
     def structure(self, obs: LidarObservation, plane_abc: np.ndarray, footprint: Footprint | None = None,
                   T_map_level: np.ndarray | None = None,
@@ -243,20 +258,22 @@ class FeederPerception:
         return pts[rows]
 
     def radar(self, t_s: float, rpy: np.ndarray, rpy_rate: np.ndarray, doppler, deck,
-              detections_sensor: np.ndarray | None = None) -> RadarObservation:
+              detections_sensor: np.ndarray | None = None, noise: AttitudeNoise | None = None) -> RadarObservation:
+        noise = noise or self.noise
         R_ls, t_ls = self.sensor_in_level("radar", rpy)
         tip = self.tip_motion(rpy, rpy_rate)
-        plane = self.deck_plane("radar", deck, R_ls, t_ls, extra_tilt_sigma_rad=math.hypot(self.mount_sigma_rad["radar"], self.angle_sigma_rad))
+        plane = self.deck_plane("radar", deck, R_ls, t_ls, extra_tilt_sigma_rad=math.hypot(self.mount_sigma_rad["radar"], noise.angle_rad))
+        lidar_level = self.sensor_in_level("lidar", rpy)[1]
         if doppler is None:
-            return RadarObservation(t_s, None, None, t_ls, plane, "no Doppler velocity", *tip, detections_sensor, R_ls)
+            return RadarObservation(t_s, None, None, t_ls, plane, "no Doppler velocity", *tip, detections_sensor, R_ls, noise, lidar_level)
         u = R_ls @ doppler.velocity_sensor
         # The crane's rotation (level frame, less its yaw rate, which turns the frame itself)
         # carries the radar: add it back to get the feeder point's velocity in the level frame.
         v = u + np.cross(self.omega_level(rpy, rpy_rate), t_ls)
         lever = float(np.linalg.norm(t_ls))
-        cov = R_ls @ doppler.covariance @ R_ls.T + np.eye(3) * ((lever * self.rate_sigma_radps) ** 2
-                                                                + (float(np.linalg.norm(u)) * self.angle_sigma_rad) ** 2)
-        return RadarObservation(t_s, v, cov, t_ls, plane, "ok", *tip, detections_sensor, R_ls)
+        cov = R_ls @ doppler.covariance @ R_ls.T + np.eye(3) * ((lever * noise.rate_radps) ** 2
+                                                                + (float(np.linalg.norm(u)) * noise.angle_rad) ** 2)
+        return RadarObservation(t_s, v, cov, t_ls, plane, "ok", *tip, detections_sensor, R_ls, noise, lidar_level)
 
 
 class Footprint:

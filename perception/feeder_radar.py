@@ -148,26 +148,3 @@ def register_radar(surface: Surface, detections_sensor: np.ndarray, R_level_sens
     return RadarRegistration(pose[[0, 1, 5]], info / cfg.info_inflation, matched, "ok")
 
 
-class RadarOffset:
-    """The radar registration's offset from the LiDAR's (x, y, yaw), learnt while both see the
-    feeder: the radar's mount error (0.05 deg is 2 cm at 25 m) and its noise's bias along
-    the model's edges. A running mean over at most `frames` samples, with its spread."""
-
-    def __init__(self, frames: int) -> None:
-        self.frames = frames
-        self.n = 0
-        self.mean = np.zeros(3)
-        self.mean_square = np.zeros(3)
-
-    def add(self, radar_x_y_yaw: np.ndarray, lidar_x_y_yaw: np.ndarray) -> None:
-        d = np.asarray(radar_x_y_yaw, dtype=float) - lidar_x_y_yaw
-        d[2] = (d[2] + math.pi) % (2.0 * math.pi) - math.pi
-        self.n += 1
-        a = 1.0 / min(self.n, self.frames)
-        self.mean += a * (d - self.mean)
-        self.mean_square += a * (d * d - self.mean_square)
-
-    def covariance(self) -> np.ndarray:
-        """Of the mean: the samples' spread over their (capped) count."""
-        spread = np.maximum(self.mean_square - self.mean * self.mean, 0.0)
-        return np.diag(spread / max(min(self.n, self.frames), 1))

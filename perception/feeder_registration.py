@@ -153,25 +153,6 @@ def pose_information(points_level: np.ndarray, normals_level: np.ndarray, origin
     return J.T @ J / (sigma_m * sigma_m)
 
 
-def condition_on(pose_reg: np.ndarray, info6: np.ndarray, z_roll_pitch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The registration's (x, y, yaw) given z, roll and pitch known from elsewhere (the deck):
-    an ICP that tilts a little wrong shifts sideways to make up for it (by the tilt times the
-    structure's height); the Gaussian conditional undoes that: mean - L11^-1 L12 (known - its
-    own). Returns (x, y, yaw) and their information L11."""
-    a, b = [0, 1, 5], [2, 3, 4]
-    L11, L12 = info6[np.ix_(a, a)], info6[np.ix_(a, b)]
-    d = np.asarray(z_roll_pitch, dtype=float) - pose_reg[b]
-    return pose_reg[a] - np.linalg.pinv(L11) @ (L12 @ d), L11
-
-
-def yaw_only(info_xy_yaw: np.ndarray) -> np.ndarray:
-    """The information of (x, y, yaw) kept for the yaw alone, x and y left free: the yaw's
-    Schur complement, as a 3x3 with zero information in x and y."""
-    L = info_xy_yaw[:2, :2]
-    s = info_xy_yaw[2, 2] - info_xy_yaw[2, :2] @ np.linalg.pinv(L) @ info_xy_yaw[:2, 2]
-    return np.diag([0.0, 0.0, max(float(s), 0.0)])
-
-
 def merged_cloud(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], voxel_m: float, normal_neighbours: int):
     """Frames placed in the map frame, voxel-averaged, with normals: a surface sampled by many
     frames, each on its own part of it."""

@@ -45,6 +45,7 @@ About 10 ms per frame at 20 m (ICP only), 15-25 ms for a sparse far block (ray r
 from __future__ import annotations
 
 import math
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -61,6 +62,8 @@ from boomtip.perception.timing import StageTimes
 # block_footprint, block_model and rotation_hanging: the block model as the stage uses it, for
 # the callers that pose or check it (tests, tools).
 __all__ = [
+    "BLOCK_STEPS",
+    "BlockSteps",
     "HookConfig",
     "HookDetection",
     "detect_hook",
@@ -70,6 +73,17 @@ __all__ = [
     "block_model",
     "rotation_hanging",
 ]
+
+
+class BlockSteps(NamedTuple):
+    """The block fit (4a-b) and the ray-consistency steps (4c) that detect_hook composes."""
+
+    fit: Callable
+    pick: Callable
+    refine: Callable
+
+
+BLOCK_STEPS = BlockSteps(fit_block, ray_pick, ray_refine)
 
 
 def _fail(n: int, status: str, extent: float = float("nan"), rms: float = float("nan"), n_pts: int = 0,
@@ -88,6 +102,7 @@ def detect_hook(
     *,
     sensor_position_m: np.ndarray | None = None,
     prior_cov_m2: np.ndarray | None = None,
+    steps: BlockSteps | None = None,
 ) -> HookDetection:
     """Segment the lower block in one LiDAR frame and estimate its reference point.
 
@@ -104,6 +119,7 @@ def detect_hook(
         whose block is too sparse for the model fit (a far block: 1-5 points) still gives its
         points and a loose fix, status "sparse" (:func:`sparse_block_fix`).
     rng: draws the ICP subsamples and ray subsets (default: seeded, the same result every call).
+    steps: the block fit and the ray steps (default BLOCK_STEPS; a benchmark passes its baseline's).
     Returns a :class:`HookDetection`; on failure position_m is NaN and status gives the reason.
     """
     pts = as_points(points_level)
@@ -115,7 +131,7 @@ def detect_hook(
     prior = None
     if prior_cov_m2 is not None:
         prior = (np.asarray(p_prior, float), np.asarray(prior_cov_m2, float) + cfg.prior_pick_sigma_m**2 * np.eye(3))
-    det = _detect_by_model_fit(pts, p_prior, hoist_length_m, cfg, rng, times, sensor_position_m, prior)
+    det = _detect_by_model_fit(pts, p_prior, hoist_length_m, cfg, rng, times, sensor_position_m, prior, steps)
     if det.ok or not cfg.sparse or prior_cov_m2 is None:
         return det
     with times.stage("hook.sparse"):
@@ -214,7 +230,9 @@ def sparse_block_fix(
 def _detect_by_model_fit(pts: np.ndarray, p_prior: np.ndarray, hoist_length_m: float, cfg: HookConfig,
                          rng: np.random.Generator, times: StageTimes,
                          sensor_position_m: np.ndarray | None,
-                         pick_prior: tuple[np.ndarray, np.ndarray] | None = None) -> HookDetection:
+                         pick_prior: tuple[np.ndarray, np.ndarray] | None = None,
+                         steps: "BlockSteps | None" = None) -> HookDetection:
+    steps = steps or BLOCK_STEPS
     """Steps 1-4 of the module docstring (gate, background, clusters, model fit)."""
     n_all = len(pts)
     prior = np.asarray(p_prior, dtype=np.float64).reshape(3)
@@ -278,7 +296,7 @@ def _detect_by_model_fit(pts: np.ndarray, p_prior: np.ndarray, hoist_length_m: f
     with times.stage("hook.fit"):
         model = block_model(cfg.block_height_m, cfg.model_points)
         precise = pick_prior is not None and math.sqrt(float(np.linalg.eigvalsh(pick_prior[1])[-1])) <= cfg.prior_start_sigma_m
-        fit = fit_block(pc, cfg, rng, pick_prior[0] if precise else None)
+        fit = steps.fit(pc, cfg, rng, pick_prior[0] if precise else None)
         frac_in = float(np.count_nonzero(fit.inliers)) / len(pc)
         near = np.flatnonzero(np.linalg.norm(p - fit.t, axis=1) < cfg.block_height_m + 0.5)
         pn = p[near]
@@ -301,12 +319,12 @@ def _detect_by_model_fit(pts: np.ndarray, p_prior: np.ndarray, hoist_length_m: f
             half1 = float(np.clip(cfg.ray_window_steps * step_m, cfg.ray_window_min_m, cfg.ray_window_max_m))
             reach = max(half1, float(np.abs(np.asarray(AMBIGUOUS_SHIFTS_M)).max()))  # window or a shift
             rays = ray_evidence(pts, blk, t, yaw, s, reach, model, cfg, rng)
-            t1, yaw1 = ray_pick(rays, t, yaw, model, cfg, pick_prior)
+            t1, yaw1 = steps.pick(rays, t, yaw, model, cfg, pick_prior)
             if t1 is not t:  # the rays chose a shifted copy: polish it with the ICP
                 t, yaw = icp_4dof(pn[sc.inliers], t1, yaw1, model, cfg, 0)
                 sc = score_pose(pn, t, yaw, model, cfg)
             if n_model <= cfg.ray_refine_max_points:
-                t, yaw, sigma_across = ray_refine(rays, t, yaw, half1, model, cfg, pick_prior)
+                t, yaw, sigma_across = steps.refine(rays, t, yaw, half1, model, cfg, pick_prior)
             if t is not sc.t or yaw != sc.yaw:  # (a pose the rays kept is scored already)
                 sc = score_pose(pn, t, yaw, model, cfg)
         fit = sc

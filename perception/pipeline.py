@@ -13,7 +13,6 @@ them, not once each.
 
 from __future__ import annotations
 
-import ctypes
 import math
 from dataclasses import dataclass, field
 from typing import Literal
@@ -75,8 +74,6 @@ class PipelineConfig(BaseModel):
     max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
     max_abs_D_dot_mps: float = Field(15.0, gt=0, description="no sea moves a deck faster: beyond it a D-dot is implausible")
     deck_prior_tol_m: float = Field(0.5, gt=0, description="a deck plane must lie this near its prior (the reflectors' D)")
-    keep_freed_memory: bool = Field(True, description="have the C allocator keep the frames' freed arrays for the "
-                                    "next frame instead of returning them to the system (glibc; see keep_freed_memory)")
 
 
 def doppler_band_mps(radar, cfg: PipelineConfig) -> float:
@@ -84,26 +81,6 @@ def doppler_band_mps(radar, cfg: PipelineConfig) -> float:
     and Doppler bin (a uniform error of bin / sqrt(12)), never below the model's own floor."""
     sigma = math.hypot(radar.range_rate_noise_mps, radar.range_rate_resolution_mps / math.sqrt(12.0))
     return max(cfg.doppler_band_floor_mps, cfg.doppler_band_sigmas * sigma)
-
-
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
-
-
-def keep_freed_memory(mmap_threshold_bytes: int = 16 << 20, trim_threshold_bytes: int = 64 << 20) -> bool:
-    """Have glibc serve arrays below ``mmap_threshold_bytes`` from its heap and keep up to
-    ``trim_threshold_bytes`` of freed heap, process-wide. By default glibc maps large blocks
-    (above 128 KiB, a threshold it raises as they are freed) from the system and trims freed heap
-    back to it, so frame after frame the large arrays (a 128 x 1024 frame's columns, ranges and
-    masks: 0.2-0.7 MB each) are faulted in afresh: measured, 20-250 page faults and up to 1 ms of
-    CPU per LiDAR frame on the development VM (the deck's preprocessing 0.40-0.71 ms -> 0.21-0.39
-    ms). Frames of one sensor have the same size, so the heap settles after the first few. False
-    where there is no glibc mallopt (macOS, musl, Windows): the allocator's defaults stay."""
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError, TypeError):
-        return False
-    mapped = mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold_bytes))
-    return bool(mapped) and bool(mallopt(_M_TRIM_THRESHOLD, int(trim_threshold_bytes)))
 
 
 def carried_deck_prior(cfg: PipelineConfig, t_s: float, last: tuple[float, float] | None) -> tuple[float | None, float]:
@@ -196,8 +173,6 @@ class HeavePipeline:
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
         self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
         self.bias_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
-        if self.cfg.keep_freed_memory:
-            keep_freed_memory()
         if "inlier_threshold_mps" not in self.cfg.doppler.model_fields_set:
             self.cfg = self.cfg.model_copy(update={"doppler": self.cfg.doppler.model_copy(
                 update={"inlier_threshold_mps": doppler_band_mps(installation.radar, self.cfg)})})
@@ -287,6 +262,31 @@ class HeavePipeline:
             fit = planes.get(row.method)
             if row.ok and fit is not None:
                 row.sigma_systematic = attitude_sigma_D(row.value, fit.plane_sensor, wire, self.bias_sigma_rad[frame.sensor])
+        return out
+
+    def levelled_stages(self, frame: Frame, rpy_rad: np.ndarray, last_deck: dict[str, tuple[float, float]]) -> FrameResult:
+        """The deck (and, for a radar frame, the Doppler fit) of a frame levelled with `rpy_rad`
+        instead of the MRU's attitude (a forecast through a gap in its log): the pipeline's own
+        stages, settings and random draws for the frame, reading the pipeline and changing nothing
+        in it. No measurement rows. last_deck: sensor -> (t, D) of the last deck found this way,
+        the deck search's prior before the pipeline's own (updated here)."""
+        times = StageTimes()
+        wire = -np.array(level_rotation_rows(rpy_rad, self._R_crane_sensor_rows[frame.sensor])[2])
+        p_tip = self.p_tip[frame.sensor]
+        rng = self.frame_rng(frame)
+        out = FrameResult(frame, [], times)
+        cfg = self.cfg
+        prior, tol = carried_deck_prior(cfg, frame.t_s, last_deck.get(frame.sensor) or self.last_deck.get(frame.sensor))
+        if frame.sensor == "lidar":
+            out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_lidar, rng, times, "deck",
+                                                prior_D_m=prior, prior_tol_m=tol)
+        else:
+            out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_radar, rng, times, "radar_deck")
+            inputs = doppler_inputs(frame, cfg.doppler_preprocess)
+            if inputs is not None and len(inputs[0]) >= 3:
+                out.doppler = doppler_velocity(inputs[0], inputs[1], cfg.doppler, rng, None)
+        if deck.ok:
+            last_deck[frame.sensor] = (frame.t_s, deck.D_m)
         return out
 
     def frame_rng(self, frame: Frame) -> np.random.Generator:

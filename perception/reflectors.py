@@ -113,7 +113,7 @@ def group_markers(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.nda
 
 
 @lru_cache(maxsize=128)
-def _triplets(m: int, at_most: int = 128) -> np.ndarray:
+def triplets(m: int, at_most: int = 128) -> np.ndarray:
     """Triplets of m markers: all C(m,3) up to `at_most` of them (m <= 10), else a fixed
     design of `at_most` triplets with distinct members, drawn once per m (enumerating
     C(40,3) = 9880 to pick from costs milliseconds, per-frame draws ~60 us). It is a
@@ -128,7 +128,7 @@ def _triplets(m: int, at_most: int = 128) -> np.ndarray:
 
 def plane_through_markers(centroids: np.ndarray, threshold_m: float) -> np.ndarray:
     """RANSAC over marker centroids, the triplets scored at once: the inlier mask of the best plane."""
-    tri = _triplets(len(centroids))
+    tri = triplets(len(centroids))
     corners = centroids[tri]  # (T, 3 corners, 3 axes): one gather
     a = corners[:, 0]
     edges = corners[:, 1:] - a[:, None]  # (T, 2, 3): e1, e2

@@ -206,3 +206,32 @@ def feeder_mru_measurement(x: np.ndarray) -> np.ndarray:
     c, s = math.cos(psi), math.sin(psi)
     w = omega(x[0:6], x[6:12])
     return np.concatenate([euler_rpy(feeder_mru_rotation(x)), [c * w[0] + s * w[1], -s * w[0] + c * w[1], w[2]]])
+
+
+def condition_on(pose_reg: np.ndarray, info6: np.ndarray, z_roll_pitch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The registration's (x, y, yaw) given z, roll and pitch known from elsewhere (the deck):
+    an ICP that tilts a little wrong shifts sideways to make up for it (by the tilt times the
+    structure's height); the Gaussian conditional undoes that: mean - L11^-1 L12 (known - its
+    own). Returns (x, y, yaw) and their information L11."""
+    a, b = [0, 1, 5], [2, 3, 4]
+    L11, L12 = info6[np.ix_(a, a)], info6[np.ix_(a, b)]
+    d = np.asarray(z_roll_pitch, dtype=float) - pose_reg[b]
+    return pose_reg[a] - np.linalg.pinv(L11) @ (L12 @ d), L11
+
+
+def yaw_only(info_xy_yaw: np.ndarray) -> np.ndarray:
+    """The information of (x, y, yaw) kept for the yaw alone, x and y left free: the yaw's
+    Schur complement, as a 3x3 with zero information in x and y."""
+    L = info_xy_yaw[:2, :2]
+    s = info_xy_yaw[2, 2] - info_xy_yaw[2, :2] @ np.linalg.pinv(L) @ info_xy_yaw[:2, 2]
+    return np.diag([0.0, 0.0, max(float(s), 0.0)])
+
+
+def attitude_pose_cov(p_level_m: np.ndarray, angle_var_rad2: float) -> np.ndarray:
+    """(6, 6): the covariance a levelling error (about the level x and y axes, variance
+    angle_var each) puts on a pose whose origin is p_level (from the tip, where the level frame
+    turns): the origin moves by d x p (sideways by its depth times d, vertically by its
+    horizontal offset times d), the roll and pitch by d."""
+    x, y, z = p_level_m
+    J = np.array([[0.0, z], [-z, 0.0], [y, -x], [1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
+    return angle_var_rad2 * (J @ J.T)

@@ -89,3 +89,17 @@ def test_merged_events_are_compact_arrays_in_time_then_sensor_order():
     assert s.tolist() == [0, 1, 2, 0]  # equal times: MRU, encoders, LiDAR
     assert i.tolist() == [1, 0, 0, 2]
     assert (t.dtype, s.dtype, i.dtype) == (np.float64, np.int8, np.int32)
+
+
+def test_the_hoist_at_a_repeated_encoder_stamp_reads_a_row_not_an_empty_slice():
+    """The tracker's hoist reading, from the two encoder rows about t (rosbag readers sort but
+    keep repeated stamps)."""
+    from boomtip.fusion.hook_tracker import HookTracker
+
+    enc_t = np.array([0.0, 0.1, 0.2, 0.2, 0.3])
+    table = np.zeros((5, 3))
+    table[:, 2] = [10.0, 11.0, 12.0, 12.0, 13.0]
+    tracker = HookTracker(enc_t, table, np.array([0.0, 0.3]), np.zeros((2, 4)))
+    assert tracker.hoist_at(0.2) == 12.0
+    assert tracker.hoist_at(0.15) == pytest.approx(11.5)
+    assert tracker.hoist_at(0.3) == 13.0

@@ -8,20 +8,9 @@ import math
 import numpy as np
 import pytest
 from boomtip.perception.feeder import Footprint, centre_line_yaw, plane_in_level
-from boomtip.perception.feeder_registration import (
-    FeederModel,
-    RegistrationConfig,
-    condition_on,
-    icp_refined,
-    inverse,
-    merged_cloud,
-    pose_information,
-    pose_matrix,
-    pose_vector,
-    surface_of,
-    transform,
-    yaw_only,
-)
+from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
+from boomtip.fusion.models.relative_motion import condition_on, yaw_only
+from boomtip.perception.feeder_registration import FeederModel, RegistrationConfig, icp_refined, merged_cloud, pose_information, surface_of
 from boomtip.perception.static_returns import StaticReturns, StaticReturnsConfig
 
 

@@ -365,22 +365,3 @@ def test_normal_rate_fit_equals_a_quadratic_least_squares_fit():
             assert np.all(coef[2] == 0.0)
         assert nr.omega_floats(0.95) == nr.omega(0.95).tolist()
         assert nr.normal_floats(0.95) == nr.normal(0.95).tolist()
-
-
-@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="glibc's mallopt")
-def test_keep_freed_memory_reuses_freed_frames_without_page_faults():
-    """After keep_freed_memory, a 1 MiB array freed and allocated again comes back from the
-    heap: no page faults (by default glibc trims the freed heap and faults it in again: some
-    240 over these 20 on the development VM)."""
-    import resource
-
-    from boomtip.perception.pipeline import keep_freed_memory
-
-    assert keep_freed_memory()
-    a = np.ones(1 << 17)  # 1 MiB: above glibc's default 128 KiB mapping threshold
-    del a
-    faults0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    for _ in range(20):
-        a = np.ones(1 << 17)
-        del a
-    assert resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults0 < 64

@@ -23,7 +23,8 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     from boomtip.data.poses import inverse, pose_matrix, pose_vector
     from boomtip.tools.report.feeder import WARMUP_S, feeder_kpis
     from boomtip.tools.report.feeder_truth import feeder_origin_body, feeder_pose_truth
-    from boomtip.tools.chains.runner import ChainError, build_chain, processing_for
+    from boomtip.tools.chains.chain import ChainError
+    from boomtip.tools.chains.runner import build_chain, processing_for
     from boomtip.tools.chains.ship import ShipChain
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
@@ -52,7 +53,7 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
         t0 = time.perf_counter()
         kiss.register_frame(pts, np.zeros(len(pts)))
         kiss_ms.append((time.perf_counter() - t0) * 1e3)
-        att = chain.feeder.mru.attitude(frame.t_s)
+        att = chain.estimator.mru.attitude(frame.t_s)
         if att is None:
             continue
         R_ls, t_ls = perception.sensor_in_level("lidar", att[0])
@@ -60,7 +61,7 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
         T_ls[:3, :3], T_ls[:3, 3] = R_ls, t_ls
         kiss_t.append(frame.t_s)
         kiss_T.append((T_ls, kiss.last_pose.copy()))
-    result = chain.finish(sim.duration_s, sim.meta.t_start_s)
+    result = chain.finish()
     fres = result.feeder
     p_tip = sim.meta.installation.T_crane_boomtip()[:3, 3]
     kp = feeder_kpis(fres, sim.truth, p_tip)

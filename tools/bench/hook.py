@@ -9,11 +9,11 @@ waits for a core); the peak RSS is read after each part (where the memory goes).
 
 The block segmentation and fit's baseline: on every frame, the stage (perception.hook.detect_hook)
 is run a second time on the same inputs with its block fit and ray steps as they were
-(tools.hook_reference), the two in alternating order; their CPU times give the ratio, and the
+(tools/bench/references/hook.py), the two in alternating order; their CPU times give the ratio, and the
 second run is kept out of the perception's time.
 
 The parts above run one after the other in one process. A run (`boomtip run`) makes a
-simulation's frames and half of its estimators on the second core (tools/hook_workers.py): the
+simulation's frames and half of its estimators on the second core (tools/chains/workers.py, through the run's RunResources): the
 same run is then timed end to end both ways, serial and on two cores, on fresh simulations of the
 same scenario, and their outputs compared.
 """
@@ -40,14 +40,16 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
     from boomtip.tools.config.scenario import load_scenario
     from boomtip.data.sim.sources import simulation_for
     from boomtip.fusion.hook_run import run_hook_filter
-    from boomtip.tools.chains import hook as chain_module
-    from boomtip.tools.chains import workers as workers
+    from boomtip.tools.chains import workers
+    from boomtip.tools.chains.resources import RunResources
     from boomtip.tools.chains.hook_store import EstimateStore
-    from boomtip.tools.chains.runner import ChainError, build_chain, outage_windows, processing_for, run_labels
+    from boomtip.tools.chains.chain import ChainError
+    from boomtip.tools.chains.provenance import outage_windows, run_labels
+    from boomtip.tools.chains.runner import build_chain, processing_for
 
     s = load_scenario(program, [f"duration_s={duration_s}", *(overrides or [])])
     sim = simulation_for(s)
-    chain = build_chain(sim, processing_for(sim))
+    chain = build_chain(sim, processing_for(sim), RunResources(lean=True))
     if chain.name != "hook":
         raise ChainError(f"{program}: not a hook scenario (its chain is {chain.name}); bench hook runs hook-1, hook-2, ...")
     wall_sim = wall_perc = cpu_sim = cpu_perc = 0.0
@@ -55,38 +57,34 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
     stage_ms: dict[str, list[float]] = defaultdict(list)
     frames = 0
     ref = {"current_cpu_s": 0.0, "reference_cpu_s": 0.0, "reference_wall_s": 0.0, "frames": 0, "same": 0}
-    current_detect = chain_module.detect_hook
-    chain_module.detect_hook = _with_reference(current_detect, ref)
-    try:
-        it = iter(sim)
-        while True:
-            t0, c0 = time.perf_counter(), cpu()
-            frame = next(it, None)
-            wall_sim += time.perf_counter() - t0
-            cpu_sim += cpu() - c0
-            if frame is None:
-                break
-            t0, c0 = time.perf_counter(), cpu()
-            res = chain.process(frame)
-            wall_perc += time.perf_counter() - t0
-            cpu_perc += cpu() - c0
-            if res is not None and res.times is not None:
-                frames += 1
-                for k in set(BLOCK_STAGES + ROPE_STAGES) | set(res.times.ms):
-                    stage_ms[k].append(res.times.ms.get(k, 0.0))
-    finally:
-        chain_module.detect_hook = current_detect
+    chain.pipeline.detect = _with_reference(chain.pipeline.detect, ref)
+    it = iter(sim)
+    while True:
+        t0, c0 = time.perf_counter(), cpu()
+        frame = next(it, None)
+        wall_sim += time.perf_counter() - t0
+        cpu_sim += cpu() - c0
+        if frame is None:
+            break
+        t0, c0 = time.perf_counter(), cpu()
+        res = chain.process(frame)
+        wall_perc += time.perf_counter() - t0
+        cpu_perc += cpu() - c0
+        if res is not None and res.times is not None:
+            frames += 1
+            for k in set(BLOCK_STAGES + ROPE_STAGES) | set(res.times.ms):
+                stage_ms[k].append(res.times.ms.get(k, 0.0))
     wall_perc -= ref["reference_wall_s"]  # the baseline's second run is not the chain's time
     cpu_perc -= ref["reference_cpu_s"]
     rss_frames = _peak_rss_mb()
     t0, c0 = time.perf_counter(), cpu()
     with workers.serial():  # each estimator's own cost; the two-core run is timed below
-        result = chain.finish(sim.duration_s, sim.meta.t_start_s)
+        result = chain.finish()
     wall_filters, cpu_filters = time.perf_counter() - t0, cpu() - c0
     rss_filters = _peak_rss_mb()
     t0, c0 = time.perf_counter(), cpu()
     with tempfile.TemporaryDirectory() as tmp:
-        chain.write(Path(tmp), result)
+        chain.outputs(Path(tmp), result)
         kpis = {**run_labels(sim, chain.name), **chain.kpis(result, sim.truth, outage_windows(sim))}
         chain.report(Path(tmp), kpis, result, sim.truth)
     wall_out, cpu_out = time.perf_counter() - t0, cpu() - c0
@@ -185,7 +183,8 @@ def _serial_against_two_cores(program: str, duration_s: float, overrides: list[s
     their outputs are the same apart from the timings."""
     from boomtip.tools.config.scenario import load_scenario
     from boomtip.data.sim.sources import simulation_for
-    from boomtip.tools.chains import workers as workers
+    from boomtip.tools.chains import workers
+    from boomtip.tools.chains.resources import RunResources
     from boomtip.tools.chains.runner import run_into
 
     wall: dict[str, list[float]] = {"serial": [], "two_cores": []}
@@ -200,7 +199,7 @@ def _serial_against_two_cores(program: str, duration_s: float, overrides: list[s
             out.mkdir()
             t0, c0, o0 = time.perf_counter(), _cpu_with_children(), time.process_time()
             with workers.serial() if label == "serial" else contextlib.nullcontext():
-                run_into(sim, out, report=True)
+                run_into(sim, out, report=True, resources=RunResources(lean=True))
             wall[label].append(time.perf_counter() - t0)
             cpu[label].append(_cpu_with_children() - c0)
             own[label].append(time.process_time() - o0)
@@ -225,7 +224,7 @@ def _whole_command(program: str, duration_s: float, overrides: list[str] | None)
     import subprocess
     import sys
 
-    from boomtip.tools.chains.runner import ChainError
+    from boomtip.tools.chains.chain import ChainError
 
     wall = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -273,15 +272,14 @@ def _with_reference(detect, block: dict):
     with the reference block fit and ray steps, in alternating order, from the second frame on;
     counts the frames whose fixes agree to 1e-9 m."""
     from boomtip.perception.timing import StageTimes
-    from boomtip.tools.bench.references.hook import reference_stage
+    from boomtip.tools.bench.references.hook import REFERENCE_STEPS
 
     def run(ref: bool, args, state, times, kw):
         rng = np.random.default_rng()
         rng.bit_generator.state = state
         w0, c0 = time.perf_counter(), time.process_time()
         if ref:
-            with reference_stage():
-                det = detect(*args, rng, StageTimes(), **kw)
+            det = detect(*args, rng, StageTimes(), steps=REFERENCE_STEPS, **kw)
             block["reference_wall_s"] += time.perf_counter() - w0
             block["reference_cpu_s"] += time.process_time() - c0
         else:

@@ -22,7 +22,7 @@ from boomtip.tools.config.processing import Processing
 from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
 from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
-from boomtip.tools.chains.runner import ChainError
+from boomtip.tools.chains.chain import ChainError
 from boomtip.tools.report.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
 
 MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
@@ -69,14 +69,19 @@ class HeaveChain:
         self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
                       if inst.attitude == "level" else [])
         self.source_notes = source.meta.notes  # the loader may add to it while frames are read
+        self.duration_s, self.t_start_s = source.duration_s, source.meta.t_start_s
+
+    def frames(self, source: FrameSource):
+        return iter(source)
 
     def process(self, frame: Frame) -> FrameResult:
         res = self.pipeline.process(frame)
         self.rows.extend(res.measurements)
         return res
 
-    def finish(self, duration_s: float, t_start_s: float = 0.0) -> HeaveResult:
-        duration = max((r.t_s for r in self.rows), default=0.0) if duration_s <= 0 else duration_s
+    def finish(self) -> HeaveResult:
+        t_start_s = self.t_start_s
+        duration = max((r.t_s for r in self.rows), default=0.0) if self.duration_s <= 0 else self.duration_s
         meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
         have = {m.source for m in meas}
         ran = {r.method for r in self.rows}
@@ -98,7 +103,7 @@ class HeaveChain:
         return HeaveResult(self.rows, estimates, sources, warnings)
 
     # -- outputs -------------------------------------------------------------------------
-    def write(self, out: Path, result: HeaveResult) -> list[str]:
+    def outputs(self, out: Path, result: HeaveResult) -> list[str]:
         write_measurements(out / "measurements.csv", result.rows)
         write_estimates(out / "estimates.csv", result.estimates)
         return ["measurements.csv", "estimates.csv"]

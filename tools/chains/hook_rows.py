@@ -6,12 +6,18 @@ a chunk of records at a time."""
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 
 import numpy as np
 
-__all__ = ["FrameRows", "COLUMNS", "DiskTable"]
+from boomtip.data.meshes import Label
+from boomtip.perception.hook import HookDetection, segmentation_scores
+from boomtip.perception.rope import RopeFix
+
+__all__ = ["FrameRows", "COLUMNS", "DiskTable", "ROW_DEFAULTS", "frame_row", "fill_prediction", "fill_rope", "fill_block",
+           "fill_scores"]
 
 FLOAT = ("t", "x", "y", "z", "sigma_x_m", "sigma_y_m", "sigma_z_m", "fit_rms_m", "precision", "recall", "pred_x",
          "pred_y", "pred_z", "pred_sigma_across_m", "rope_ux", "rope_uy", "rope_uz", "rope_sigma_across_m",
@@ -31,6 +37,48 @@ COV, ROPE_DIR, ROPE_COV = slice(len(NUMERIC), len(NUMERIC) + 9), slice(len(NUMER
     slice(len(NUMERIC) + 12, len(NUMERIC) + 21)
 RECORD = len(NUMERIC) + 21
 CHUNK = 1024  # records buffered before a write, and read back at a time
+ROW_DEFAULTS = {"x": np.nan, "y": np.nan, "z": np.nan, "sigma_x_m": np.nan, "sigma_y_m": np.nan, "sigma_z_m": np.nan,
+                "n_points": 0, "fit_rms_m": np.nan, "precision": np.nan, "recall": np.nan, "hook_points_true": 0,
+                "tracker_accepted": False, "pred_x": np.nan, "pred_y": np.nan, "pred_z": np.nan,
+                "pred_sigma_across_m": np.nan, "rope_status": "", "rope_points": 0, "rope_ux": np.nan,
+                "rope_uy": np.nan, "rope_uz": np.nan, "rope_sigma_across_m": np.nan, "rope_accepted": False,
+                "rope_precision": np.nan, "rope_radius_m": np.nan}
+
+
+def frame_row(t_s: float) -> dict:
+    """A frame's row before anything is known of it."""
+    return {"t": t_s, **ROW_DEFAULTS}
+
+
+def fill_prediction(row: dict, p_pred: np.ndarray, sigma_across_m: float) -> None:
+    row["pred_x"], row["pred_y"], row["pred_z"] = p_pred
+    row["pred_sigma_across_m"] = sigma_across_m
+
+
+def fill_rope(row: dict, rope: RopeFix, hoist_m: float) -> None:
+    row["rope_status"], row["rope_points"] = rope.status, rope.n_points
+    if rope.ok:
+        row["rope_ux"], row["rope_uy"], row["rope_uz"] = rope.direction
+        row["rope_radius_m"] = rope.radius_m
+        row["rope_sigma_across_m"] = hoist_m * math.sqrt(float(np.linalg.eigvalsh(rope.cov)[-1]))
+
+
+def fill_block(row: dict, det: HookDetection, cov_m2: np.ndarray) -> None:
+    row["status"], row["n_points"], row["fit_rms_m"] = det.status, det.n_points, det.fit_rms_m
+    if det.has_fix:
+        row["x"], row["y"], row["z"] = det.position_m
+        row["sigma_x_m"], row["sigma_y_m"], row["sigma_z_m"] = np.sqrt(np.diag(cov_m2))
+
+
+def fill_scores(row: dict, det: HookDetection, rope: RopeFix | None, labels: np.ndarray | None) -> None:
+    """The segmentation's precision and recall against the per-point truth labels, which only
+    simulated recordings carry (scoring, never an input)."""
+    if labels is None:
+        return
+    row["precision"], row["recall"] = segmentation_scores(det.points_mask, labels)
+    row["hook_points_true"] = int(np.count_nonzero(labels == Label.HOOK))
+    if rope is not None and rope.ok:
+        row["rope_precision"] = float(np.mean(labels[rope.mask] == Label.ROPE))
 
 
 class FrameRows:

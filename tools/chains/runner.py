@@ -1,9 +1,10 @@
 """The one runner: for each frame of the source, `chain.process(frame)`; then the chain's
-outputs; scoring only when the source has truth.
+outputs; scoring only when the source has truth. It knows chains only through their protocol
+(tools/chains/chain.py).
 
-A chain (heave, hook) is built from the source's installation and the processing settings,
-never from the simulated world. Everything is written into a staging folder and moved into
-place at the end.
+A chain (heave, ship, hook) is built from the source's installation and the processing settings,
+never from the simulated world, and the run's resources (how it uses memory and cores).
+Everything is written into a staging folder and moved into place at the end.
 """
 
 from __future__ import annotations
@@ -18,18 +19,13 @@ from pydantic import ValidationError
 from boomtip.data.frames import FrameSource
 from boomtip.data.io.recording import RecordingError, commit_output, prepare_output, write_json
 from boomtip.data.keys import format_validation, leaf_keys
+from boomtip.tools.chains.chain import Chain, NullVisualiser
+from boomtip.tools.chains.heave import HeaveChain
+from boomtip.tools.chains.hook import HookChain
+from boomtip.tools.chains.provenance import outage_windows, run_labels
+from boomtip.tools.chains.resources import RunResources
+from boomtip.tools.chains.ship import ShipChain
 from boomtip.tools.config.processing import Processing
-
-
-class ChainError(ValueError):
-    """A chain cannot be built from what the source provides: the message names the key."""
-
-
-class NullVisualiser:
-    """The visualiser when none is wanted: every logging call does nothing."""
-
-    def __getattr__(self, name: str) -> Callable[..., None]:
-        return lambda *args, **kwargs: None
 
 
 @dataclass
@@ -51,48 +47,24 @@ def processing_for(source: FrameSource, processing: Processing | None = None) ->
                                                keys=leaf_keys(Processing(), "processing"))) from None
 
 
-def build_chain(source: FrameSource, processing: Processing):
+def build_chain(source: FrameSource, processing: Processing, resources: RunResources | None = None) -> Chain:
     """The chain for this source: `processing.chain`, else the hook chain when the source has
     an encoder stream and the heave chain otherwise; with a LiDAR (and `feeder.enabled`), the
     feeder's 6-DOF chain runs beside the heave chain."""
     kind = processing.chain or ("hook" if source.encoders is not None else "heave")
     if kind == "hook":
-        from boomtip.tools.chains.hook import HookChain
-
-        return HookChain(source, processing)
-    inst = source.meta.installation
-    if processing.feeder.enabled and inst.lidar.enabled:
-        from boomtip.tools.chains.ship import ShipChain
-
+        return HookChain(source, processing, resources)
+    if processing.feeder.enabled and source.meta.installation.lidar.enabled:
         return ShipChain(source, processing)
-    from boomtip.tools.chains.heave import HeaveChain
-
     return HeaveChain(source, processing)
 
 
-def run_labels(source: FrameSource, chain: str) -> dict:
-    """What kpis.json says the run was: the source's name, the chain and, for a simulated
-    source, its seed and hook programme (from the provenance: labels for the report, never
-    an input of processing)."""
-    prov = source.meta.provenance or {}
-    labels = {"scenario": source.meta.name, "seed": prov.get("seed"), "duration_s": source.duration_s, "chain": chain}
-    program = ((prov.get("world") or {}).get("hook") or {}).get("program")
-    if chain == "hook" and program:
-        labels["program"] = program
-    return labels
-
-
-def outage_windows(source: FrameSource, sensors: tuple[str, ...] = ("lidar", "radar", "mru")) -> list[tuple[float, float]]:
-    """The simulated sensors' outage windows (from the provenance: for scoring only)."""
-    world = (source.meta.provenance or {}).get("world") or {}
-    return sorted(tuple(w) for s in sensors for w in (world.get(s) or {}).get("outages_s", []))
-
-
 def run(source: FrameSource, out: Path, force: bool = False, processing: Processing | None = None, rerun: bool = False,
-        report: bool = True, inputs: tuple[Path, ...] = (), progress: Callable[[int], None] | None = None) -> RunResult:
+        report: bool = True, inputs: tuple[Path, ...] = (), progress: Callable[[int], None] | None = None,
+        resources: RunResources | None = None) -> RunResult:
     staging = prepare_output(out, force, inputs)
     try:
-        result = run_into(source, staging, processing, rerun, report, progress)
+        result = run_into(source, staging, processing, rerun, report, progress, resources)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -101,17 +73,20 @@ def run(source: FrameSource, out: Path, force: bool = False, processing: Process
 
 
 def run_into(source: FrameSource, staging: Path, processing: Processing | None = None, rerun: bool = False,
-             report: bool = True, progress: Callable[[int], None] | None = None) -> RunResult:
-    chain = build_chain(source, processing_for(source, processing))
+             report: bool = True, progress: Callable[[int], None] | None = None,
+             resources: RunResources | None = None) -> RunResult:
+    resources = resources or RunResources()
+    resources.start()
+    chain = build_chain(source, processing_for(source, processing), resources)
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
     frames = 0
-    for frame in (chain.frames(source) if hasattr(chain, "frames") else source):
+    for frame in chain.frames(source):
         viz.log_frame(chain.process(frame))
         frames += 1
         if progress:
             progress(1)
-    result = chain.finish(source.duration_s, source.meta.t_start_s)
-    written = chain.write(staging, result)
+    result = chain.finish()
+    written = chain.outputs(staging, result)
     kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth, outage_windows(source))}
     if frames == 0:
         kpis.setdefault("warnings", []).append(f"{source.meta.name}: no frame to process (an empty recording?): "

@@ -1,20 +1,32 @@
-"""Ship-to-ship transfer: the heave chain and, when the installation has a LiDAR, the feeder's
-6-DOF chain beside it, on the same frames (the feeder chain reuses the heave chain's deck and
-Doppler stages). Outputs, kpis and report are the heave chain's plus the feeder's.
+"""Ship-to-ship transfer: the relative heave (the heave chain) and, when the installation has a
+LiDAR, the feeder's 6-DOF motion beside it on the same frames. The feeder pipeline reuses the
+heave pipeline's deck and Doppler stages; its estimator fuses what it measures.
+
+Outputs, kpis and report are the heave chain's plus the feeder's:
+OUT/feeder_estimates.csv          the feeder frame in the heading frame at the tip, offline definition
+OUT/feeder_estimates_online.csv   the same rows as a live controller had them
+OUT/feeder_calibration.csv        the feeder frame's definition over the run
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, Truth
-from boomtip.tools.config.processing import Processing
+from boomtip.data.poses import inverse, pose_vector
+from boomtip.fusion.feeder_estimator import DeckMeasurement, FeederEstimator, RadarOffsetConfig
+from boomtip.perception.feeder import FeederPerception, LidarObservation, RadarObservation
+from boomtip.perception.feeder_pipeline import FeederPipeline
 from boomtip.perception.pipeline import FrameResult
-from boomtip.tools.chains.feeder import FeederChain, FeederResult
 from boomtip.tools.chains.heave import HeaveChain, HeaveResult
+from boomtip.tools.chains.provenance import outage_windows
+from boomtip.tools.config.processing import Processing
+from boomtip.tools.report import feeder as feeder_outputs
+from boomtip.tools.report.feeder import FeederResult
 
 
 @dataclass
@@ -23,73 +35,138 @@ class ShipResult:
     feeder: FeederResult
 
 
+def deck_measurement(obs: LidarObservation | RadarObservation) -> DeckMeasurement | None:
+    """A frame's deck plane as the estimator takes it: with its spin when the returns' times gave one."""
+    spin, plane = (obs.spin if isinstance(obs, LidarObservation) else None), obs.plane
+    if plane is None:
+        return None
+    if spin is not None:  # the spin's plane: at the frame's time, not at its returns' mean time
+        return DeckMeasurement(spin.abc, spin.cov, plane.normal, spin.rates)
+    return DeckMeasurement(plane.abc, plane.cov, plane.normal)
+
+
 class ShipChain:
-    name = "heave"
+    name = "heave"  # kpis.json's chain: the heave chain's figures, with the feeder's beside them
 
     def __init__(self, source: FrameSource, processing: Processing) -> None:
         self.heave = HeaveChain(source, processing)
-        self.feeder = FeederChain(source, processing)
-        self.feeder.gap.pipeline = self.heave.pipeline  # its stages run on frames in an MRU gap (feeder_mru_gap)
+        inst, cfg = source.meta.installation, processing.feeder
+        rr = cfg.radar_registration
+        self.estimator = FeederEstimator(source.mru, inst, cfg, RadarOffsetConfig(rr.enabled, rr.after_s, rr.learn_every,
+                                         rr.offset_frames, rr.min_offset_frames, rr.max_sigma_m), source.feeder_mru)
+        stages = FeederPerception(inst, cfg.perception, self.estimator.rates_averaged_over, self.estimator.noise.angle_rad)
+        self.pipeline = FeederPipeline(inst, cfg, stages, processing.seed, heave=self.heave.pipeline)
         self.source = source
-        self.p_tip_crane_m = source.meta.installation.T_crane_boomtip()[:3, 3]
+        self.p_tip_crane_m = inst.T_crane_boomtip()[:3, 3]
+        self.missing: list[tuple[float, str, str]] = []  # frames the feeder could not use: (t, sensor, why)
+        self.frame_ms: list[float] = []
 
+    def frames(self, source: FrameSource):
+        return iter(source)
+
+    # -- per frame -------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
-        res = self.heave.process(frame)
-        self.feeder.process(frame, res)
-        return res
+        heave = self.heave.process(frame)
+        if frame.error is not None or len(frame) == 0:
+            self.missing.append((frame.t_s, frame.sensor, frame.error or "empty frame"))
+            return heave
+        att = self.estimator.attitude(frame.t_s, frame.sensor)
+        if att is None:
+            self.missing.append((frame.t_s, frame.sensor, "no MRU attitude"))
+            return heave
+        for obs in self.pipeline.observe(frame, heave, att):
+            self._fuse(obs)
+        return heave
 
-    def finish(self, duration_s: float, t_start_s: float = 0.0) -> ShipResult:
-        return ShipResult(self.heave.finish(duration_s, t_start_s), self.feeder.finish())
+    def _fuse(self, obs: LidarObservation | RadarObservation) -> None:
+        if isinstance(obs, LidarObservation):
+            t0 = time.perf_counter()
+            self._lidar(obs)
+            self.frame_ms.append(obs.ms + (time.perf_counter() - t0) * 1e3)
+        elif self.estimator.started:
+            self._radar(obs)
 
-    def write(self, out: Path, result: ShipResult) -> list[str]:
-        from boomtip.tools.report.feeder import write_feeder_estimates, write_feeder_online
+    def _lidar(self, obs: LidarObservation) -> None:
+        est, pipe = self.estimator, self.pipeline
+        pipe.next_lidar_frame()
+        if not est.lidar_deck(obs.t_s, obs.tip_level, obs.tip_velocity, obs.t_level_sensor, obs.noise, deck_measurement(obs)):
+            if est.started:  # a frame without a deck: its structure has nothing to stand on
+                est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
+            return
+        T_map_level = est.map_pose()
+        structure = pipe.structure(obs, T_map_level, est.deck_plane())
+        reg = pipe.register(obs, structure, T_map_level, est.registration_sigma_m())
+        if reg is not None:
+            est.update_registration(obs.t_s, pose_vector(inverse(reg.T_map_level)), reg.info6, pipe.young_model, obs.noise)
+        pipe.keep(obs, structure, reg, est.map_pose(), est.position_sigma_x_m())
+        est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
 
-        written = self.heave.write(out, result.heave)
-        write_feeder_estimates(out / "feeder_estimates.csv", result.feeder)
-        return written + ["feeder_estimates.csv"] + write_feeder_online(out, result.feeder)
+    def _radar(self, obs: RadarObservation) -> None:
+        est = self.estimator
+        if obs.velocity_level is None and obs.plane is None:
+            self.missing.append((obs.t_s, "radar", obs.status))  # its detections may still register below
+        est.predict(obs.t_s, obs.tip_level, obs.tip_velocity, obs.noise)
+        est.update_radar(obs.t_s, obs.velocity_level, obs.velocity_cov, obs.xi_level, deck_measurement(obs), obs.noise)
+        wanted = est.radar_registration_wanted(obs.t_s)
+        reg = self.pipeline.register_radar(obs, est.filter.x[:6], count_failure=wanted == "update") if wanted else None
+        if reg is not None:
+            est.radar_registration(wanted, reg.x_y_yaw, reg.info)
+        est.record(obs.t_s, "radar", obs.tip_velocity, obs.lidar_level, self.pipeline.edges_known)
+
+    # -- at the end ------------------------------------------------------------------------
+    def finish(self) -> ShipResult:
+        for obs in self.pipeline.ready():  # a run shorter than the warm-up: what the static test has
+            self._fuse(obs)
+        model_points = self.pipeline.finish()
+        est = self.estimator.finish(self.pipeline.lines, self.pipeline.hull_yaws)
+        started = np.isfinite(est.t_definition_s)
+        feeder = FeederResult(**vars(est), frame_ms=self.frame_ms, missing=self.missing + self.pipeline.missing,
+                              model_points_map=model_points if started else None, merges=self.pipeline.merges.records)
+        return ShipResult(self.heave.finish(), feeder)
+
+    def outputs(self, out: Path, result: ShipResult) -> list[str]:
+        heave, feeder = result.heave, result.feeder
+        written = self.heave.outputs(out, heave)
+        feeder_outputs.write_feeder_estimates(out / "feeder_estimates.csv", feeder)
+        return written + ["feeder_estimates.csv"] + feeder_outputs.write_feeder_online(out, feeder)
 
     def kpis(self, result: ShipResult, truth: Truth | None, windows=()) -> dict:
-        from boomtip.tools.report.feeder import feeder_kpis
-
-        kpis = self.heave.kpis(result.heave, truth, windows)
-        fused = result.heave.estimates.get("fused")
+        heave, feeder = result.heave, result.feeder
+        kpis = self.heave.kpis(heave, truth, windows)
+        fused = heave.estimates.get("fused")
         heave_D = (fused.t_s, fused.x[:, 0]) if fused is not None else None
-        from boomtip.tools.chains.runner import outage_windows
-
-        kpis["feeder"] = feeder_kpis(result.feeder, truth, self.p_tip_crane_m, windows, heave_D,
-                                     outage_windows(self.source, ("mru",)))
+        kpis["feeder"] = feeder_outputs.feeder_kpis(feeder, truth, self.p_tip_crane_m, windows, heave_D,
+                                                    outage_windows(self.source, ("mru",)))
         return kpis
 
     def report(self, out: Path, kpis: dict, result: ShipResult, truth: Truth | None) -> list[str]:
-        from boomtip.tools.report.feeder import report_section, write_feeder_plot
-        from boomtip.tools.chains.runner import outage_windows
-
-        written = self.heave.report(out, kpis, result.heave, truth)
+        heave, feeder = result.heave, result.feeder
+        written = self.heave.report(out, kpis, heave, truth)
         report = out / "report.md"
         if report.exists():
             with open(report, "a", encoding="utf-8") as fh:
-                fh.write(report_section(kpis, outage_windows(self.source)))
-        plot = write_feeder_plot(out, result.feeder, truth, self.p_tip_crane_m)
+                fh.write(feeder_outputs.report_section(kpis, outage_windows(self.source)))
+        plot = feeder_outputs.write_feeder_plot(out, feeder, truth, self.p_tip_crane_m)
         return written + ([] if plot is None or "plots" in written else ["plots"])
 
     def visualiser(self, path: Path, source: FrameSource):
         return self.heave.visualiser(path, source)
 
     def visualise_result(self, viz, result: ShipResult, truth: Truth | None) -> None:
-        from boomtip.tools.report.feeder import log_feeder, truth_of
-
-        self.heave.visualise_result(viz, result.heave, truth)
-        res = result.feeder
-        truth_pose = truth_of(res, truth, self.p_tip_crane_m)[0] if truth is not None and "feeder_x" in truth.columns and len(res.t_s) else None
+        heave, res = result.heave, result.feeder
+        self.heave.visualise_result(viz, heave, truth)
+        truth_pose = (feeder_outputs.truth_of(res, truth, self.p_tip_crane_m)[0]
+                      if truth is not None and "feeder_x" in truth.columns and len(res.t_s) else None)
         mru = self.source.mru
 
         def yaw(t: float) -> float:
             att = mru.attitude(t)
             return float(att[0][2]) if att is not None else 0.0
 
-        log_feeder(viz, res, res.model_points_map, res.T_map_feeder, truth_pose, yaw, mesh_feeder=self._feeder_mesh(truth, res))
+        feeder_outputs.log_feeder(viz, res, res.model_points_map, res.T_map_feeder, truth_pose, yaw,
+                                  mesh_feeder=self._visualised_feeder_mesh(truth, res))
 
-    def _feeder_mesh(self, truth: Truth | None, res) -> tuple[np.ndarray, np.ndarray] | None:
+    def _visualised_feeder_mesh(self, truth: Truth | None, res: FeederResult) -> tuple[np.ndarray, np.ndarray] | None:
         """The simulated feeder's mesh in the feeder frame as the truth defines it (its body axes,
         origin below the tip at the first frame), for the recording only; None for a recording
         of a real run or one without the feeder's truth."""

@@ -10,7 +10,6 @@ and not threads: the simulator and the filters are mostly small numpy calls hold
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import multiprocessing as mp
 import os
 import signal
@@ -20,7 +19,7 @@ from typing import Callable, Iterator, Sequence
 
 from boomtip.data.frames import Frame, FrameSource
 
-__all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost", "release_free_memory"]
+__all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost"]
 
 FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (hook-2: 0.6 MB each)
 _serial_depth = 0
@@ -41,28 +40,6 @@ def parallel_enabled() -> bool:
     """A second core to use, the fork start method (Linux), and not inside `serial()`."""
     return (_serial_depth == 0 and len(os.sched_getaffinity(0)) > 1
             and "fork" in mp.get_all_start_methods())
-
-
-def _libc_malloc_trim():
-    try:  # the process's own symbols, as perception.pipeline.keep_freed_memory looks up mallopt
-        trim = ctypes.CDLL(None).malloc_trim
-    except (OSError, AttributeError, TypeError):  # not glibc
-        return None
-    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int  # int malloc_trim(size_t pad)
-    return trim
-
-
-_MALLOC_TRIM = _libc_malloc_trim()
-
-
-def release_free_memory() -> None:
-    """Give the heap's free pages back to the system (glibc's malloc_trim; nothing elsewhere).
-    glibc keeps what a run freed inside its heap, and once its threshold for mapping blocks on
-    their own has risen (to the largest block freed, up to 32 MB) a run's arrays come from that
-    heap: the freed holes a long run left then stayed in its memory to the end, the report's
-    peak included. Freed pages are returned, not the heap's layout: a few ms a call."""
-    if _MALLOC_TRIM is not None:
-        _MALLOC_TRIM(0)
 
 
 def _as_child() -> None:

@@ -21,6 +21,12 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud 
 app.add_typer(bench_app, name="bench")
 
 
+LeanOpt = typer.Option(True, "--lean/--plain", help="lean (default): a long run's memory flat in its length and both "
+                       "cores used (per-run tables on disk, a simulation's frames and the hook estimators in child "
+                       "processes, freed heap returned to the system); plain: everything in this process's memory. The "
+                       "outputs are the same.")
+
+
 @app.callback()
 def _main(
     no_thread_tuning: bool = typer.Option(False, "--no-thread-tuning", help="Keep the environment's BLAS and OpenMP "
@@ -146,11 +152,12 @@ def feeder_online_line(f: dict) -> str | None:
     return f"  online (causal calibration): position RMSE x/y/z {mm} mm, angles r/p/y {deg} deg, NEES {o['nees_mean']:.2f} (6)"
 
 
-def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=()) -> None:
+def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=(), lean: bool = True) -> None:
+    from boomtip.tools.chains.resources import RunResources
     from boomtip.tools.chains.runner import run
 
     with progress_bar(len(source), "processing") as advance:
-        result = run(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance)
+        result = run(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance, resources=RunResources(lean=lean))
     _print_kpis(result.kpis)
     console.print(f"\nwrote {out}: " + ", ".join(result.written))
 
@@ -164,13 +171,14 @@ def run(
     set_: Optional[list[str]] = SetOpt,
     rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+    lean: bool = LeanOpt,
 ) -> None:
     """Simulate a scenario in memory and run perception + fusion on it (no recording on disk)."""
     from boomtip.data.sim.sources import simulation_for
 
     with user_errors():
         s = resolve_scenario(scenario, set_, duration, seed)
-        _run_and_report(simulation_for(s), out, force, rerun)
+        _run_and_report(simulation_for(s), out, force, rerun, lean=lean)
 
 
 @app.command()
@@ -189,6 +197,7 @@ def process(
     every: int = typer.Option(1, "--every", help="Every N-th frame of each sensor."),
     rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
+    lean: bool = LeanOpt,
 ) -> None:
     """Run perception + fusion on a recording (any format the loaders read)."""
     from boomtip.data.io.installation_file import load_installation
@@ -197,7 +206,7 @@ def process(
     with user_errors():
         inst = load_installation(installation) if installation else None
         source = open_source(recording, format, inst, start, duration, every, topics=parse_topics(topic), meta=meta)
-        _run_and_report(source, out, force, rerun, inputs=(recording,))
+        _run_and_report(source, out, force, rerun, inputs=(recording,), lean=lean)
 
 
 @app.command("installation")

@@ -15,7 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from boomtip.data.io.pcd import PcdError
 from boomtip.data.io.recording import RecordingError
 from boomtip.tools.config.scenario import ScenarioError, load_scenario
-from boomtip.tools.chains.runner import ChainError
+from boomtip.tools.chains.chain import ChainError
 
 console = Console(stderr=True, soft_wrap=True)
 

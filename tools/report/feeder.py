@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,9 @@ from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.data.sim.world import in_windows  # the scored windows, from the world's provenance
 from boomtip.fusion.models.relative_motion import deck_plane
-from boomtip.tools.chains.feeder import FeederResult
+from boomtip.fusion.feeder_estimator import FeederEstimate
 from boomtip.fusion.feeder_frame import HISTORY_COLUMNS, UPDATE_EVERY_S, CausalEstimates
+from boomtip.perception.feeder_merges import MergeRecord
 from boomtip.tools.report.feeder_truth import (
     POSE,
     feeder_origin_body,
@@ -34,6 +36,16 @@ DOC004 = {
     "T2 tracker off (MRUs only)": {"rms_mm": (9.17, 7.59, 18.63), "max_mm": (22.96, 13.69, 46.54), "rms_deg": (0.04, 0.10, 0.11), "max_deg": (0.09, 0.17, 0.24)},
     "T3 tracker back": {"rms_mm": (1.51, 1.32, 1.98), "max_mm": (9.96, 9.89, 7.40), "rms_deg": (0.06, 0.07, 0.05), "max_deg": (0.13, 0.14, 0.15)},
 }
+
+
+@dataclass
+class FeederResult(FeederEstimate):
+    """The feeder's estimate and what its pipeline reports of the run."""
+
+    frame_ms: list[float] = field(default_factory=list)  # wall time per LiDAR frame (feeder stages, the deck stage it reuses, merge waits)
+    missing: list[tuple[float, str, str]] = field(default_factory=list)  # (t, sensor, why)
+    model_points_map: np.ndarray | None = None  # the model's points, for the display
+    merges: list[MergeRecord] = field(default_factory=list)  # the model's merges (inline, or beside the frames)
 
 
 def write_feeder_estimates(path: Path, res: FeederResult | CausalEstimates) -> None:
@@ -84,7 +96,7 @@ def _figures(err_pose: np.ndarray, err_rate: np.ndarray, var: np.ndarray) -> dic
 
 def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray, windows=(), heave_D: tuple | None = None,
                 mru_windows=()) -> dict:
-    """mru_windows: the crane MRU's outages alone, scored as `mru_outage` (tools/feeder_mru_gap)."""
+    """mru_windows: the crane MRU's outages alone, scored as `mru_outage` (fusion/feeder_estimator)."""
     apt = float(np.mean(res.frame_ms)) if res.frame_ms else float("nan")
     waits = [m.wait_s for m in res.merges]
     out: dict = {"apt_ms": round(apt, 3), "apt_ms_p95": round(float(np.percentile(res.frame_ms, 95)), 3) if res.frame_ms else None,
@@ -205,7 +217,7 @@ def report_section(kpis: dict, windows=()) -> str:
     if windows:
         row("boomtip, inside the outage windows", f.get("outage"))
         row("boomtip, outside them", f.get("outside_outage"))
-        row("boomtip, inside the crane MRU's gaps (its attitude predicted, tools/feeder_mru_gap)", f.get("mru_outage"))
+        row("boomtip, inside the crane MRU's gaps (its attitude predicted, fusion/feeder_estimator)", f.get("mru_outage"))
     for name, d in DOC004.items():
         lines.append(f"| 004 {name} (x10) | {' / '.join(f'{10 * x:.1f}' for x in d['rms_mm'])} | "
                      f"{' / '.join(f'{10 * x:.1f}' for x in d['max_mm'])} | {' / '.join(f'{x:.2f}' for x in d['rms_deg'])} | "

@@ -139,6 +139,7 @@ def run_task(task: Task) -> dict:
     row: dict = {"task": task.id, **task.grid, "seed": task.seed, "status": "ok", "error": ""}
     t0 = time.perf_counter()
     try:
+        from boomtip.tools.chains.resources import RunResources
         from boomtip.tools.chains.runner import run_into
 
         if task.recording is not None:
@@ -154,7 +155,7 @@ def run_task(task: Task) -> dict:
             extra += list(task.overrides)
             source = simulation_for(load_scenario(task.scenario, extra))
         with tempfile.TemporaryDirectory() as tmp:
-            res = run_into(source, Path(tmp), report=False)
+            res = run_into(source, Path(tmp), report=False, resources=RunResources(lean=True))
         row.update({k: v for k, v in flatten(res.kpis).items() if k not in row})
     except Exception as exc:  # a failed run is a row; the study goes on
         row["status"] = "failed"

@@ -134,21 +134,20 @@ def test_the_levelling_calibration_takes_out_the_rigs_tilt(tmp_path):
 
 
 def test_a_first_frame_without_structure_is_no_keyframe():
+    from boomtip.tools.chains.ship import ShipChain
     from boomtip.tools.config.processing import Processing
-    from boomtip.tools.chains.feeder import FeederChain
-    from boomtip.tools.chains.heave import HeaveChain
 
     sim = Simulation(load_scenario("sts-loaded", ["duration_s=8"]))
-    heave, feeder = HeaveChain(sim, Processing()), FeederChain(sim, Processing())
+    chain = ShipChain(sim, Processing())
     first = True
     for frame in sim:
-        res = heave.process(frame)
         if frame.sensor == "lidar" and first:  # the first LiDAR frame sees only the deck
             first = False
             keep = np.abs(frame.points_sensor[:, 0] - np.median(frame.points_sensor[:, 0])) < 0.3
             frame.points_sensor = frame.points_sensor[keep]
-        feeder.process(frame, res)
-    out = feeder.finish()
+            frame.fields = {k: v[keep] for k, v in frame.fields.items()}
+        chain.process(frame)
+    out = chain.finish().feeder
     assert out.counts.get("registration", {}).get("accepted", 0) > 20
 
 
@@ -213,7 +212,7 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
     res = short_run[1].result.feeder
     sim = Simulation(load_scenario("sts-loaded", ["duration_s=14"]))
     chain = build_chain(sim, processing_for(sim))
-    vertices, triangles = chain._feeder_mesh(sim.truth, res)
+    vertices, triangles = chain._visualised_feeder_mesh(sim.truth, res)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
     model_feeder = transform(inverse(res.T_map_feeder), res.model_points_map).astype(np.float32)
@@ -242,147 +241,18 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
     assert ("tip/feeder/estimate", "columns", False) in logged and ("tip/feeder/truth", "columns", False) in logged
     assert not any(kind == "Points3D" for _, kind, _ in logged)
     # a real recording has no mesh: the chain's model as points instead
-    assert build_chain(sim, processing_for(sim))._feeder_mesh(None, res) is None
+    assert build_chain(sim, processing_for(sim))._visualised_feeder_mesh(None, res) is None
 
 # -- the model's merges beside the frames ----------------------------------------------------
 
-def _structure(seed: int) -> np.ndarray:
-    """A deck with a bulwark along x and a container end wall across it: x, y and yaw pinned."""
-    r = np.random.default_rng(seed)
-    deck = np.column_stack([r.uniform(-20, 20, 1500), r.uniform(-8, 8, 1500), np.zeros(1500)])
-    wall = np.column_stack([r.uniform(-20, 20, 600), np.full(600, 8.0), r.uniform(0, 1.5, 600)])
-    end = np.column_stack([np.full(400, 5.0), r.uniform(-2, 2, 400), r.uniform(0, 2.6, 400)])
-    return np.vstack([deck, wall, end]) + r.normal(0, 0.005, (2500, 3))
-
-
-def _model_with(n_frames: int, merges=(4, 8), lags=(2, 4)):
-    from boomtip.perception.feeder_registration import FeederModel, RegistrationConfig
-
-    with pytest.raises(ValueError, match="at least 0"):
-        RegistrationConfig(model_merges=merges, merge_lag_frames=(2, -1))
-    model = FeederModel(RegistrationConfig(model_merges=merges, merge_lag_frames=lags))
-    model.set_keyframe(_structure(0), np.eye(4))
-    due = [model.collect(_structure(k), np.eye(4)) for k in range(1, n_frames)]
-    return model, due
-
-
-def test_a_merge_runs_beside_the_frames_and_is_taken_at_its_frame_waiting_for_it(monkeypatch):
-    """A merge of 4 frames at a lag of 2 is taken two LiDAR frames later, not before even when it
-    is done, and the chain waits there when it is not; a frame collected meanwhile follows the
-    merged ones with its own pose."""
-    import time
-
-    from boomtip.tools.chains import feeder_merge
-
-    model, due = _model_with(4)
-    assert due == [False, False, True]
-    real = feeder_merge.merged_model
-    monkeypatch.setattr(feeder_merge, "merged_model", lambda *a: (time.sleep(0.4), real(*a))[1])
-    merges = feeder_merge.BackgroundMerges(model)
-    merges.next_frame()
-    surface_before = model.surface
-    snapshot = model.merge_inputs()
-    merges.start()
-    T_meanwhile = np.eye(4)
-    T_meanwhile[0, 3] = 0.123
-    assert not model.collect(_structure(9), T_meanwhile)
-    merges.next_frame()  # one frame later: not yet, whether done or not
-    assert model.surface is surface_before and model.model_frames == 1 and merges.records[0].status == "running"
-    merges.next_frame()  # two frames later: taken, after waiting for the worker
-    rec = merges.records[0]
-    assert rec.status == "ok" and (rec.started_frame, rec.taken_frame) == (1, 3)
-    assert rec.wait_s > 0.2 and rec.worker_s > 0.4
-    assert model.surface is not surface_before and model.model_frames == 4 and not model.merged
-    assert len(model.collected) == 5 and model.collected[4][1][0, 3] == 0.123  # the frame collected meanwhile
-    # the poses are those the same merge gives inline, to the bit, and within 2 mm of where they were
-    inline = real(*snapshot, model.cfg).poses
-    assert all(np.array_equal(T, A) for (_, T), A in zip(model.collected[:4], inline))
-    assert max(np.abs(T - np.eye(4)).max() for _, T in model.collected[:4]) < 2e-3
-    merges.close()
-
-
-def test_a_failed_merge_keeps_the_old_model_and_says_why(monkeypatch):
-    from boomtip.tools.chains import feeder_merge
-
-    def broken(*_):
-        raise RuntimeError("no overlap at all")
-
-    monkeypatch.setattr(feeder_merge, "merged_model", broken)
-    model, _ = _model_with(4)
-    merges = feeder_merge.BackgroundMerges(model)
-    surface_before = model.surface
-    merges.start()
-    merges.next_frame()
-    merges.next_frame()
-    rec = merges.records[0]
-    assert rec.status == "failed: RuntimeError: no overlap at all" and rec.taken_frame == -1
-    assert model.surface is surface_before and model.model_frames == 1 and not model.merged
-    # the chain goes on: the next merge is due at 8 frames and runs
-    monkeypatch.undo()
-    assert [model.collect(_structure(k), np.eye(4)) for k in range(4, 8)] == [False, False, False, True]
-    merges.start()
-    for _ in range(4):
-        merges.next_frame()
-    assert merges.records[1].status == "ok" and model.model_frames == 8 and model.merged
-
-
-def test_a_new_keyframe_drops_the_merge_of_the_old_model():
-    from boomtip.tools.chains.feeder_merge import BackgroundMerges
-
-    model, _ = _model_with(4)
-    merges = BackgroundMerges(model)
-    merges.start()
-    model.set_keyframe(_structure(5), np.eye(4))
-    surface = model.surface
-    merges.next_frame()
-    merges.next_frame()
-    assert merges.records[0].status.startswith("dropped: a new keyframe") and model.surface is surface
-    assert model.model_frames == 1 and len(model.collected) == 1
-
-
 BESIDE = (2, 5, 50, 100)  # merges beside the frames (the default is inline)
-
-
-def test_a_merge_done_early_is_still_taken_only_at_its_frame():
-    from boomtip.tools.chains import feeder_merge
-
-    model, _ = _model_with(4)
-    merges = feeder_merge.BackgroundMerges(model)
-    merges.next_frame()
-    surface_before = model.surface
-    merges.start()
-    merges._pending[0].result()  # the worker is done
-    merges.next_frame()
-    assert model.surface is surface_before and merges.records[0].status == "running"
-    merges.next_frame()
-    assert model.surface is not surface_before and merges.records[0].status == "ok"
-    merges.close()
-
-
-def test_a_failed_merge_of_an_old_keyframe_leaves_the_new_model_alone(monkeypatch):
-    """The last merge fails after a new keyframe was taken: the new model is not frozen."""
-    from boomtip.tools.chains import feeder_merge
-
-    model, _ = _model_with(8)  # the 8-frame merge, the last one, is due
-    monkeypatch.setattr(feeder_merge, "merged_model", lambda *a: (_ for _ in ()).throw(MemoryError("merge")))
-    merges = feeder_merge.BackgroundMerges(model)
-    merges.start()
-    model.set_keyframe(_structure(20), np.eye(4))
-    merges.next_frame()
-    merges.next_frame()
-    merges.next_frame()
-    merges.next_frame()
-    assert merges.records[-1].status.startswith("dropped: a new keyframe")
-    assert not model.merged and model.collected  # the new model still grows and merges
-    merges.close()
-
 
 def test_merges_beside_the_frames_repeat_bit_for_bit_however_slow(tmp_path, monkeypatch):
     """The same run with each merge's worker slowed by 1.5 s: the chain waits at the taking
     frames, and its estimates are byte for byte the first run's."""
     import time
 
-    from boomtip.tools.chains import feeder_merge
+    from boomtip.perception import feeder_merges as feeder_merge
 
     beside = ["duration_s=14", f"processing.feeder.perception.registration.merge_lag_frames={list(BESIDE)}"]
     res1 = run(Simulation(load_scenario("sts-loaded", beside)), tmp_path / "fast", report=False)
@@ -402,7 +272,7 @@ def test_merges_beside_the_frames_repeat_bit_for_bit_however_slow(tmp_path, monk
 
 
 def test_a_run_whose_merges_fail_goes_on_with_its_keyframe(tmp_path, monkeypatch):
-    from boomtip.tools.chains import feeder_merge
+    from boomtip.perception import feeder_merges as feeder_merge
 
     def broken(*_):
         raise MemoryError("merge")

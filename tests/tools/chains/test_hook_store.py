@@ -217,16 +217,3 @@ def test_a_disk_table_reads_back_its_rows_by_slices(monkeypatch):
     with pytest.raises(TypeError):
         disk[::2]
     disk.close()
-
-
-def test_the_hoist_at_a_repeated_encoder_stamp_reads_a_row_not_an_empty_slice():
-    from types import SimpleNamespace
-
-    from boomtip.tools.chains.hook import HookChain
-    enc_t = np.array([0.0, 0.1, 0.2, 0.2, 0.3])
-    table = np.zeros((5, 3))
-    table[:, 2] = [10.0, 11.0, 12.0, 12.0, 13.0]
-    chain = SimpleNamespace(enc_t=enc_t, enc_table=table)
-    assert HookChain._hoist_at(chain, 0.2) == 12.0
-    assert HookChain._hoist_at(chain, 0.15) == pytest.approx(11.5)
-    assert HookChain._hoist_at(chain, 0.3) == 13.0

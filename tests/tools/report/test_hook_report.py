@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from boomtip.tools.report import hook as hook_outputs
-from boomtip.tools.chains.hook import ROW_DEFAULTS
+from boomtip.tools.chains.hook_rows import ROW_DEFAULTS
 from boomtip.tools.chains.hook_rows import FrameRows
 
 

@@ -18,7 +18,7 @@ from boomtip.perception.reflectors import (
     INTENSITY_REFERENCE_RANGE_M,
     ReflectorConfig,
     ReflectorResult,
-    _triplets,
+    triplets,
     intensity_threshold,
 )
 from boomtip.perception.timing import StageTimes
@@ -78,7 +78,7 @@ def group_markers(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.nda
 
 
 def plane_through_markers(centroids: np.ndarray, threshold_m: float) -> np.ndarray:
-    tri = _triplets(len(centroids))
+    tri = triplets(len(centroids))
     a = centroids[tri[:, 0]]
     e1 = centroids[tri[:, 1]] - a
     e2 = centroids[tri[:, 2]] - a

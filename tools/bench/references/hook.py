@@ -6,7 +6,6 @@ Not used by any run."""
 
 from __future__ import annotations
 
-import contextlib
 import math
 
 import numpy as np
@@ -16,22 +15,10 @@ from boomtip.data.block_model import AMBIGUOUS_SHIFTS_M, BODY_XY_M
 from boomtip.perception.hook_block import BlockModel, block_model, hanging_pose, rot_z, rotation_hanging
 from boomtip.perception.hook_fit import BlockFit, initial_guesses
 from boomtip.perception.hook_rays import RayEvidence, prior_nats, ray_sigma
+from boomtip.perception.hook import BlockSteps
 from boomtip.perception.hook_types import HookConfig
 
-__all__ = ["reference_stage", "fit_block", "ray_pick", "ray_refine"]
-
-
-@contextlib.contextmanager
-def reference_stage():
-    """Within it, perception.hook.detect_hook runs the block fit and the ray steps below."""
-    from boomtip.perception import hook as stage
-
-    saved = stage.fit_block, stage.ray_pick, stage.ray_refine
-    stage.fit_block, stage.ray_pick, stage.ray_refine = fit_block, ray_pick, ray_refine
-    try:
-        yield
-    finally:
-        stage.fit_block, stage.ray_pick, stage.ray_refine = saved
+__all__ = ["REFERENCE_STEPS", "fit_block", "ray_pick", "ray_refine"]
 
 
 def icp_4dof(p: np.ndarray, t0: np.ndarray, yaw0: float, model: BlockModel, cfg: HookConfig,
@@ -186,3 +173,6 @@ def ray_refine(rays: RayEvidence, t0: np.ndarray, yaw0: float, half1: float, mod
     sd = float(np.sqrt(np.max(w @ (((refs - t_m) @ E) ** 2))))
     return t_m, float(w @ yaws), sd
 
+
+# the reference block fit and ray steps, for perception.hook.detect_hook's `steps`
+REFERENCE_STEPS = BlockSteps(fit_block, ray_pick, ray_refine)

@@ -1,0 +1,209 @@
+"""The feeder's perception per frame: cloud in, what it says of the feeder's pose out.
+
+    LiDAR frame -> levelled, the deck plane (refitted from the heave pipeline's deck, with its
+                   spin), the structure off the deck (static returns and the own vessel removed),
+                   registered to the feeder's model (keyframe, frames merged), the hull edges
+    radar frame -> the feeder point's velocity (from the heave pipeline's Doppler fit), the
+                   radar's deck plane, its detections registered to the model
+
+The first `static.warmup_s` of frames are held back: until then nothing says which returns are
+static in the sensor frame; `observe` then hands them over in order, and frames from there on
+as they come. Registration starts from the estimator's prediction (`register`), and the model
+grows from the estimate after its update (`keep`): the pipeline holds the model, the estimator
+the state. Through a gap in the crane MRU's log the deck and Doppler stages run on the frame
+levelled with the forecast attitude (HeavePipeline.levelled_stages), and every covariance
+carries the forecast's noise.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from boomtip.data.frames import Frame, LevellingAttitude
+from boomtip.data.installation import Installation
+from boomtip.data.poses import transform
+from boomtip.perception.feeder import FeederConfig, FeederPerception, Footprint, LidarObservation, RadarObservation, centre_line_yaw
+from boomtip.perception.feeder_merges import BackgroundMerges
+from boomtip.perception.feeder_radar import RadarRegistration, RadarRegistrationConfig, register_radar
+from boomtip.perception.feeder_registration import FeederModel, Registration6
+from boomtip.perception.pipeline import FrameResult, HeavePipeline
+from boomtip.perception.static_returns import StaticReturns
+
+__all__ = ["FeederPipelineConfig", "FeederPipeline", "DECK_STAGES"]
+
+# the heave pipeline's deck stages, which the feeder reuses: counted in the feeder's frame time
+DECK_STAGES = ("deck.preprocess", "deck.planes", "deck.refine", "deck.intersect")
+FEEDER_SEED_SALT = 13  # the run's seed and this: the pipeline's own random draws (centre lines)
+# a keyframe that fits the frames badly is renewed only once the estimate is this sure of x (m)
+REKEY_MAX_SIGMA_M = 0.05
+
+
+class FeederPipelineConfig(BaseModel):
+    """The pipeline's settings (`processing.feeder.*`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    perception: FeederConfig = FeederConfig()
+    register_xy_after_frames: int = Field(50, ge=1, description="a registration's x and y update the filter once the model is "
+                                          "merged from this many frames, its yaw from the first: against a model of few "
+                                          "viewpoints they are biased (sts-irregular seed 7: 5 cm in y against one frame)")
+    rekey_after_failures: int = Field(20, ge=1, description="registrations failed in a row before a new keyframe is taken")
+    centre_line_every: int = Field(5, ge=1, description="the hull edge is looked for every this many LiDAR frames")
+    hull_edge_min_points: int = Field(200, ge=10, description="the own hull's edge among the static returns counts with this "
+                                      "many points on it (the calibration's rotation about the vertical)")
+    hull_edge_frames: int = Field(30, ge=3, description="the own hull's edge is looked for in this many frames (it is static: "
+                                  "their spread was 0.0001 deg)")
+    radar_registration: RadarRegistrationConfig = RadarRegistrationConfig()
+
+
+class FeederPipeline:
+    """Built from the installation (mounts, tip, the radar's stated noise), the settings, the
+    attitude's nominal noise, the run's seed and the heave pipeline whose deck and Doppler
+    stages it reuses."""
+
+    def __init__(self, installation: Installation, cfg: FeederPipelineConfig, stages: FeederPerception, seed: int,
+                 heave: HeavePipeline | None = None) -> None:
+        self.cfg = cfg
+        self.stages = stages
+        self.static = StaticReturns(cfg.perception.static)
+        self.model = FeederModel(cfg.perception.registration)
+        self.merges = BackgroundMerges(self.model)
+        # frames the model must be merged from before a registration's x and y update the filter:
+        # at most its last merge's (no merges at all: the first keyframe's one frame)
+        self.xy_after_frames = min(cfg.register_xy_after_frames, max(cfg.perception.registration.model_merges, default=1))
+        self.rng = np.random.default_rng([seed, FEEDER_SEED_SALT])
+        self.heave = heave
+        self.forecast_decks: dict[str, tuple[float, float]] = {}  # the decks found with a forecast levelling
+        self.detection_sigma = (installation.radar.range_noise_m, math.radians(installation.radar.azimuth_noise_deg),
+                                math.radians(installation.radar.elevation_noise_deg))
+        self.queue: list[LidarObservation | RadarObservation] = []
+        self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck
+        self.failed_registrations = 0  # in a row: after rekey_after_failures a new keyframe is taken
+        self.lines: list[tuple[float, int]] = []  # the centre line's yaw in the map frame, every few frames
+        self.hull_yaws: list[float] = []  # the own hull's edge in the level frame, every few frames
+        self.lidar_frames = 0
+        self.missing: list[tuple[float, str, str]] = []  # (t, sensor, why)
+
+    # -- per frame -----------------------------------------------------------------------
+    def observe(self, frame: Frame, heave: FrameResult | None, att: LevellingAttitude) -> list[LidarObservation | RadarObservation]:
+        """The frame's observation, levelled with `att`; returns the observations ready to fuse,
+        in time order (none during the warm-up, then all those held back)."""
+        if att.forecast_var is not None and self.heave is not None:
+            heave = self.heave.levelled_stages(frame, att.rpy_rad, self.forecast_decks)
+        t0 = time.perf_counter()
+        if frame.sensor == "lidar":
+            obs = self.stages.lidar(frame.t_s, frame.points_sensor, att.rpy_rad, att.rpy_rate_radps,
+                                    heave.deck_lidar if heave is not None else None, frame.fields.get("t"), att.noise)
+            obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
+            if obs.plane is None:
+                self.missing.append((obs.t_s, "lidar", obs.status))
+            # the feeder's time per LiDAR frame: this, the fusion's, and the deck stage it reuses
+            obs.ms = (time.perf_counter() - t0) * 1e3 + (heave.times.total(*DECK_STAGES) if heave is not None else 0.0)
+        else:
+            obs = self.stages.radar(frame.t_s, att.rpy_rad, att.rpy_rate_radps, heave.doppler if heave is not None else None,
+                                    heave.deck_radar if heave is not None else None, frame.points_sensor, att.noise)
+        self.queue.append(obs)
+        return self.ready() if self.static.ready else []
+
+    def ready(self) -> list[LidarObservation | RadarObservation]:
+        """The observations held back (at the end of a run shorter than the warm-up: with what
+        the static test has)."""
+        out, self.queue = self.queue, []
+        return out
+
+    def next_lidar_frame(self) -> None:
+        """At the start of each LiDAR frame's fusion: a merge of the model due now becomes it."""
+        self.merges.next_frame()
+
+    def structure(self, obs: LidarObservation, T_map_level: np.ndarray, deck_abc: np.ndarray) -> np.ndarray:
+        """The frame's structure (level frame) off the deck plane `deck_abc`, over the feeder's
+        footprint (taken from the first deck, placed in the map by T_map_level), static returns
+        removed."""
+        if self.footprint is None and obs.plane is not None and obs.plane.points_level is not None:
+            deck_map = transform(T_map_level, obs.plane.points_level)
+            self.footprint = Footprint(deck_map[:, :2], self.cfg.perception.footprint_margin_m)
+        keys = obs.static_keys
+        return self.stages.structure(obs, deck_abc, self.footprint, T_map_level,
+                                     is_static=lambda rows: self.static.static_mask(obs.sample_returns_sensor, keys, rows))
+
+    def register(self, obs: LidarObservation, structure: np.ndarray, T_map_level_guess: np.ndarray,
+                 prior_sigma_m: float) -> Registration6 | None:
+        """The structure registered to the model from the guess; None when there is nothing to
+        register to (the frame becomes the first keyframe, or a new one after
+        `rekey_after_failures` failures) or the registration failed (counted as missing)."""
+        if self.model.empty or self.failed_registrations >= self.cfg.rekey_after_failures:
+            if len(structure) >= self.model.cfg.min_points:  # a keyframe with too little to register to is no model
+                self.model.set_keyframe(structure, T_map_level_guess)
+                self.failed_registrations = 0
+            return None
+        reg = self.model.register(structure, T_map_level_guess, prior_sigma_m)
+        if reg.status != "ok":
+            self.failed_registrations += 1
+            self.missing.append((obs.t_s, "lidar", f"registration: {reg.status}"))
+            return None
+        return reg
+
+    @property
+    def young_model(self) -> bool:
+        """A model merged from fewer than `register_xy_after_frames` frames: its few viewpoints
+        bias a registration's x and y."""
+        return self.model.model_frames < self.xy_after_frames
+
+    def keep(self, obs: LidarObservation, structure: np.ndarray, reg: Registration6 | None, T_map_level: np.ndarray,
+             sigma_x_m: float) -> None:
+        """After the estimate's update (T_map_level, its x sigma): a registered frame grows the
+        model (collected for its merges, the keyframe filled or renewed); every few frames the
+        feeder's centre line and the own hull's edge are looked for."""
+        if reg is not None:
+            if self.model.collect(structure, T_map_level):
+                self.merges.start()
+            if self.model.keyframe_size < self.model.cfg.keyframe_frames:
+                self.model.extend_keyframe(structure, T_map_level)
+                self.model.keyframe_size += 1
+            elif reg.fitness < self.model.cfg.min_fitness and sigma_x_m < REKEY_MAX_SIGMA_M:
+                self.model.set_keyframe(structure, T_map_level)
+            self.failed_registrations = 0
+        if self.lidar_frames % self.cfg.centre_line_every == 0 and len(structure):
+            line = centre_line_yaw(transform(T_map_level, structure), self.rng)  # in the map frame, at the estimate's pose
+            if line is not None:
+                self.lines.append(line)
+            # the own hull's side among the static returns (a wall: a line in plan), for the
+            # calibration's rotation about the vertical
+            if len(self.hull_yaws) < self.cfg.hull_edge_frames:  # a constant: a few dozen frames pin it
+                mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
+                static_level = obs.sample_sensor[mask] @ obs.R_level_sensor.T + obs.t_level_sensor
+                hull = centre_line_yaw(static_level, self.rng, band_m=(-np.inf, np.inf))
+                if hull is not None and hull[1] >= self.cfg.hull_edge_min_points:
+                    self.hull_yaws.append(hull[0])
+        obs.static_keys = None
+        self.lidar_frames += 1
+
+    @property
+    def edges_known(self) -> tuple[int, int]:
+        """How many centre lines and own-hull edges have been found so far."""
+        return len(self.lines), len(self.hull_yaws)
+
+    def register_radar(self, obs: RadarObservation, pose_guess: np.ndarray, count_failure: bool) -> RadarRegistration | None:
+        """The radar's detections registered to the model (x, y, yaw from the pose guess's z,
+        roll, pitch); None without detections, before the model is merged from
+        `min_model_frames`, or when it fails (counted as missing when `count_failure`)."""
+        cfg = self.cfg.radar_registration
+        if (not cfg.enabled or obs.detections_sensor is None or len(obs.detections_sensor) == 0
+                or self.model.surface is None or self.model.model_frames < cfg.min_model_frames):
+            return None
+        reg = register_radar(self.model.surface, obs.detections_sensor, obs.R_level_sensor, obs.xi_level,
+                             self.detection_sigma, pose_guess, cfg)
+        if reg.status != "ok":
+            if count_failure:
+                self.missing.append((obs.t_s, "radar", reg.status))
+            return None
+        return reg
+
+    def finish(self) -> np.ndarray | None:
+        """At the end of the run: merges still running stopped; the model's points (map frame)."""
+        self.merges.close()
+        return np.asarray(self.model.keyframe.points) if not self.model.empty else None

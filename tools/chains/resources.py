@@ -1,0 +1,107 @@
+"""How a run uses the machine: memory and cores. One small strategy the chains ask, so that the
+per-frame code never decides it.
+
+`RunResources()` (a library user's default) keeps everything in this process's memory and
+runs everything here, leaving the C allocator as the process has it. `RunResources(lean=True)` (the
+command line's runs) keeps a run's memory flat in its length and uses both cores:
+  - per-run tables (encoders, MRU) on disk, read back by row slices (chains.hook_rows.DiskTable);
+  - a simulation's frames made in a forked child while this process perceives, and independent
+    estimators shared between two forked children (chains.workers); the children run exactly
+    the code a serial run would, so outputs do not depend on it;
+  - glibc's free heap returned to the system every TRIM_EVERY_FRAMES frames and before forks
+    (malloc_trim), and freed frames kept for the next one (mallopt: keep_freed_memory).
+"""
+
+from __future__ import annotations
+
+import ctypes
+from dataclasses import dataclass
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
+
+from boomtip.data.frames import Frame, FrameSource
+from boomtip.data.sim.simulator import Simulation
+from boomtip.tools.chains import workers
+from boomtip.tools.chains.hook_rows import DiskTable
+
+__all__ = ["RunResources", "keep_freed_memory", "release_free_memory", "TRIM_EVERY_FRAMES"]
+
+TRIM_EVERY_FRAMES = 200  # the heap's free pages returned every this many frames (10 s at 20 Hz)
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
+KEEP_MMAP_THRESHOLD_BYTES = 16 << 20
+KEEP_TRIM_THRESHOLD_BYTES = 64 << 20
+
+
+def _libc(name: str):
+    try:  # the process's own symbols: glibc's where the process has it
+        return getattr(ctypes.CDLL(None), name)
+    except (OSError, AttributeError, TypeError):  # not glibc (macOS, musl, Windows)
+        return None
+
+
+def keep_freed_memory(mmap_threshold_bytes: int = KEEP_MMAP_THRESHOLD_BYTES,
+                      trim_threshold_bytes: int = KEEP_TRIM_THRESHOLD_BYTES) -> bool:
+    """Have glibc serve arrays below ``mmap_threshold_bytes`` from its heap and keep up to
+    ``trim_threshold_bytes`` of freed heap, process-wide. By default glibc maps large blocks
+    (above 128 KiB, a threshold it raises as they are freed) from the system and trims freed heap
+    back to it, so frame after frame the large arrays (a 128 x 1024 frame's columns, ranges and
+    masks: 0.2-0.7 MB each) are faulted in afresh: 20-250 page faults and up to 1 ms of CPU per
+    LiDAR frame (the deck's preprocessing 0.40-0.71 ms -> 0.21-0.39 ms). Frames of one sensor
+    have the same size, so the heap settles after the first few. False where there is no glibc
+    mallopt: the allocator's defaults stay."""
+    mallopt = _libc("mallopt")
+    if mallopt is None:
+        return False
+    mapped = mallopt(M_MMAP_THRESHOLD, int(mmap_threshold_bytes))
+    return bool(mapped) and bool(mallopt(M_TRIM_THRESHOLD, int(trim_threshold_bytes)))
+
+
+_MALLOC_TRIM = _libc("malloc_trim")
+if _MALLOC_TRIM is not None:
+    _MALLOC_TRIM.argtypes, _MALLOC_TRIM.restype = [ctypes.c_size_t], ctypes.c_int  # int malloc_trim(size_t pad)
+
+
+def release_free_memory() -> None:
+    """Give the heap's free pages back to the system (glibc's malloc_trim; nothing elsewhere).
+    glibc keeps what a run freed inside its heap, and once its threshold for mapping blocks on
+    their own has risen (to the largest block freed, up to 32 MB) a run's arrays come from that
+    heap: the freed holes a long run left then stayed in its memory to the end, the report's
+    peak included. Freed pages are returned, not the heap's layout: a few ms a call."""
+    if _MALLOC_TRIM is not None:
+        _MALLOC_TRIM(0)
+
+
+@dataclass(frozen=True)
+class RunResources:
+    lean: bool = False
+
+    def start(self) -> None:
+        """At the start of a run: the allocator keeps freed frames for the next (lean only)."""
+        if self.lean:
+            keep_freed_memory()
+
+    def table(self, array: np.ndarray) -> np.ndarray | DiskTable:
+        """A per-run table read by row slices: on disk when lean."""
+        return DiskTable(array) if self.lean else np.asarray(array, float)
+
+    def frames(self, source: FrameSource) -> Iterator[Frame]:
+        """The source's frames; a simulation's made ahead in a forked child when lean."""
+        if self.lean and workers.parallel_enabled() and isinstance(source, Simulation):
+            return workers.frames_in_child(source)
+        return iter(source)
+
+    def map_split(self, names: Sequence[str], costs: dict[str, float], work: Callable[[str], object]) -> dict[str, object]:
+        """{name: work(name)}: shared by cost between two forked children when lean."""
+        if self.lean:
+            return workers.run_split(names, costs, work)
+        return {name: work(name) for name in names}
+
+    def frame_done(self, frames: int) -> None:
+        if self.lean and frames % TRIM_EVERY_FRAMES == 0:
+            release_free_memory()
+
+    def release(self) -> None:
+        """Before a fork or a run's peak (its outputs): freed heap back to the system (lean only)."""
+        if self.lean:
+            release_free_memory()
