@@ -306,13 +306,26 @@ def test_the_deck_planes_rate_is_that_of_the_plane_moving_with_the_state():
     assert abs(deck_plane_rate(x, tip)[2] - (x[8] - tip[2])) < 0.2  # mostly the heave rate less the tip's
 
 
+# numeric_jacobian's and deck_plane_rate's default steps
+JACOBIAN_STEP = 1e-6
+RATE_STEP_S = 1e-2
+
+
 def test_the_spins_jacobian_matches_differences_over_pose_and_rates_but_yaw():
     x = _rigid_state()
     tip = np.array([0.1, -0.3, 0.4])
     h = lambda z: np.concatenate([deck_plane(z), deck_plane_rate(z, tip)])
     num = numeric_jacobian(h, x, np.r_[0:5, 6:11])
     J = deck_spin_jacobian(x, tip)
-    assert np.allclose(J, num, rtol=1e-6, atol=1e-7)
+    # The reference differences deck_plane_rate, itself a central difference over RATE_STEP_S:
+    # four plane evaluations, each good to a few ulps of the plane's size (c = 44 m; the slopes'
+    # intermediates are of order 1), divided by 2 JACOBIAN_STEP and 2 RATE_STEP_S. Truncation is
+    # far below that: the plane is smooth over 1e-6 steps, and J's rate columns (the plane's pose
+    # Jacobian) are exact to (rate dt)^2 ~ 4e-8 of themselves.
+    plane_size = np.maximum(np.abs(np.r_[deck_plane(x), deck_plane(x)]), 1.0)
+    roundoff = 4 * np.finfo(float).eps * plane_size / (JACOBIAN_STEP * RATE_STEP_S)
+    assert np.all(np.abs(J - num) <= roundoff[:, None] + 1e-7 * np.abs(num))
+    assert roundoff.max() < 1e-5  # a tolerance that still tells a wrong column (entries of order 0.01-1)
     assert np.all(J[:, [5, 11]] == 0.0) and np.all(J[:, 12:] == 0.0) and J[5, 8] == pytest.approx(1.0)  # the heave rate
 
 
