@@ -1,23 +1,26 @@
 # boomtip: `make run` sets everything up and runs the main job on the default scenario;
-# `make test` sets everything up and runs the tests. Both are idempotent.
+# `make test` sets everything up and runs the tests. Both are idempotent, and both install the
+# versions in requirements.lock (`make lock` resolves them afresh, deliberately).
 PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 OUT    ?= runs/sts-loaded
 SCENARIO ?= sts-loaded
+LOCK    = requirements.lock
+PIP     = $(BIN)/python -m pip install -q --disable-pip-version-check
+# the pcap decoder's test reference (ouster-sdk 1.0's own loader), installed without its pins:
+# psutil<6 and rosbags==0.9.23 clash with rerun-sdk's and ours, and reading a pcap needs neither
+REFERENCE = ouster-sdk more-itertools
 
-.PHONY: setup run test bench clean
+.PHONY: setup run test test-fast bench lock clean
 
-OUSTER_SDK ?= ouster-sdk==1.0.1
-
-$(BIN)/boomtip: pyproject.toml Makefile
+$(BIN)/boomtip: pyproject.toml $(LOCK) Makefile
 	bash tools/install_system_deps.sh
-	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "boomtip needs Python >= 3.11, found " + sys.version' 
+	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "boomtip needs Python >= 3.11, found " + sys.version'
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[test,ouster]"
-	# without its pins, which conflict with rerun-sdk's (see pyproject.toml)
-	$(BIN)/python -m pip install -q --no-deps "$(OUSTER_SDK)"
+	$(PIP) -c $(LOCK) pip
+	$(PIP) -c $(LOCK) -e ".[test]"
+	$(PIP) -c $(LOCK) --no-deps $(REFERENCE)
 	@touch $(BIN)/boomtip
 
 setup: $(BIN)/boomtip
@@ -27,6 +30,9 @@ run: setup
 
 test: setup
 	$(BIN)/python -m pytest
+
+test-fast: setup
+	$(BIN)/python -m pytest -m "not slow"
 
 bench: setup
 	$(BIN)/boomtip bench raycast --json runs/bench/raycast.json --force
@@ -38,5 +44,18 @@ bench: setup
 	$(BIN)/boomtip bench hook --json runs/bench/hook.json --force
 	$(BIN)/boomtip bench feeder --json runs/bench/feeder.json --force
 
+# Resolve every dependency afresh (the newest releases pyproject.toml allows) into $(LOCK). Run
+# `make test` on the result before committing it: the lock holds the versions that passed.
+lock:
+	rm -rf .venv-lock
+	$(PYTHON) -m venv .venv-lock
+	.venv-lock/bin/python -m pip install -q --upgrade pip
+	.venv-lock/bin/python -m pip install -q ".[test]"
+	.venv-lock/bin/python -m pip install -q --no-deps $(REFERENCE)
+	.venv-lock/bin/python -m pip freeze --all --exclude-editable | grep -v -i '^boomtip[= ]' > $(LOCK).new
+	mv $(LOCK).new $(LOCK)
+	rm -rf .venv-lock
+	@echo "wrote $(LOCK): now run make test (it reinstalls from the lock)"
+
 clean:
-	rm -rf $(VENV) runs *.egg-info
+	rm -rf $(VENV) .venv-lock runs *.egg-info
