@@ -153,6 +153,7 @@ def test_nan_measurement_leaves_the_state_finite():
     assert np.all(np.isfinite(f.x)) and f.out.counts["deck_lidar"]["bad"] == 1
 
 
+@pytest.mark.slow
 def test_covariance_grows_through_a_dropout_and_is_honest():
     """A stationary-in-distribution Singer process tracked with deck planes, then 5 s without
     any: the position error stays within the reported 3 sigma in >= 97 % of 200 seeds' ends."""
@@ -258,6 +259,7 @@ def _mru_run(with_mru: bool, seed: int = 3):
     return f, (psi_off, psi_body, tilt), errors
 
 
+@pytest.mark.slow
 def test_a_feeder_mru_learns_its_offsets_and_holds_the_attitude_without_the_deck():
     f, (psi_off, psi_body, tilt), errors = _mru_run(True)
     x, s = f.offsets()

@@ -64,6 +64,7 @@ def _mae(est, truth, col):
     return np.nanmean(np.abs(est.x[keep, col] - truth.at("D" if col == 0 else "D_dot", est.t_s[keep])))
 
 
+@pytest.mark.slow
 def test_fused_solution_meets_its_targets(loaded_rows):
     s, truth, rows = loaded_rows
     est = run_solution("fused", _fusion_inputs(rows), FusionConfig(), 12.0)
@@ -101,6 +102,7 @@ def test_estimates_cover_every_tick_of_the_output_grid(loaded_rows):
     np.testing.assert_array_equal(est.t_s, np.arange(1201) / 100.0)
 
 
+@pytest.mark.slow
 def test_run_and_process_write_their_outputs(tmp_path):
     rec, out1, out2 = tmp_path / "rec", tmp_path / "run", tmp_path / "proc"
     r = runner.invoke(app, ["run", "-s", "sts-empty", "--duration", "6", "--out", str(out1), "--rerun"])

@@ -287,6 +287,7 @@ def test_midpoint_with_linearised_second_stage(flex):
         np.testing.assert_allclose(lin[pos], ref[pos], rtol=0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_midpoint_filter_equals_rk4_filter_to_micrometres(truth, ekf_run):
     """The filter with the midpoint rule (the default) and with RK4 at 5 ms: the hook's estimate
     agrees to a few micrometres and hundredths of a mm/s, its states to a thousandth of their
@@ -318,6 +319,7 @@ def test_ekf_mean_by_the_jacobian_equals_the_model_to_micrometres(truth, ekf_run
     assert np.abs(model.x - ekf_run.x).max() > 0
 
 
+@pytest.mark.slow
 def test_ukf_window_equals_the_stepwise_ukf(truth):
     """The UKF stepping its sigma points once per 25 ms window (the MRU and encoder samples
     applied at the window's end; outputs inside it from the linearised model) and once per MRU

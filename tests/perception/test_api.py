@@ -200,6 +200,7 @@ def test_a_prior_keeps_the_deck_from_being_taken_for_the_sea_below_it():
     assert res.status.startswith("no deck plane within") and not np.isfinite(res.D_m)
 
 
+@pytest.mark.slow
 def test_sea_clutter_is_not_taken_for_the_deck(tmp_path):
     from typer.testing import CliRunner
 

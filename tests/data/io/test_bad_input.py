@@ -82,6 +82,7 @@ def _reflector_run(tmp_path, name, duration, *sets):
     return rows, json.loads((out / "kpis.json").read_text())["measurements"]["reflectors_lidar"]
 
 
+@pytest.mark.slow
 def test_reflector_plane_is_moved_down_by_the_marker_height(tmp_path):
     # An ideal verification: no mismatch between the world and the installation.
     rows, kp = _reflector_run(tmp_path, "run", 3, "mismatch={}")
@@ -114,6 +115,7 @@ def test_a_non_utf8_log_is_refused_naming_the_file(rec, tmp_path):
         Recording(r)
 
 
+@pytest.mark.slow
 def test_kpis_json_is_strict_json_and_out_must_name_a_folder(tmp_path, monkeypatch):
     out = tmp_path / "run"
     # 1 s: shorter than the filters' warm-up, so the solutions' errors are undefined (null)
@@ -129,6 +131,7 @@ def test_kpis_json_is_strict_json_and_out_must_name_a_folder(tmp_path, monkeypat
     assert (tmp_path / "run" / "kpis.json").is_file()  # nothing deleted
 
 
+@pytest.mark.slow
 def test_a_truth_that_ends_early_is_scored_over_its_span_only(rec, tmp_path):
     r = _copy(rec, tmp_path)
     lines = (r / "truth.csv").read_text().splitlines()
@@ -152,6 +155,7 @@ def test_implausible_values_never_say_ok():
     assert pipe._implausible("lidar", "D", 45.0, 0.002) is None
 
 
+@pytest.mark.slow
 def test_sigterm_leaves_no_staging_folder(tmp_path):
     import signal
     import subprocess

@@ -89,6 +89,7 @@ def test_scenario_yaml_text(tmp_path, text):
 @given(st.sampled_from(["lidar.rate_hz", "crane.motion.heave.amplitude", "mismatch", "mismatch.wind_mps", "lidar.outages_s",
                         "seed", "duration_s", "processing.fusion.solutions", "nope.key", "lidar", "world", ""]),
        st.sampled_from(["5", "-1", "inf", "nan", "[1,2]", "[[3,1]]", "{}", "{a: 1}", "x", "1e300", "null", "[", "''"]))
+@pytest.mark.slow
 def test_set_overrides(key, value):
     try:
         load_scenario("sts-empty", [f"{key}={value}"])

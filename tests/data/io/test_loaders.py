@@ -32,6 +32,7 @@ def _deck_rows(path):
         return [(r["t"], r["value"], r["status"]) for r in csv.DictReader(fh) if r["method"] == "deck_lidar"]
 
 
+@pytest.mark.slow
 def test_a_folder_of_pcds_reads_like_its_recording(rec, tmp_path):
     clouds = tmp_path / "clouds"
     clouds.mkdir()

@@ -36,6 +36,7 @@ def sts(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind, name", [("mcap", "b_mcap/b_mcap.mcap"), ("ros2", "b_ros2"), ("ros1", "b_ros1/b_ros1.bag")])
 def test_each_bag_kind_reads_back_to_the_recordings_estimates(sts, kind, name):
     out = sts / f"b_{kind}"
@@ -59,6 +60,7 @@ def test_rerun_opens_the_mcap(sts):
     assert (sts / "m.rrd").stat().st_size > 1e6
 
 
+@pytest.mark.slow
 def test_a_hook_run_carries_its_encoders(tmp_path):
     _ok(["simulate", "-s", "hook-2", "--duration", "2", "--out", str(tmp_path / "rec")])
     _ok(["simulate", "-s", "hook-2", "--duration", "2", "--out", str(tmp_path / "bag"), "--format", "mcap"])

@@ -88,6 +88,7 @@ def test_small_angle_period(axis):
     assert abs(period / expected - 1) < 0.005
 
 
+@pytest.mark.slow
 def test_energy_conserved_rigid_rk4():
     """Rigid boom, static vessel and crane, fixed rope: RK4 at 1 kHz conserves the swing energy."""
     tr = simulate_crane(CraneParams(flexible=False), _static(), None, 100.0, method="rk4", dt_s=1e-3,
@@ -113,6 +114,7 @@ def test_energy_conserved_flexible_coupled():
     assert np.abs(E - E[0]).max() / E_dyn < 1e-6
 
 
+@pytest.mark.slow
 def test_rigid_is_flexible_with_infinite_stiffness():
     sc = HOOK_SCENARIOS["hook-4"]()
     rigid = simulate_crane(CraneParams(flexible=False), sc.joints, sc.vessel, 40.0)

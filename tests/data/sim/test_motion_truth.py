@@ -172,6 +172,7 @@ def test_rotation_matrices_of_many_instants_are_each_instants():
     np.testing.assert_allclose(R, Rotation.from_euler("xyz", rpy).as_matrix(), rtol=0, atol=1e-15)
 
 
+@pytest.mark.slow
 def test_sweep_poses_are_the_poses_at_the_column_times():
     """The LiDAR's per-column poses from offsets (the frame path) against the poses evaluated
     at each column's time, for both ships and the sensor."""

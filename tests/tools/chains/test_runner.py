@@ -17,6 +17,8 @@ from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.cli.commands import app
 from boomtip.tools.chains.runner import run
 
+pytestmark = pytest.mark.slow  # every test here runs a chain end to end
+
 runner = CliRunner()
 CALM = [f"{v}.motion.{d}.amplitude=0" for v in ("crane", "feeder") for d in ("heave", "roll", "pitch")]
 

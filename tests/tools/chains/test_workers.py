@@ -29,6 +29,7 @@ def _rows(path):
         return [{k: v for k, v in row.items() if k not in TIMING_KEYS} for row in csv.DictReader(fh)]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not workers.parallel_enabled(), reason="one core, or no fork: nothing runs in parallel")
 def test_a_run_on_two_cores_writes_what_the_serial_run_writes(tmp_path):
     outs = {}

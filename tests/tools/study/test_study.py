@@ -14,6 +14,8 @@ from typer.testing import CliRunner
 from boomtip.tools.cli.commands import app
 from boomtip.tools.study.tasks import TIMING_KEYS, Task, axis_from_grid, derived_seeds, flatten, run_task, summarise, sweep_tasks
 
+pytestmark = pytest.mark.slow  # every test here runs a chain end to end
+
 runner = CliRunner()
 SHORT = ["-s", "sts-empty", "--duration", "0.6"]
 
