@@ -1,14 +1,15 @@
 """Ouster pcap + sensor-metadata JSON as a frame source, decoded by boomtip itself.
 
-`ouster_packets` reads the capture (libpcap, IPv4 fragments, UDP), batches the lidar packets
-into frames by frame id and computes the points with ouster-sdk's XYZ lookup table (the
-metadata's beam angles, beam origin and lidar-to-sensor transform), float for float; this
-module maps those frames to boomtip's: points in the sensor frame (m, zero ranges dropped),
-`intensity` from the reflectivity channel, a per-point `t` (s from the frame start) from the
-column time stamps. Frame times are the sensor's column clock (PTP-synchronised on a real
-rig, so an `mru.csv` beside the pcap shares it); a frame whose column stamps are all zero
-falls back to the pcap's capture time and says so. Frames are decoded one at a time as they
-are iterated; the frame count and capture times come from a pass over the packet headers.
+`ouster_metadata` reads the sensor's metadata and builds ouster-sdk's XYZ lookup table from
+its beam angles, beam origin and lidar-to-sensor transform; `ouster_packets` reads the
+capture (libpcap, IPv4 fragments, UDP), batches the lidar packets into frames by frame id and
+computes the points with that table, float for float; this module maps those frames to
+boomtip's: points in the sensor frame (m, zero ranges dropped), `intensity` from the
+reflectivity channel, a per-point `t` (s from the frame start) from the column time stamps.
+Frame times are the sensor's column clock (PTP-synchronised on a real rig, so an `mru.csv`
+beside the pcap shares it); a frame whose column stamps are all zero falls back to the pcap's
+capture time and says so. Frames are decoded one at a time as they are iterated; the frame
+count and capture times come from a pass over the packet headers.
 """
 
 from __future__ import annotations
@@ -22,9 +23,9 @@ import numpy as np
 from boomtip.data.frames import Frame, FrameSource, SourceMeta
 from boomtip.data.installation import Installation
 from boomtip.data.io.folder import attitude_stream
-from boomtip.data.io.ouster_packets import (COLUMN_VALID, CaptureIndex, LidarScan, MetadataError, OusterMetadata,
-                                            index_capture, lidar_frames, packet_layout, parse_metadata, xyz_lut,
-                                            xyz_sensor_m)
+from boomtip.data.io.ouster_metadata import MetadataError, OusterMetadata, parse_metadata, xyz_lut
+from boomtip.data.io.ouster_packets import (COLUMN_VALID, CaptureIndex, LidarScan, index_capture, lidar_frames,
+                                            packet_layout, xyz_sensor_m)
 from boomtip.data.io.pcap import PcapError
 from boomtip.data.io.recording import RecordingError
 
