@@ -35,6 +35,7 @@ from boomtip.data.sim.world import in_windows
 BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
 # the crane truth's tracks kept (on disk): the frames' poses (_scene_poses), the encoders and the truth table
 TRUTH_CHUNK = 4096  # truth rows made at a time
+ENCODER_STREAM_ID = SENSOR_IDS["mru"] + 10  # the encoders' noise stream (after the sensors' ids)
 KEPT_TRACKS = ("roll", "pitch", "nu", "mu", "l", "nu_f", "a", "b", "p_tip_world", "p_hook_world", "v_hook_world",
                "p_hook_rel_tip", "v_hook_rel_tip")
 
@@ -336,7 +337,7 @@ class HookSimulation(Simulation):
         """The encoders as they are: specified noise plus the world's unstated biases."""
         cfg, bias = self.scenario.installation.encoders, self.scenario.world.mismatch.encoder_bias_deg
         t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
-        rng = np.random.default_rng([self.scenario.seed, SENSOR_IDS["mru"] + 10, 0])
+        rng = np.random.default_rng([self.scenario.seed, ENCODER_STREAM_ID, 0])
         n = len(t)
         ang = np.deg2rad(cfg.angle_noise_deg)
         return {

@@ -14,6 +14,8 @@ import trimesh
 from boomtip.data.meshes import Body, Label, Part, RcsClass, box, cylinder
 from boomtip.data.sim.run import SimulatedRun
 
+FALSE_BRIGHT_SEED_SALT = 101  # the run's seed plus this: where the bright patches that are not markers lie
+
 
 def lofted_hull(
     length_m: float, beam_m: float, z_keel: float, z_deck: float, bow_length_m: float, n_stations: int = 60
@@ -235,7 +237,7 @@ def feeder_vessel(s: SimulatedRun) -> Body:
         parts += _cargo_parts(s)
     if r.false_bright_points > 0:
         # Bright patches that are not deck markers: on bulwark tops, seeded.
-        rng = np.random.default_rng(s.seed + 101)
+        rng = np.random.default_rng(s.seed + FALSE_BRIGHT_SEED_SALT)
         xs = rng.uniform(x0 + 1, x1 - 1, r.false_bright_points)
         for x in xs:
             side = rng.choice([-1, 1])

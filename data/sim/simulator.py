@@ -21,6 +21,8 @@ from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, r
 from boomtip.data.sim.truth import relative_heave, tip_states
 
 SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3, "feeder_mru": 4}
+# the run's seed s gives each ship's irregular sea its own stream: s * 7 + 11 (crane), s * 7 + 13 (feeder)
+MOTION_SEED_FACTOR, CRANE_MOTION_SEED_SALT, FEEDER_MOTION_SEED_SALT = 7, 11, 13
 
 
 # numpy's SeedSequence (a pool of 4 uint32 words) and PCG64's seeding, for `FrameRng`
@@ -113,8 +115,10 @@ class SimScene:
         self.bodies = bodies if bodies is not None else build_bodies(s)
         self.caster = RayCaster(self.bodies)
         self.faces = FaceLookup.from_bodies(self.bodies)
-        self.crane_motion = ShipMotion(w.crane.motion, w.crane.irregular, (0.0, 0.0, 0.0), seed=s.seed * 7 + 11)
-        self.feeder_motion = ShipMotion(w.feeder.motion, w.feeder.irregular, w.feeder.geometry.position_m, seed=s.seed * 7 + 13)
+        self.crane_motion = ShipMotion(w.crane.motion, w.crane.irregular, (0.0, 0.0, 0.0),
+                                       seed=s.seed * MOTION_SEED_FACTOR + CRANE_MOTION_SEED_SALT)
+        self.feeder_motion = ShipMotion(w.feeder.motion, w.feeder.irregular, w.feeder.geometry.position_m,
+                                        seed=s.seed * MOTION_SEED_FACTOR + FEEDER_MOTION_SEED_SALT)
         self.T_crane_boomtip = inst.T_crane_boomtip()
         self.lidar = true_lidar(inst.lidar, w)
         self.radar = true_radar(inst.radar, w)

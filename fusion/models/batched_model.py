@@ -25,7 +25,7 @@ import numpy as np
 
 from boomtip.data.crane_model import pendulum_accelerations_core
 from boomtip.fusion.models.autodiff import Tape, TraceNode, ancestors, node_expression
-from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD
+from boomtip.fusion.models.crane_pendulum import CHAINS, IA, IAD, IB, IBD, IF, IFD, state_size
 from boomtip.fusion.models.jacobian import constant_part
 
 __all__ = ["split_accelerations", "rk4_sigma_points", "midpoint_sigma_points", "midpoint_linearised_sigma_points"]
@@ -37,7 +37,7 @@ def _generate(prm: tuple, flex: bool) -> tuple[Callable, Callable] | None:
     """(inputs_part(u) -> list of arrays, sway_part(a, a', b, b', f, f', *inputs_part) ->
     (a'', b''[, nu_f''])); u are the 15 input arrays (state indices 4..18). None when the core
     is not traceable."""
-    n = 21 if flex else 19
+    n = state_size(flex)
     n_acc = 3 if flex else 2
     try:
         tape = Tape()
@@ -120,7 +120,7 @@ def _inputs_at(inputs_part, X: np.ndarray, taus: tuple[float, ...]) -> np.ndarra
     """The inputs part for the states X (n, N) at the times t + tau (taus[0] = 0), all times in
     one call on T x N columns: the handed values (T, H, N)."""
     N = X.shape[1]
-    C = X[4:19].reshape(5, 3, N)  # per chain (q, q', q'')
+    C = X[CHAINS].reshape(5, 3, N)  # per chain (q, q', q'')
     q, qd, qdd = C[:, 0], C[:, 1], C[:, 2]
     U = np.empty((5, 3, len(taus), N))  # (chains, derivatives, times, N)
     U[:, :, 0] = C
@@ -154,7 +154,7 @@ def _end_state(X: np.ndarray, h: float, Y1: np.ndarray, V1: np.ndarray) -> np.nd
     """The state after a step h: positions Y1 and rates V1 (m, N) of the sway (and deflection),
     the kinematic chains extrapolated exactly (constant acceleration)."""
     n, N = X.shape
-    C = X[4:19].reshape(5, 3, N)
+    C = X[CHAINS].reshape(5, 3, N)
     q, qd, qdd = C[:, 0], C[:, 1], C[:, 2]
     out = np.empty((n, N))
     out[IA:IB + 1:2], out[IAD:IBD + 1:2] = Y1[:2], V1[:2]  # (a, b) at 0, 2; their rates at 1, 3
@@ -246,10 +246,10 @@ def midpoint_linearised_sigma_points(prm: tuple, flex: bool, X: np.ndarray, h: f
     Y, V = _positions_rates(X, flex)
     if split is not None:
         inputs_part, sway_part = split
-        a1 = _sway_evaluator(sway_part, flex)(Y, V, inputs_part(X[4:19]))
+        a1 = _sway_evaluator(sway_part, flex)(Y, V, inputs_part(X[CHAINS]))
     else:
         f, fd = (Y[2], V[2]) if flex else (0.0, 0.0)
-        a1 = np.array(pendulum_accelerations_core(np.sin, np.cos, prm, flex, Y[0], V[0], Y[1], V[1], *X[4:19],
+        a1 = np.array(pendulum_accelerations_core(np.sin, np.cos, prm, flex, Y[0], V[0], Y[1], V[1], *X[CHAINS],
                                                   f, fd)[: len(rows)])
     # a2 = a1 + J (M X + h/2 E a1) with E the accelerations' rows: (I + h/2 J E) a1 + (J M) X
     C = J[:, rows] * h2

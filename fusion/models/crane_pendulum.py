@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "STATE_NAMES", "IA", "IAD", "IB", "IBD", "INU", "IMU", "IL", "IROLL", "IPITCH", "IF", "IFD",
-    "KIN_CHAINS", "HOOK_COLS", "HOOK_IX", "kin_at", "rk4_step", "rk4_float", "rk4_batch", "midpoint_float",
+    "KIN_CHAINS", "CHAINS", "N_RIGID", "N_FLEXIBLE", "state_size", "HOOK_COLS", "HOOK_IX", "kin_at", "rk4_step", "rk4_float", "rk4_batch", "midpoint_float",
     "midpoint_batch", "process_noise",
     "hook_pos_vel", "hook_pos_vel_batch", "lidar_h_jac", "sway_angles_from_direction",
     "sway_angles_from_directions",
@@ -55,6 +55,12 @@ IA, IAD, IB, IBD = 0, 1, 2, 3
 INU, IMU, IL, IROLL, IPITCH = 4, 7, 10, 13, 16
 IF, IFD = 19, 20
 KIN_CHAINS = (INU, IMU, IL, IROLL, IPITCH)
+CHAINS = slice(INU, IF)  # the five kinematic chains' (q, q', q'') in one block
+N_RIGID, N_FLEXIBLE = IF, IFD + 1  # the state's size without and with the boom's deflection
+
+
+def state_size(flexible: bool) -> int:
+    return N_FLEXIBLE if flexible else N_RIGID
 
 
 def kin_at(x, tau):

@@ -15,7 +15,7 @@ import numpy as np
 
 from boomtip.data.crane_model import pendulum_accelerations_core
 from boomtip.fusion.models.autodiff import accel_jacobian
-from boomtip.fusion.models.crane_pendulum import IA, IAD, IB, IBD, IF, IFD, KIN_CHAINS
+from boomtip.fusion.models.crane_pendulum import CHAINS, IA, IAD, IB, IBD, IF, IFD, KIN_CHAINS, state_size
 
 __all__ = ["constant_part", "continuous_jacobian", "jacobian_and_accelerations"]
 
@@ -54,7 +54,7 @@ def _rows(flex: bool) -> np.ndarray:
 def jacobian_and_accelerations(prm: tuple, flex: bool, x: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
     """(A (n, n), the accelerations (a'', b''[, nu_f'']) of the model) at the state x: with
     ``"autodiff"`` both from one generated call (its forward sweep is the model's arithmetic)."""
-    n = 21 if flex else 19
+    n = state_size(flex)
     jac = accel_jacobian(prm, flex) if method == "autodiff" else None
     if jac is None:
         xl = x.tolist()
@@ -71,7 +71,7 @@ def jacobian_and_accelerations(prm: tuple, flex: bool, x: np.ndarray, method: st
 
 def continuous_jacobian(prm: tuple, flex: bool, x: np.ndarray, method: str) -> np.ndarray:
     """A (n, n) at the state x; ``prm`` is ``CraneParams.as_tuple()``."""
-    n = 21 if flex else 19
+    n = state_size(flex)
     A = constant_part(n, flex).copy()
     rows = (IAD, IBD, IFD) if flex else (IAD, IBD)
     if method == "autodiff":
@@ -83,7 +83,7 @@ def continuous_jacobian(prm: tuple, flex: bool, x: np.ndarray, method: str) -> n
     if method == "complex_step":
         X = x[:, None] + _complex_step(n)
         f, fd = (X[IF], X[IFD]) if flex else (0.0, 0.0)
-        acc = pendulum_accelerations_core(np.sin, np.cos, prm, flex, X[0], X[1], X[2], X[3], *X[4:19], f, fd)
+        acc = pendulum_accelerations_core(np.sin, np.cos, prm, flex, X[0], X[1], X[2], X[3], *X[CHAINS], f, fd)
         for r, v in zip(rows, acc):
             A[r] = v.imag / _CS_H
     elif method == "numeric":
