@@ -70,6 +70,7 @@ def test_frames_without_ouster_sdk():
         assert 0.3 < r.min() and r.max() < 300.0
 
 
+@pytest.mark.slow
 def test_the_ground_as_the_deck_end_to_end(tmp_path):
     inst = tmp_path / "level.yaml"
     inst.write_text("attitude: level\nradar: {enabled: false}\nmarkers: {enabled: false}\n"
