@@ -10,7 +10,8 @@ configurations, random generator and stage timer optional::
 
 Stages: ``preprocess``, ``ransac_plane``, ``fit_plane_lsq``, ``multi_plane_deck``,
 ``detect_deck``, ``detect_reflectors``, ``doppler_velocity``, ``fit_rope``, ``detect_hook``,
-``heave_distance``; see ``__all__`` for their configurations and results.
+``heave_distance``; see ``__all__`` for their configurations and results. The per-frame
+pipelines that compose them: ``HeavePipeline``, ``FeederPipeline``, ``HookPipeline``.
 
 Names load on first use (PEP 562): the hook stage pulls in Open3D and trimesh (about a second),
 which a user of the deck stages, or of any one submodule, need not pay for.
@@ -36,6 +37,9 @@ if TYPE_CHECKING:
     from boomtip.perception.reflectors import ReflectorConfig, ReflectorResult, detect_reflectors
     from boomtip.perception.rope import RopeConfig, RopeFix, fit_rope
     from boomtip.perception.timing import StageTimes
+    from boomtip.perception.pipeline import HeavePipeline
+    from boomtip.perception.feeder_pipeline import FeederPipeline
+    from boomtip.perception.hook_pipeline import HookPipeline
 
 _SOURCE = {
     "as_points": "cloud",
@@ -48,6 +52,7 @@ _SOURCE = {
     "fit_rope": "rope", "RopeConfig": "rope", "RopeFix": "rope",
     "detect_hook": "hook", "HookConfig": "hook", "HookDetection": "hook",
     "heave_distance": "geometry",
+    "HeavePipeline": "pipeline", "FeederPipeline": "feeder_pipeline", "HookPipeline": "hook_pipeline",
 }
 
 __all__ = [
@@ -61,6 +66,7 @@ __all__ = [
     "detect_hook", "HookConfig", "HookDetection",
     "heave_distance",
     "as_points", "StageTimes",
+    "HeavePipeline", "FeederPipeline", "HookPipeline",
 ]
 
 
