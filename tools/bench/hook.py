@@ -42,7 +42,7 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
     from boomtip.fusion.hook_run import run_hook_filter
     from boomtip.tools.chains import workers
     from boomtip.tools.chains.resources import RunResources
-    from boomtip.tools.chains.hook_store import EstimateStore
+    from boomtip.tools.report.hook_store import EstimateStore
     from boomtip.tools.chains.chain import ChainError
     from boomtip.tools.chains.provenance import outage_windows, run_labels
     from boomtip.tools.chains.runner import build_chain, processing_for

@@ -28,8 +28,8 @@ from boomtip.perception.hook_pipeline import HookPipeline, sigma_across
 from boomtip.perception.rope import RopeFix
 from boomtip.perception.timing import StageTimes
 from boomtip.tools.chains.chain import ChainError, NullVisualiser
-from boomtip.tools.chains.hook_rows import FrameRows, fill_block, fill_prediction, fill_rope, fill_scores, frame_row
-from boomtip.tools.chains.hook_store import P_REL, EstimateStore
+from boomtip.tools.report.hook_rows import FrameRows, fill_block, fill_prediction, fill_rope, fill_scores, frame_row
+from boomtip.tools.report.hook_store import P_REL, EstimateStore
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import hook as outputs

@@ -23,7 +23,7 @@ import numpy as np
 from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.chains import workers
-from boomtip.tools.chains.hook_rows import DiskTable
+from boomtip.tools.report.hook_rows import DiskTable
 
 __all__ = ["RunResources", "keep_freed_memory", "release_free_memory", "TRIM_EVERY_FRAMES"]
 

@@ -10,8 +10,8 @@ import numpy as np
 from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.hook_run import HookFilterRun
-from boomtip.tools.chains.hook_rows import COLUMNS, FrameRows
-from boomtip.tools.chains.hook_store import P, EstimateStore, atomic_text_file
+from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
+from boomtip.tools.report.hook_store import P, EstimateStore, atomic_text_file
 
 PLOT_EVERY = 4  # the report's plots take every 4th estimator sample (50 Hz): a 700 s run is 140,000 samples
 # and at most about this many points per line: a plotted line's memory grows with its points (the

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from boomtip.tools.chains.hook_rows import DiskTable
+from boomtip.tools.report.hook_rows import DiskTable
 from boomtip.tools.chains.resources import RunResources
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from boomtip.tools.report import hook as hook_outputs
-from boomtip.tools.chains.hook_rows import ROW_DEFAULTS
-from boomtip.tools.chains.hook_rows import FrameRows
+from boomtip.tools.report.hook_rows import ROW_DEFAULTS
+from boomtip.tools.report.hook_rows import FrameRows
 
 
 def test_rows_written_in_chunks_are_the_same_file(tmp_path, monkeypatch):

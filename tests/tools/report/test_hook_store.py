@@ -18,10 +18,10 @@ from boomtip.data.sim.hook_measurements import measurements_from_truth
 from boomtip.data.sim.vessel_waves import VesselWaves
 from boomtip.fusion.hook_run import run_hook_filter
 from boomtip.tools.report import hook as hook_outputs
-from boomtip.tools.chains import hook_store
+from boomtip.tools.report import hook_store
 from boomtip.tools.report.hook_eval import world_hook_from_states
-from boomtip.tools.chains.hook_rows import COLUMNS, FrameRows
-from boomtip.tools.chains.hook_store import EstimateStore, atomic_text_file
+from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
+from boomtip.tools.report.hook_store import EstimateStore, atomic_text_file
 
 DEG = math.pi / 180
 
@@ -182,7 +182,7 @@ def test_frame_kpis_from_the_columns(tmp_path):
 def test_frame_rows_read_back_across_the_file_and_the_buffer(monkeypatch):
     """Records on disk (whole chunks) and in the buffer read back alike: whole columns and single
     rows on either side."""
-    from boomtip.tools.chains import hook_rows
+    from boomtip.tools.report import hook_rows
 
     monkeypatch.setattr(hook_rows, "CHUNK", 7)  # 30 rows: 4 chunks on disk, 2 in the buffer
     rows = FrameRows()
@@ -202,7 +202,7 @@ def test_frame_rows_read_back_across_the_file_and_the_buffer(monkeypatch):
 def test_a_disk_table_reads_back_its_rows_by_slices(monkeypatch):
     """The chain's encoder and MRU tables on disk: any row slice (across the written chunks, empty,
     open-ended) and the whole table equal the array's, and only slices are read."""
-    from boomtip.tools.chains import hook_rows
+    from boomtip.tools.report import hook_rows
 
     monkeypatch.setattr(hook_rows, "CHUNK", 2)  # written 16 rows at a time: 50 rows in 4 writes
     table = np.random.default_rng(3).standard_normal((50, 4))
