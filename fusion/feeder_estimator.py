@@ -173,10 +173,12 @@ class FeederEstimator:
         self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
         self.known: list[tuple[float, int, int]] = []  # at each record: its time, how many lines and hull edges by then
         # through an MRU gap: the last forecast's angle variance (in a gap, or after it until the
-        # first LiDAR frame), whether the tip's place was let go, whether this frame is in the gap
+        # first LiDAR frame), whether the tip's place was let go, and each forecast frame's angle
+        # variance by (time, sensor): a frame may be fused after later ones were levelled (the
+        # pipeline holds frames back through its warm-up)
         self.gap_angle_var: float | None = None
         self.gap_tip_reset = False
-        self.frame_in_gap = False
+        self.forecast_frames: dict[tuple[float, str], float] = {}
 
     # -- the attitude --------------------------------------------------------------------
     def attitude(self, t_s: float, sensor: str) -> LevellingAttitude | None:
@@ -185,15 +187,14 @@ class FeederEstimator:
         variance; the first frames after it take the MRU's own attitude back (see _mru_back)."""
         got = self.mru.attitude_var(t_s) if isinstance(self.mru, MruBridge) else self.mru.attitude(t_s)
         if got is None:
-            self.frame_in_gap = False
             return None
         rpy, rpy_rate, *var = got
         var = var[0] if var else None
         if var is None or not var.any():
-            self.frame_in_gap = False
             self._mru_back(sensor)
             return LevellingAttitude(rpy, rpy_rate, self.noise)
-        self.gap_angle_var, self.gap_tip_reset, self.frame_in_gap = max(var[0], var[1]), False, True
+        self.gap_angle_var, self.gap_tip_reset = max(var[0], var[1]), False
+        self.forecast_frames[(t_s, sensor)] = self.gap_angle_var
         return LevellingAttitude(rpy, rpy_rate, self.noise.with_forecast(var, self.lever_m), var)
 
     def _mru_back(self, sensor: str) -> None:
@@ -246,8 +247,7 @@ class FeederEstimator:
         cov = np.diag([START_XY_VAR_M2, START_XY_VAR_M2, float(deck.cov[2, 2]), float(deck.cov[1, 1]),
                        float(deck.cov[0, 0]), START_YAW_VAR_RAD2])
         self.filter.start(t_s, pose, cov, tip_velocity, tip_level)
-        if self.frame_in_gap:
-            self._in_gap_row()
+        self._forecast_row(t_s, "lidar")
         self._feeder_mru(t_s)
         self.tips.append(tip_velocity)
         self.pivots.append(lidar_level)
@@ -355,16 +355,17 @@ class FeederEstimator:
         if sensor == "radar":
             self.radar_frames += 1
         self.filter.record()
-        if self.frame_in_gap:
-            self._in_gap_row()
+        self._forecast_row(t_s, sensor)
         self.known.append((t_s, *edges_known))
         self.tips.append(tip_velocity)
         self.pivots.append(lidar_level)
 
-    def _in_gap_row(self) -> None:
-        """The row just recorded in an MRU gap: the forecast's error on top of the filter's."""
-        out = self.filter.out
-        out.P[-1][:6, :6] += attitude_pose_cov(out.x[-1][:3], self.gap_angle_var)
+    def _forecast_row(self, t_s: float, sensor: str) -> None:
+        """The row just recorded of a frame levelled with a forecast: its error on top of the filter's."""
+        angle_var = self.forecast_frames.pop((t_s, sensor), None)
+        if angle_var is not None:
+            out = self.filter.out
+            out.P[-1][:6, :6] += attitude_pose_cov(out.x[-1][:3], angle_var)
 
     # -- at the end ------------------------------------------------------------------------
     def finish(self, lines: list[tuple[float, int]], hull_yaws: list[float]) -> FeederEstimate:

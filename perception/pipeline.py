@@ -268,15 +268,16 @@ class HeavePipeline:
         """The deck (and, for a radar frame, the Doppler fit) of a frame levelled with `rpy_rad`
         instead of the MRU's attitude (a forecast through a gap in its log): the pipeline's own
         stages, settings and random draws for the frame, reading the pipeline and changing nothing
-        in it. No measurement rows. last_deck: sensor -> (t, D) of the last deck found this way,
-        the deck search's prior before the pipeline's own (updated here)."""
+        in it. No measurement rows. last_deck: sensor -> (t, D) of the last deck found this way
+        (updated here); the later of it and the pipeline's own is the deck search's prior."""
         times = StageTimes()
         wire = -np.array(level_rotation_rows(rpy_rad, self._R_crane_sensor_rows[frame.sensor])[2])
         p_tip = self.p_tip[frame.sensor]
         rng = self.frame_rng(frame)
         out = FrameResult(frame, [], times)
         cfg = self.cfg
-        prior, tol = carried_deck_prior(cfg, frame.t_s, last_deck.get(frame.sensor) or self.last_deck.get(frame.sensor))
+        decks = [d for d in (last_deck.get(frame.sensor), self.last_deck.get(frame.sensor)) if d is not None]
+        prior, tol = carried_deck_prior(cfg, frame.t_s, max(decks, key=lambda d: d[0]) if decks else None)  # the latest
         if frame.sensor == "lidar":
             out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_lidar, rng, times, "deck",
                                                 prior_D_m=prior, prior_tol_m=tol)

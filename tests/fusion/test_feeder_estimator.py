@@ -90,7 +90,7 @@ def test_the_attitude_is_the_filtered_mrus_with_the_nominal_noise():
         att = est.attitude(t, "lidar")
         rpy, rate = filtered.attitude(t)
         assert np.array_equal(att.rpy_rad, rpy) and np.array_equal(att.rpy_rate_radps, rate)
-        assert att.noise == est.noise and att.forecast_var is None and not est.frame_in_gap
+        assert att.noise == est.noise and att.forecast_var is None and (t, "lidar") not in est.forecast_frames
     # the filtered angles are not the raw ones (else nothing above would have been tested)
     assert not np.array_equal(est.attitude(3.0, "lidar").rpy_rad, log.attitude(3.0)[0])
 
@@ -107,7 +107,7 @@ def test_raw_angles_and_rates_when_the_filters_are_off():
 def test_without_the_bridge_a_gap_in_the_log_has_no_attitude():
     est = estimator()
     assert not isinstance(est.mru, MruBridge)
-    assert est.attitude(21.0, "lidar") is None and not est.frame_in_gap
+    assert est.attitude(21.0, "lidar") is None and not est.forecast_frames
     assert est.attitude(31.0, "lidar") is None  # past the log's end
 
 
@@ -117,7 +117,7 @@ def test_through_a_gap_the_forecast_with_its_inflated_noise():
     for t in (20.5, 21.5):
         att = est.attitude(t, "lidar")
         rpy, rate, var = est.mru.attitude_var(t)
-        assert var.any() and est.frame_in_gap
+        assert var.any() and est.forecast_frames[(t, "lidar")] == max(var[0], var[1])
         assert np.array_equal(att.rpy_rad, rpy) and np.array_equal(att.rpy_rate_radps, rate)
         assert np.array_equal(att.forecast_var, var)
         assert att.noise == est.noise.with_forecast(var, LEVER_M)
@@ -137,7 +137,7 @@ def test_beyond_max_sigma_there_is_no_attitude():
     assert math.degrees(math.sqrt(near)) < limit_deg < math.degrees(math.sqrt(far))
     est = bridged(limit_deg)
     assert est.attitude(20.3, "lidar").forecast_var is not None
-    assert est.attitude(21.9, "lidar") is None and not est.frame_in_gap
+    assert est.attitude(21.9, "lidar") is None and (21.9, "lidar") not in est.forecast_frames
 
 
 # -- where the filter starts -------------------------------------------------------------------
@@ -221,10 +221,6 @@ def test_a_filter_started_in_a_gap_has_its_first_row_carry_the_forecast():
     assert np.array_equal(row[:6, :6], expected)
 
 
-@pytest.mark.xfail(strict=True, reason="whether a row is in the gap is the last attitude() call's (frame_in_gap), not "
-                   "the recorded frame's: the feeder pipeline holds frames back through its static-returns warm-up and the "
-                   "chain fuses them after later attitudes were asked for, so the gap's rows lose the forecast's covariance "
-                   "(sts-loaded with static.warmup_s=10 and an MRU gap at 8-8.6 s: the gap rows' x variance is the rows' before)")
 def test_a_frame_fused_after_later_attitudes_keeps_its_own_forecasts_covariance():
     est = bridged()
     # the chain's order through the warm-up: each frame's attitude when it arrives ...
@@ -247,7 +243,7 @@ def test_the_first_lidar_frame_after_a_gap_widens_the_pose_once_and_lets_the_tip
     assert est.filter.tip_position is not None
     P = est.filter.P.copy()
     att = est.attitude(22.3, "lidar")  # the MRU is back
-    assert att.forecast_var is None and att.noise == est.noise and not est.frame_in_gap
+    assert att.forecast_var is None and att.noise == est.noise and (22.3, "lidar") not in est.forecast_frames
     expected = P.copy()
     expected[:6, :6] += attitude_pose_cov(est.filter.x[:3], gap_var)
     assert np.array_equal(est.filter.P, expected)

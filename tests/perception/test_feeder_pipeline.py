@@ -176,9 +176,6 @@ def test_a_forecast_attitude_levels_the_deck_stage_and_leaves_the_heave_pipeline
     assert pipe.ready()[0].plane is None and pipe.forecast_decks == ref_decks
 
 
-@pytest.mark.xfail(strict=True, reason="forecast_decks is never cleared: in a later MRU gap its stale deck, older than "
-                   "max_deck_age_s, is taken over the heave pipeline's recent one (HeavePipeline.levelled_stages' `or`), "
-                   "so the gap's first frame searches the deck with no prior at all")
 def test_a_later_gaps_first_forecast_frame_takes_the_heave_pipelines_recent_deck_as_its_prior(run, monkeypatch):
     from boomtip.perception import pipeline as heave_module
 
