@@ -105,8 +105,10 @@ def cluster_labels(p: np.ndarray, eps: float, method: str, auto_points: int = 50
         return np.zeros(0, dtype=np.int64)
     if method == "dbscan" or (method == "auto" and len(p) < auto_points):
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
-        # min_points=1: DBSCAN degenerates to single linkage, the same partition as the kdtree route
-        return np.asarray(pc.cluster_dbscan(eps=eps, min_points=1, print_progress=False), dtype=np.int64)
+        # min_points=1: DBSCAN degenerates to single linkage, the same partition as the kdtree route;
+        # Open3D links points closer than eps, scipy's pairs within it: the next float up joins them
+        return np.asarray(pc.cluster_dbscan(eps=float(np.nextafter(eps, np.inf)), min_points=1, print_progress=False),
+                          dtype=np.int64)
     pairs = cKDTree(p).query_pairs(eps, output_type="ndarray")
     n = len(p)
     g = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))

@@ -178,8 +178,6 @@ def test_the_kdtree_and_dbscan_routes_give_the_same_partition():
     assert _same_partition(cluster_labels(pts, 0.4, "auto", auto_points=len(pts)), cluster_labels(pts, 0.4, "kdtree"))
 
 
-@pytest.mark.xfail(strict=True, reason="at a distance of exactly eps the routes differ: scipy's query_pairs links "
-                   "(d <= eps), Open3D's DBSCAN does not (d < eps), so 'the same partition' holds only without ties")
 def test_the_routes_agree_on_a_pair_exactly_eps_apart():
     pts = np.array([[0.0, 0.0, 0.0], [0.25, 0.0, 0.0]])  # 0.25 is exact in binary
     assert _same_partition(cluster_labels(pts, 0.25, "kdtree"), cluster_labels(pts, 0.25, "dbscan"))

@@ -25,7 +25,7 @@ def _timed(tasks, kind: str, workers: int) -> tuple[float, float]:
 
 def bench_sweep(scenario: str = "sts-empty", tasks: int = 16, duration_s: float = 1.0) -> dict:
     grid = axis_from_grid("lidar.rate_hz=" + ",".join(str(5 + i % 4) for i in range(4)))
-    todo = sweep_tasks(scenario, [grid], max(1, tasks // 4), [], duration_s, 1)[:tasks]
+    todo = sweep_tasks(scenario, [grid], max(1, -(-tasks // 4)), [], duration_s, 1)[:tasks]  # seeds per rate, rounded up
     out: dict = {"scenario": scenario, "tasks": len(todo), "task_duration_s": duration_s}
     baseline_own = None
     for kind in ("local", "dask"):

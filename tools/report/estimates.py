@@ -12,8 +12,8 @@ import numpy as np
 from boomtip.data.frames import MruLog
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
-from boomtip.perception.pipeline import Measurement
-from boomtip.tools.report.heave import COLORS
+from boomtip.perception.pipeline import SENSOR_OF, Measurement
+from boomtip.tools.report.heave import COLORS, legend
 
 
 def stream_gaps(t_s: np.ndarray, nominal_dt_s: float, factor: float = 1.5) -> list[tuple[float, float]]:
@@ -53,7 +53,7 @@ def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates
                      f"{np.min(e.x[ok, 0]):.3f} to {np.max(e.x[ok, 0]):.3f} | {1e3 * np.sqrt(np.median(e.var[ok, 0])):.2f} | "
                      f"{1e3 * np.sqrt(np.median(e.var[ok, 1])):.2f} |")
     lines += ["", "## Measurements", "", *method_table(rows), "", "## Gaps in the streams", ""]
-    streams = {s: np.array(sorted({r.t_s for r in rows if r.method.endswith(s)})) for s in ("lidar", "radar")}
+    streams = {s: np.array(sorted({r.t_s for r in rows if SENSOR_OF[r.method] == s})) for s in ("lidar", "radar")}
     for s, t in streams.items():
         if len(t):
             gaps = stream_gaps(t, 1.0 / rates_hz[s])
@@ -83,7 +83,7 @@ def _plot(out: Path, estimates: dict[str, Estimates]) -> Path:
                 s = 3 * np.sqrt(e.var[:, qi])
                 ax[qi].fill_between(e.t_s, e.x[:, qi] - s, e.x[:, qi] + s, color=c, alpha=0.2, label="fused +-3 sigma")
         ax[qi].set_ylabel(label)
-        ax[qi].legend(fontsize=8, ncol=4)
+        legend(ax[qi], fontsize=8, ncol=4)
     ax[1].set_xlabel("t [s]")
     ax[0].set_title("Estimates (no truth)")
     fig.tight_layout()

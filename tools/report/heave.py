@@ -24,6 +24,13 @@ COLORS = {"deck_lidar": "#1f77b4", "deck_radar": "#ff7f0e", "reflectors_lidar": 
           "doppler_radar_rot": "#8c564b"}
 
 
+def legend(ax, **kwargs) -> None:
+    """The axes' legend, when it has anything labelled (an empty panel, e.g. no radar's D-dot,
+    gets none: matplotlib would warn)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kwargs)
+
+
 def _fmt(v, pct_of=None, unit_mm=False) -> str:
     if v is None or not np.isfinite(v):
         return "-"
@@ -107,7 +114,7 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
             err = (e.x[:, qi] - truth.at(q, e.t_s)) * scale
             ax1.plot(e.t_s, err, lw=0.9, color=c, label=name)
         ax0.set_ylabel(f"{q} [{'m' if q == 'D' else 'm/s'}]")
-        ax0.legend(ncol=6, fontsize=8, loc="upper right")
+        legend(ax0, ncol=6, fontsize=8, loc="upper right")
         ax0.set_title(f"{q}: truth and estimates")
         # Doppler-only D drifts by design; the limit follows the others so their errors stay readable.
         lim = _robust_limit([((e.x[:, qi] - truth.at(q, e.t_s)) * scale, e.t_s >= WARMUP_S) for n, e in estimates.items()
@@ -135,7 +142,7 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
             axes[qi].hist(err, bins=80, histtype="step", lw=1.5, color=COLORS.get(name), label=name)
         axes[qi].set_xlabel(f"{q} error [{unit}]")
         axes[qi].set_title(f"{q} error histogram (t >= {WARMUP_S:g} s)")
-        axes[qi].legend(fontsize=8)
+        legend(axes[qi], fontsize=8)
     fig.tight_layout()
     p = out / "error_histograms.png"
     fig.savefig(p, dpi=90)
@@ -156,7 +163,7 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
     ax[1].set_xlabel("t [s]")
     ax[0].set_title("Raw measurements minus truth (before filtering)")
     for a in ax:
-        a.legend(fontsize=8, ncol=3)
+        legend(a, fontsize=8, ncol=3)
         a.axhline(0, color="black", lw=0.5)
     fig.tight_layout()
     p = out / "measurements.png"

@@ -88,6 +88,8 @@ def read_rows(path: Path) -> list[dict]:
 def _parse(v: str):
     if v in ("", None):
         return v
+    if v in ("True", "False"):  # a grid over a boolean key: written by repr, read back as a bool
+        return v == "True"
     try:
         return int(v) if v.lstrip("-").isdigit() else float(v)
     except ValueError:

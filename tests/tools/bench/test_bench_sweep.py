@@ -73,8 +73,6 @@ def test_two_tasks_are_the_first_two_rates(monkeypatch):
     assert log[1][2] == [f"lidar.rate_hz={r}|seed=1" for r in (5, 6)]
 
 
-@pytest.mark.xfail(strict=True, reason="--tasks N runs N tasks only when N is below 4 or a multiple of 4: the seeds are N // 4 "
-                   "(rounded down) per rate, so --tasks 6 runs 4 and --tasks 10 runs 8 (the printout gives the real count)")
 def test_the_bench_runs_as_many_tasks_as_asked(monkeypatch):
     install(monkeypatch, [1.0, 1.0, 1.0])
     assert sweep.bench_sweep(tasks=6)["tasks"] == 6

@@ -165,9 +165,6 @@ def test_at_most_ten_gaps_are_listed_per_stream(tmp_path):
     assert line.count("; ") == 10
 
 
-@pytest.mark.xfail(strict=True, reason="the radar stream is found by method names ending in 'radar' "
-                   "(endswith), not by SENSOR_OF: a run whose only radar method is doppler_radar_rot reports no "
-                   "radar stream and none of its gaps")
 def test_a_radar_run_of_doppler_radar_rot_alone_reports_its_stream(tmp_path):
     write_estimates_report(tmp_path, KPIS, estimates(), lidar_rows() + radar_rows(("doppler_radar_rot",)), mru(), RATES)
     assert "- radar: 200 frames, 0 gaps" in (tmp_path / "report.md").read_text().splitlines()

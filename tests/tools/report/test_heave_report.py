@@ -122,14 +122,12 @@ def test_the_report_names_the_run_its_sources_and_its_plots(tmp_path):
 
 
 def test_a_solution_without_d_dot_sources_says_it_takes_d_dot_from_d(tmp_path, monkeypatch):
-    monkeypatch.setattr(heave, "write_plots", lambda out, *args: [])  # the text only (the plots: the xfail below)
+    monkeypatch.setattr(heave, "write_plots", lambda out, *args: [])  # the text only (the plots: the test below)
     k = kpis(radar=False)
     write_report(tmp_path, k, estimates(), truth(), rows(radar=False))
     assert "Sources: fused: D from deck_lidar, D-dot from D" in (tmp_path / "report.md").read_text().splitlines()
 
 
-@pytest.mark.xfail(strict=True, reason="a run without D-dot measurements (no radar) leaves the measurements plot's "
-                   "D-dot panel empty, and its legend() call warns 'No artists with labels found to put in legend'")
 def test_plots_of_a_lidar_only_run_raise_no_warning(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -240,9 +240,6 @@ def test_one_run_has_no_spread_and_no_interval(tmp_path):
     assert (tmp_path / "summary.csv").read_text().splitlines()[1] == "5,mae,1,0.5,nan,nan,nan"
 
 
-@pytest.mark.xfail(strict=True, reason="runs.csv gives booleans back as the strings 'True'/'False' (read_rows parses "
-                   "numbers only), so after --resume a grid over a boolean key (feeder.cargo=true,false) has each "
-                   "point twice in summary.csv: the resumed rows under 'True', the new ones under True")
 def test_a_resumed_boolean_grid_is_summarised_as_one_point(tmp_path, study):
     pool, _ = study
     grid = ["feeder.cargo"]
