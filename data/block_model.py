@@ -138,7 +138,7 @@ def visible_model_points(
         views = np.array([(top + h) * up + a * e1 + b * e2 for h in view_height_m for a in offs for b in offs])
         # Rays from each viewpoint to each sample: visible if the first hit is the sample itself.
         # One cast per viewpoint, not one for all: all at once (18 x 48,000 rays with Open3D's
-        # answers) was a 125 MB peak for a model of a few hundred kB.
+        # answers) would peak at about 125 MB for a model of a few hundred kB.
         visible = np.zeros(m, dtype=bool)
         rays = np.empty((m, 6), dtype=np.float32)
         for view in views:
@@ -157,9 +157,9 @@ def visible_model_points(
 def rope_mesh(radius_m: float = 0.04, sections: int = 24) -> trimesh.Trimesh:
     """A rope: a cylinder of unit length along +z from z = 0 to z = 1 (scale z to the rope length).
 
-    24 sides, so the rope is round to 0.3 mm: with 8 its faces were 3.7-4.0 cm from the axis,
-    and the rope fit (perception.rope), which takes the surface to be the radius from the axis,
-    read that relief as a tilt (a few cm at 200 m).
+    24 sides, so the rope is round to 0.3 mm: with 8 its faces would lie 3.7-4.0 cm from the axis
+    (radius 4 cm), and the rope fit (perception.rope), which takes the surface to be the radius
+    from the axis, would read that relief as a tilt (a few cm at 200 m).
 
     Embree's ray parameter is preserved under affine maps, so the simulator can cast rays
     transformed by the inverse of the scaling pose and still read world distances.

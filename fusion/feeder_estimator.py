@@ -200,9 +200,9 @@ class FeederEstimator:
     def _mru_back(self, sensor: str) -> None:
         """The first frames with the MRU's own attitude after a gap. The tip's place jumps from
         the forecast levelling's to the measured one's: the first step is predicted with the
-        tip's velocity instead (its place moved the state by 18 cm and 85 mm in z on
-        sts-irregular seed 1, and the next decks were gated for a second). The state carries the
-        gap's error: the first LiDAR frame's deck and registration fix it."""
+        tip's velocity instead (that jump would move the state by decimetres, and the next decks
+        would be gated). The state carries the gap's error: the first LiDAR frame's deck and
+        registration fix it."""
         if self.gap_angle_var is None or not self.filter.started:
             return
         if not self.gap_tip_reset:

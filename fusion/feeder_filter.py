@@ -61,8 +61,8 @@ class FeederFilterConfig(BaseModel):
     max_rejections: int = Field(10, ge=1, description="refused this often in a row, a kind is taken as a re-acquisition")
     max_sigma_m: float = Field(0.05, gt=0, description="registration directions known worse than this are not updated")
     registration_floor: tuple[float, float] = Field((0.015, 0.025), description="1-sigma a registration is never better than: m (x, y), "
-                                                    "deg (yaw); measured against the truth, registrations to the merged model are "
-                                                    "off by 0.4-2 cm in y and 0.016-0.025 deg RMS (sts-loaded, sts-irregular)")
+                                                    "deg (yaw); registrations to the merged model are off by up to about this "
+                                                    "much, whatever their information says")
     init_sigma_rate: tuple[float, float] = Field((0.5, 2.0), description="first-frame 1-sigma of the rates: m/s, deg/s")
     # A feeder MRU (when the source has one): its offsets from the map frame.
     heading_offset_walk_degps: float = Field(0.005, ge=0, description="random walk of the heading offset between the ships' "
@@ -200,7 +200,7 @@ class FeederFilter:
     def update_deck(self, kind: str, plane_abc: np.ndarray, cov: np.ndarray) -> bool:
         """The deck plane z = a x + b y + c (level frame at the tip) and its covariance."""
         # Not the yaw: a plane's normal fixes the tilt, and through the Euler angles a yaw could
-        # be traded for roll and pitch that keep the normal (38 deg of yaw in a 50 s outage).
+        # be traded for roll and pitch that keep the normal (tens of degrees over a long outage).
         return self._update(kind, plane_abc, deck_plane(self.x), numeric_jacobian(deck_plane, self.x, np.arange(5)), cov)
 
     def update_deck_spin(self, kind: str, plane_abc: np.ndarray, plane_rates: np.ndarray, cov: np.ndarray) -> bool:
@@ -237,8 +237,8 @@ class FeederFilter:
         tip's own velocity is the one given to the last predict."""
         h = lambda x: point_velocity(x, xi_level, self.tip_velocity)
         # Not the yaw: it enters only by turning the roll and pitch rates into level axes, and a
-        # filter let to use that would turn its yaw to explain a rate error (37 deg in a 50 s
-        # LiDAR outage). The radar says nothing of the yaw itself.
+        # filter let to use that would turn its yaw to explain a rate error (tens of degrees over
+        # a long LiDAR outage). The radar says nothing of the yaw itself.
         H = point_velocity_jacobian(self.x, xi_level)
         H[:, 5] = 0.0
         return self._update("doppler", velocity_level, h(self.x), H, cov)

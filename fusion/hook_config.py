@@ -21,8 +21,8 @@ class ProcessNoiseConfig(BaseModel):
     4 s) instead of its "conservatively increased" 0.5, and the joint jerk uses
     ``0.2 a_max / Ts`` instead of ``0.5 a_max / Ts``.  Both lower the noise of the
     estimated boom-tip acceleration (the MRU rate noise times a 150 m lever arm and the
-    0.1 deg encoder noise dominate it); on a 60 s hook-2-like run the absolute hook velocity
-    RMSE drops from (1.6, 1.0, 3.5) to (1.4, 0.6, 2.6) cm/s with no gated fix.
+    0.1 deg encoder noise dominate it), and so the hook velocity's error, without gating
+    good fixes.
     """
     model_config = ConfigDict(extra="forbid")  # a misspelt key is an error, not a default
 
@@ -84,7 +84,8 @@ class HookFilterConfig(BaseModel):
     # re-evaluate the continuous Jacobian A (and the model's derivative there) at most this
     # often: EKF at a prediction, F rebuilt from the cached A when dt changes; UKF at a window's
     # start, for its outputs, its Q and its midpoint. 0 = at every prediction (every window).
-    # 50 ms: the hook within 0.05 mm of 25 ms's, the same RMSE and NEES (BENCHMARKS.md)
+    # 50 ms: the hook's estimate within a fraction of a millimetre of a shorter interval's,
+    # as accurate and as consistent
     jacobian_interval_s: float = Field(0.05, ge=0.0)
     # UKF sigma-point propagation: "generated" (fusion/models/batched_model.py, the tip's
     # kinematics once per step) or "core" (the crane model's core on arrays, once per stage:
@@ -96,19 +97,19 @@ class HookFilterConfig(BaseModel):
     # EKF mean: "jacobian": carried by the F of the covariance (A, refreshed every
     # jacobian_interval_s) about the model's own derivative at A's state, an affine step (the
     # model's curvature over 20 ms is micrometres of the hook); "model": the integrator on the
-    # crane model every step (the filter before)
+    # crane model every step
     ekf_mean: Literal["jacobian", "model"] = "jacobian"
     # UKF prediction window: the sigma points step once per window and the MRU and encoder
     # samples inside it are applied together at its end (each as its chain's state extrapolated
     # back to the sample's time: fusion/models/linear_chains.py); a LiDAR frame closes the window
     # at its time; the outputs inside a window apply each sample to the window's start carried
     # by the model's linear part. 1 / predict_rate_hz (or less): a sigma-point step and an
-    # update per sample (the filter before).
+    # update per sample.
     ukf_window_s: float = Field(0.025, ge=0.0)
     # UKF with the midpoint rule and a window: "linearised": the second stage's accelerations
     # are the first's plus the model's Jacobian at the mean (the window's, for its outputs) times
     # the half step's displacement (one model evaluation on the sigma points per window instead
-    # of two; fusion/models/batched_model.py); "model": the second stage on the model (before)
+    # of two; fusion/models/batched_model.py); "model": the second stage on the model
     ukf_midpoint: Literal["model", "linearised"] = "linearised"
     ukf_alpha: float = 1e-3
     ukf_beta: float = 2.0

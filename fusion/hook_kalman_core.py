@@ -4,7 +4,7 @@ model (EKF or UKF) and the updates by the crane's own sensors (encoders, MRU).
 rope direction).
 
 EKF (the equations of filterpy's ``ExtendedKalmanFilter``, written out: its per-call
-overhead dominated the 200 Hz loop): ``P = F P F^T + Q`` with ``F = I + A dt + (A dt)^2 / 2``
+overhead would dominate the 200 Hz loop): ``P = F P F^T + Q`` with ``F = I + A dt + (A dt)^2 / 2``
 and the continuous Jacobian ``A`` of the equations of motion (fusion/models/jacobian.py),
 refreshed every ``jacobian_interval_s`` (20 Hz; ``0`` = every step; ``F`` is rebuilt only when
 ``A`` or ``dt`` changes); the mean ``x' = F x + c`` about the model's derivative at A's state

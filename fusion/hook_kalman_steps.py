@@ -18,7 +18,7 @@ class KalmanState:
     filter's cost is numpy's per-call overhead, and this drops a third of the calls. ``x`` and
     ``P`` are views of M; M is replaced, never changed in place, so its identity marks the state.
     The EKF and UKF equations are written out in :class:`~boomtip.fusion.hook_kalman_core.HookKalmanCore`
-    (filterpy's ExtendedKalmanFilter / UnscentedKalmanFilter; their per-call overhead dominated
+    (filterpy's ExtendedKalmanFilter / UnscentedKalmanFilter; their per-call overhead would dominate
     the 200 Hz loop)."""
 
     __slots__ = ("M", "n")
@@ -67,7 +67,7 @@ def stacked_correction(M: np.ndarray, C: np.ndarray, S: np.ndarray, nis: bool = 
 
     With the Cholesky factor S = U^T U and G = C U^-1: G[:n] G[:n]^T = K S K^T and
     -G[n] G[:n]^T = (K y)^T, so M' = M - G G[:n]^T, one product for both. Two small LAPACK calls
-    instead of numpy.linalg.inv (whose Python overhead dominated the 200 Hz linear updates).
+    instead of numpy.linalg.inv (whose Python overhead would dominate the 200 Hz linear updates).
     """
     n = M.shape[1]
     U, info = dpotrf(S)

@@ -78,7 +78,7 @@ def merged_events(stamps: Sequence[np.ndarray], t_after: float, t_until: float) 
     (times float64, sensor = position in ``stamps`` int8, sample index int32). Equal times keep the
     sensor order (MRU, encoders, LiDAR), so the linear updates come before a LiDAR fix at the same
     stamp. Arrays, 13 bytes an event: a 700 s run has about 220,000 events, which as Python lists
-    took about 17 MB per estimator run (callers take a window of them as lists at a time)."""
+    would take about 17 MB per estimator run (callers take a window of them as lists at a time)."""
     ev_t = np.concatenate([np.asarray(t, float) for t in stamps])
     ev_s = np.concatenate([np.full(len(t), k, np.int8) for k, t in enumerate(stamps)])
     ev_i = np.concatenate([np.arange(len(t), dtype=np.int32) for t in stamps])

@@ -63,9 +63,9 @@ def tilt_from_normals(t_s: np.ndarray, normals_level: np.ndarray, min_span_s: fl
     of history. The correction rotates the mean normal m onto e_z: rx = m_y, ry = -m_x.
 
     A gap in the normals (a LiDAR outage, the deck lost) splits them: one window across a gap
-    weighs the waves on either side unevenly and leaves part of a wave in the mean (0.16 deg of
-    pitch after a 50 s outage in a 110 s run), so each gap-free stretch of at least min_span_s
-    gets its own Hann mean, and the stretches are averaged by their length."""
+    weighs the waves on either side unevenly and leaves part of a wave in the mean, so each
+    gap-free stretch of at least min_span_s gets its own Hann mean, and the stretches are
+    averaged by their length."""
     t_s = np.asarray(t_s, dtype=float)
     n = normals_level / np.linalg.norm(normals_level, axis=1, keepdims=True)
     means, spans, sigmas = [], [], []

@@ -1,8 +1,8 @@
 """The crane MRU's attitude through a gap in its log, predicted from its own samples before
 the gap: roll, pitch and yaw (and their rates, each its own series) by an autoregressive model
 fitted to the last `history_s` and run forward (fusion.wave_predictor). A ship's roll and
-pitch are narrow-band wave processes: on sts-loaded the forecast held 0.002-0.003 deg RMS over
-5 s; on sts-irregular's broadband sea 0.02-0.28 deg. Each value carries its variance: the
+pitch are narrow-band wave processes, which such a model follows for seconds; a broadband
+sea's far less well. Each value carries its variance: the
 larger of the model's own (its impulse response) and its k-step errors backtested on the same
 history, so a model that fits poorly says so. Only samples before the gap are used: the
 prediction is causal, what a live controller would have.
@@ -51,8 +51,8 @@ def forecast_series(t_s: np.ndarray, y: np.ndarray, t_last_s: float, horizon_s: 
     variance 0 there), the values and their variances; None with too short a history."""
     dt = 1.0 / rate_hz
     # each grid sample the mean of the samples about it, not the one nearest it: the AR fit's
-    # regressors carry that noise (0.01 deg of white noise at 200 Hz, taken at 10 Hz, let the
-    # forecast of a 1 deg wave drift 0.35 deg in 5 s). Centred means, so no lag; the grid ends
+    # regressors carry that noise, and noisy regressors bias the fit and let the forecast
+    # drift. Centred means, so no lag; the grid ends
     # where the last full one is (a mean cut at the series' end would bend its last samples)
     k = max(1, int(round(dt / float(np.median(np.diff(t_s)))))) | 1 if len(t_s) > 1 else 1  # odd: centred on a sample
     if k > 1:
@@ -115,7 +115,7 @@ class MruBridge:
         if max(var[0], var[1]) > self.max_var:
             return None
         # the angles by a cubic through the values and their rates: linear between the 10 Hz
-        # samples was 0.0006 deg off a 1 deg, 8 s wave (the chord's sag)
+        # samples would be 0.0006 deg off a 1 deg, 8 s wave (the chord's sag)
         rpy = (fc.angles(t_s) + np.pi) % (2 * np.pi) - np.pi
         rates = np.array([np.interp(t_s, fc.t_s, fc.values[:, c]) for c in range(3, 6)])
         return rpy, rates, var

@@ -52,7 +52,7 @@ class FusionConfig(BaseModel):
     predictor_order: int = Field(12, ge=2, le=64)
     floor_sigma_D_dot_mps: float = Field(
         3e-3, ge=0, description="the same for D-dot: the rotation-aware Doppler's deck spin comes from a 1 s window "
-        "of deck normals, an error its velocity fit cannot see (1.4-3.5 mm/s rms in the evaluation scenarios)",
+        "of deck normals, an error its velocity fit cannot see (a few mm/s)",
     )
 
 

@@ -59,9 +59,9 @@ def backtest_variance(model: ArModel, y: np.ndarray, steps: int) -> np.ndarray:
     """The variance of the model's k-step forecast errors (k = 1..steps) over the series it was
     fitted to, every sample an origin: the model's own variance (its one-step residual through
     its impulse response) assumes the model is the process; a broadband sea's AR of modest
-    order is not, and its k-step errors grew to 3-4 times that sigma (sts-irregular's pitch,
-    5 s ahead). steps is cut to what the series holds (at least 10 origins per step); the
-    last value stands for the steps beyond."""
+    order is not, and its k-step errors can be several times that sigma a few seconds ahead.
+    steps is cut to what the series holds (at least 10 origins per step); the last value
+    stands for the steps beyond."""
     p = len(model.coeffs)
     z = np.asarray(y, dtype=float) - model.mean
     n_orig = len(z) - p - steps

@@ -58,8 +58,7 @@ RADAR_DECK = DeckConfig(
         min_inliers=20, merge_distance_m=1.0,
     ),
     min_points=20,
-    # sparse and noisy: the biweight moved radar D by more than it settled it (7.23 -> 7.46 mm
-    # over 20 seeds of sts-loaded)
+    # sparse and noisy: the biweight's reweighting adds to radar D's error more than it settles it
     biweight_iterations=0,
 )
 

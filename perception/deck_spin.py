@@ -13,7 +13,7 @@ fit with their joint covariance: the plane is not measured twice, and the rates 
 known as the sweep makes them (the longer the sweep and the wider the deck, the better).
 
 What tells a rate from a slope: a sweep's time runs with one axis of the deck (a grid's
-columns along the feeder, x; correlation 0.998 in sts-loaded), so the slope along it and the
+columns along the feeder, x), so the slope along it and the
 heave rate, and that slope's rate and the deck's curvature along it, are told apart only by
 the time's nonlinearity in x (the columns' angles) and by the filter's own heave rate (radar
 Doppler), through the joint covariance. The simulated decks are flat; a cambered or sheered
@@ -75,7 +75,7 @@ def spin_plane_in_level(points_level: np.ndarray, t_s: np.ndarray, inflation: fl
 
     One inflation for the whole matrix: a sweep's time runs with one axis of the deck, so the
     plane and its rates are strongly correlated (the height at the frame's time and the heave
-    rate, 0.998), and inflating their blocks apart would make up information about their
+    rate above all), and inflating their blocks apart would make up information about their
     combinations (the height at the returns' mean time, the one well measured). None when the
     returns' times do not separate from their places (MAX_CONDITION), or too few for the six
     coefficients to leave residuals (MIN_POINTS: an exact fit would claim a zero covariance)."""
@@ -98,8 +98,8 @@ def spin_plane_in_level(points_level: np.ndarray, t_s: np.ndarray, inflation: fl
     AtA = A @ A.T
     # Time only separates from place where it does not run in step with it (a grid's columns:
     # the time is a function of x alone, the tangent of the column's angle; a sensor stamping
-    # a frame's returns in proportion to x, not at all). Rows scaled to unit length, the
-    # sts scenarios' frames give a condition number of 1.2-1.6e3.
+    # a frame's returns in proportion to x, not at all). Rows scaled to unit length, a grid's
+    # frames give condition numbers of the order of 1e3, far below the bound.
     scale = 1.0 / np.sqrt(np.diag(AtA))
     if not np.all(np.isfinite(scale)) or np.linalg.cond(AtA * np.outer(scale, scale)) > MAX_CONDITION:
         return None

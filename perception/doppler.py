@@ -272,8 +272,8 @@ def doppler_velocity(
             continue
         u = np.linalg.solve(a[ok], y[ok][..., None])[..., 0]  # (k', 3)
         # (n, k') residuals; GEMMs in column chunks small enough for OpenBLAS to stay
-        # single-threaded (m*n*k < 65536*4): on a loaded 2-core machine a threaded GEMM can wait
-        # tens of ms for its helper thread (measured in perception.plane)
+        # single-threaded (m*n*k < 65536*4): on a busy machine a threaded GEMM can wait tens of
+        # ms for its helper thread (perception.plane)
         res = np.empty((n, len(u)))
         chunk = max(1, 262143 // (3 * n))
         for c0 in range(0, len(u), chunk):

@@ -127,7 +127,7 @@ class FeederPerception:
         self.t_crane_tip = T_cb[:3, 3]
         # The attitude's noise as the caller levels with it: the MRU's stated rate noise over the
         # samples the caller averages each rate of, its angle noise (less when the caller filters
-        # the angles: the feeder estimator's attitude_filter, 0.02 -> 0.0016 deg), the tip's
+        # the angles: the feeder estimator's attitude_filter takes 0.02 deg to under 0.002), the tip's
         # velocity at the boom's lever. A frame may bring its own (a forecast through an MRU gap).
         self.noise = AttitudeNoise.of_installation(installation, angle_sigma_rad, rates_averaged_over)
         self.mount_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
@@ -292,7 +292,7 @@ class Footprint:
 
     def contains_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         # face by face (a dozen), each vectorised over the points: numpy's all() along a short
-        # axis of an (N, F) array was 4 of the test's 4.5 ms on 19 000 points
+        # axis of an (N, F) array would be most of the test's time
         inside = np.ones(len(x), dtype=bool)
         for nx, ny, c in self.equations:  # loop over the hull's faces, not points
             inside &= x * nx + y * ny + c <= self.margin_m
@@ -326,7 +326,7 @@ def centre_line_yaw(points_map: np.ndarray, rng: np.random.Generator, band_m: tu
     i, d, length = i[ok], d[ok], length[ok]
     nrm = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
     # distances of every point to every hypothesis, in blocks of 500 points: a block's (500, H)
-    # product stays in the cache, where the whole (N, H) one (4.5 MB) took 3-10 ms of page faults
+    # product stays in the cache, where the whole (N, H) one (megabytes) costs page faults
     offset = np.einsum("hj,hj->h", scored[i], nrm)
     counts = np.zeros(len(nrm), dtype=np.int64)
     for start in range(0, len(scored), 500):  # blocks of points, each vectorised

@@ -3,10 +3,10 @@
 A merge aligns every collected frame to the others (perception/feeder_registration.py,
 `merged_model`): seconds for 200 frames, while a frame has tens of milliseconds. By default
 (`merge_lag_frames` (0,)) it runs inline, in the frame it is due at, and its time is that
-frame's. With a lag it runs in a worker thread (its ICP's nearest-neighbour searches in Open3D and its numpy work release the
-GIL: a Python loop on the chain's thread kept 0.97 of its pace beside a merge, and the merge
-its time) on a snapshot of the frames and poses collected when it was due; the chain keeps
-registering to the current model and collecting.
+frame's. With a lag it runs in a worker thread (its ICP's nearest-neighbour searches in Open3D
+and its numpy work release the GIL, so neither it nor the chain's thread slows the other much)
+on a snapshot of the frames and poses collected when it was due; the chain keeps registering
+to the current model and collecting.
 
 Its model is taken at a fixed LiDAR frame (`merge_lag_frames` after the one that started
 it), waiting there if it is not done: when it is taken never depends on the machine's

@@ -50,13 +50,13 @@ class FeederPipelineConfig(BaseModel):
     perception: FeederConfig = FeederConfig()
     register_xy_after_frames: int = Field(50, ge=1, description="a registration's x and y update the filter once the model is "
                                           "merged from this many frames, its yaw from the first: against a model of few "
-                                          "viewpoints they are biased (sts-irregular seed 7: 5 cm in y against one frame)")
+                                          "viewpoints they are biased")
     rekey_after_failures: int = Field(20, ge=1, description="registrations failed in a row before a new keyframe is taken")
     centre_line_every: int = Field(5, ge=1, description="the hull edge is looked for every this many LiDAR frames")
     hull_edge_min_points: int = Field(200, ge=10, description="the own hull's edge among the static returns counts with this "
                                       "many points on it (the calibration's rotation about the vertical)")
     hull_edge_frames: int = Field(30, ge=3, description="the own hull's edge is looked for in this many frames (it is static: "
-                                  "their spread was 0.0001 deg)")
+                                  "a few dozen frames pin it)")
     radar_registration: RadarRegistrationConfig = RadarRegistrationConfig()
 
 

@@ -2,11 +2,11 @@
 
 When the LiDAR is out, the radar's Doppler gives the feeder's velocity, and a velocity
 integrated over tens of seconds drifts (across the ship most: the radar's 12 deg of elevation
-span little of it). The radar's detections are points too: 150-200 of its 500 a frame fall
-on the feeder's structure that the LiDAR's merged model holds, each with 13-19 cm of noise
-(range 0.14 m, azimuth 0.29 deg, elevation 0.43 deg at 25-30 m). Registered to the model,
-with z, roll and pitch held where the filter has them (the deck's planes fix those), they
-give x, y and yaw to about 5 cm and 0.1 deg a frame, without drift.
+span little of it). The radar's detections are points too: a third or so of them fall on the
+feeder's structure that the LiDAR's merged model holds, each with 13-19 cm of noise (range
+0.14 m, azimuth 0.29 deg, elevation 0.43 deg at 25-30 m). Registered to the model, with z,
+roll and pitch held where the filter has them (the deck's planes fix those), they give x, y
+and yaw to centimetres and a tenth of a degree a frame, without drift.
 
 The registration here is a Gauss-Newton of the point-to-plane residuals in the filter's own
 coordinates (x, y, yaw of the feeder frame in the level frame), each residual weighted by the
@@ -43,8 +43,8 @@ class RadarRegistrationConfig(BaseModel):
     max_iterations: int = Field(4, ge=1)
     converged_m: float = Field(0.005, gt=0, description="the iteration stops when no step moves x or y by more than this (a frame is good to 5 cm)")
     info_inflation: float = Field(8.0, ge=1, description="the information divided by this: a frame's errors repeat in the "
-                                  "next ones (the radar sees the same structure from about the same place for seconds); at 2 a "
-                                  "50 s outage without a feeder MRU had a NEES of 5.5, at 8 1.6 (seed 2038301562)")
+                                  "next ones (the radar sees the same structure from about the same place for seconds), "
+                                  "and a filter that took them as independent would claim far too much")
     learn_every: int = Field(4, ge=1, description="while the LiDAR registers, the offset is learnt from every this-many-th radar frame")
     max_sigma_m: float = Field(0.3, gt=0, description="directions of a frame's registration known worse than this are not updated")
     offset_frames: int = Field(400, ge=1, description="the radar-minus-LiDAR offset is a running mean over at most this "
@@ -111,7 +111,7 @@ def register_radar(surface: Surface, detections_sensor: np.ndarray, R_level_sens
     # deck's vertical normal says nothing of x, y or yaw: two thirds of those on the model)
     # and inside the model's plan outline (not the sea, the own vessel, false alarms).
     xy = surface.points[:, :2]
-    lo, hi = xy.min(axis=0) - 1.0, xy.max(axis=0) + 1.0  # 30 us for 27 000 points: no cache to keep in step
+    lo, hi = xy.min(axis=0) - 1.0, xy.max(axis=0) + 1.0  # microseconds for the model's points: no cache to keep in step
     p_map = _to_map(pose, points_level)[0]
     keep = ((np.abs(p_map[:, 2]) > cfg.deck_band_m) & (p_map[:, 0] > lo[0]) & (p_map[:, 0] < hi[0])
             & (p_map[:, 1] > lo[1]) & (p_map[:, 1] < hi[1]))

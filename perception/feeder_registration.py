@@ -11,15 +11,12 @@ registered to it is a setting (`registration.method`), each seeded with the filt
   when the prior is poor (the first frames, after an outage): it pulls in from metres;
 - kiss_icp: kiss-icp's `align_points_to_map` against its voxel map of the model, every frame;
 - kiss_icp_refined: kiss_icp, then the point-to-plane ICP from its pose.
-On a deck seen from above kiss-icp's point-to-point ICP slides along the structure. Every
-frame registered by kiss-icp alone, 60 s, 3 seeds (`boomtip sweep -s sts-loaded --seeds 3
---duration 60 --set feeder.perception.registration.method=kiss_icp`, BENCHMARKS.md "kiss-icp
-in the feeder chain"): y RMSE 20.0 mm against point-to-plane's 5.0 (max 60 against 18), yaw
-0.034 against 0.009 deg on sts-loaded; on sts-irregular y 52 against 7.1 mm (max 216 against
-35), yaw 0.29 against 0.019 deg, NEES 92. Refined, it is point-to-plane's accuracy within
-0.5 mm and 0.0005 deg at 5-7 times its registration time (kiss-icp's iterations). A model
-grown frame by frame from registered poses drifts (5-7 cm in 10 s, with either ICP); the
-keyframe does not, and a new keyframe is taken only when the old one no longer overlaps.
+On a deck seen from above kiss-icp's point-to-point ICP slides along the structure: every
+frame registered by kiss-icp alone is several times worse in y and yaw than point-to-plane's;
+refined, it is as good, at several times its registration time (kiss-icp's iterations;
+BENCHMARKS.md, "Registration method"). A model grown frame by frame from registered poses
+drifts (centimetres in seconds, with either ICP); the keyframe does not, and a new keyframe is
+taken only when the old one no longer overlaps.
 
 Frames: `level` is the crane vessel's heading frame as the installation sees it (levelled
 with the MRU's roll and pitch, x along the crane's heading, origin at the crane vessel's
@@ -46,7 +43,7 @@ from boomtip.perception.point_to_plane import Surface, cross_rows, icp_point_to_
 
 def _o3d():
     """open3d, imported when a model is built: the settings (RegistrationConfig) are read by
-    every user of the processing settings, and open3d and kiss-icp cost 0.8 s to import."""
+    every user of the processing settings, and open3d and kiss-icp take most of a second to import."""
     import open3d
 
     return open3d
@@ -56,8 +53,8 @@ class RegistrationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     sample_m: float = Field(0.0, ge=0, description="frames are voxel-sampled at this size before the static test and the "
-                            "structure (0: every return kept; the keyframe keeps it). At 0.25 m it kept 28 780 of a 128 x 1024 "
-                            "frame's 28 786 returns and every grid LiDAR return, for 3.5 ms a frame: the ICP samples its own")
+                            "structure (0: every return kept; the keyframe keeps it). At 0.25 m it would keep nearly every "
+                            "return of a LiDAR frame and still cost a few ms a frame: the ICP samples its own")
     keyframe_m: float = Field(0.0, ge=0, description="the keyframe's voxel, when coarser than the frames' (0: the frame's)")
     icp_sample_m: float = Field(0.5, gt=0, description="and the frame registered to it at this size: ICP's time goes with the source")
     method: Literal["point_to_plane", "kiss_icp", "kiss_icp_refined"] = Field(
@@ -66,31 +63,27 @@ class RegistrationConfig(BaseModel):
         "kiss_above_sigma_m). kiss_icp: kiss-icp's align_points_to_map (its point-to-point ICP with a Geman-McClure kernel, "
         "C++) against its voxel map of the model, every frame. kiss_icp_refined: kiss_icp, then the point-to-plane ICP from "
         "its pose. Each method's information matrix is the point-to-plane residuals' about its pose. The model's merges "
-        "always use the point-to-plane ICP. 60 s, 3 seeds (BENCHMARKS.md): kiss_icp's y RMSE 20 mm on sts-loaded and 52 "
-        "on sts-irregular against 5.0 and 7.1, yaw 0.034 / 0.29 against 0.009 / 0.019 deg; kiss_icp_refined within 0.5 mm "
-        "and 0.0005 deg of point_to_plane at 5-7 times its registration time")
+        "always use the point-to-plane ICP. kiss_icp is several times worse in y and yaw than point_to_plane; "
+        "kiss_icp_refined is as good, at several times its registration time (BENCHMARKS.md)")
     kiss_voxel_m: float = Field(0.5, gt=0, description="kiss-icp's map voxel")
     kiss_above_sigma_m: float = Field(0.15, gt=0, description="kiss-icp runs first when the prior's sigma exceeds this "
                                       "(re-acquisition: correspondences out to 3 sigma, up to 5 m)")
     kiss_max_correspondence_m: float = Field(1.0, gt=0, description="kiss-icp's correspondence distance, every frame "
                                              "(methods kiss_icp and kiss_icp_refined)")
     kiss_kernel_m: float = Field(0.1, gt=0, description="kiss-icp's Geman-McClure kernel scale, every frame (its "
-                                 "re-acquisition's ratio: a third of the correspondence distance). The frame sampled by kiss-icp's own "
-                                 "voxel_down_sample (returns, not Open3D's centroids), y RMSE 20.1 / 107 mm on sts-loaded / "
-                                 "sts-irregular against 20.0 / 52; that and 0.03 with 0.3 m correspondences, 21.2 / 82 (3 seeds, 60 s)")
+                                 "re-acquisition's ratio: a third of the correspondence distance)")
     max_correspondence_m: float = Field(1.0, gt=0, description="point-to-plane correspondence distance")
     tukey_m: float = Field(0.3, gt=0, description="Tukey kernel width of the point-to-plane residuals")
     merge_tukey_m: float = Field(0.05, ge=0, description="a merge's registrations (the frames to each other, and the first "
                                  "frame, which anchors the map, to the others) are refined from the ICP's pose with this "
                                  "narrower kernel (0: not refined). Correspondences 5-30 cm off the model's surface still "
-                                 "pull with the wide kernel and bias a frame by its viewpoint: registered from its true pose "
-                                 "to 199 frames merged at theirs, sts-irregular's first frame was 12.7 mm off in x with 0.3 m "
-                                 "alone, 9.3 with 0.1 and 3.3 with 0.05. Not per frame: a second ICP there cost a quarter "
-                                 "more of the frame's time and moved six replays by at most 1.6 mm either way")
+                                 "pull with the wide kernel and bias a frame by its viewpoint (the first frame, which "
+                                 "anchors the map, by about a centimetre); the narrow kernel leaves them out. Not per frame: a "
+                                 "second ICP there costs about a quarter more of the frame's time for no gain in accuracy")
     max_iterations: int = Field(30, ge=1, le=1000)
     relative_change: float = Field(1e-4, gt=0, lt=1, description="ICP stops when its fitness and inlier RMSE change by less "
-                                   "than this (relative): from the filter's prediction, 1e-6 moved x, y by 0.2 / 0.9 mm RMS "
-                                   "more and nearly doubled the ICP's time")
+                                   "than this (relative): from the filter's prediction a tighter stop is no more accurate "
+                                   "and nearly doubles the ICP's time")
     normal_neighbours: int = Field(10, ge=5, le=100)
     point_sigma_m: float = Field(0.03, gt=0, description="1-sigma point-to-plane residual of a well-matched point")
     info_inflation: float = Field(30.0, ge=1, description="residuals are correlated (one surface, one scan pattern): the "
@@ -108,17 +101,16 @@ class RegistrationConfig(BaseModel):
         return v
 
     model_iterations: int = Field(1, ge=1, le=10, description="rounds of aligning the model's frames to each other (a second "
-                                  "moved sts-irregular's y RMSE by 0.4 mm: each merge starts from the last one's poses)")
+                                  "gains little: each merge starts from the last one's poses)")
     merge_lag_frames: tuple[int, ...] = Field((0,), description="0: each merge runs inline (the default: see below). Else "
                                               "each merge (in model_merges' order; past "
                                               "its end, the last lag) runs beside the frames and its model is taken this many "
                                               "LiDAR frames after the one that started it, waiting there if it is not done (so "
                                               "a run never depends on the machine's speed; 0: inline). The early merges matter "
-                                              "most: taken 10 and 25 frames late, sts-irregular seed 8's y RMSE went 6.9 -> "
-                                              "11.2 mm (max 20 -> 58); at 2 and 5, 7.1. The late ones take seconds (5.4 s for "
-                                              "200 frames on a busy machine); 50 and 100 frames late cost no more than 10 and 20. (2, 5, 50, 100) "
-                                              "on sts-irregular, 5 seeds, against inline: yaw 0.022 against 0.018 deg, one seed's "
-                                              "max y 40.9 mm against 35.3 (BENCHMARKS.md): inline is the default")
+                                              "most: taken ten frames late or more they let the y error grow markedly, two or five "
+                                              "frames late hardly. The late ones take seconds (200 frames) and bear long lags: 50 and "
+                                              "100 frames late cost no more than 10 and 20. Even short lags cost a little "
+                                              "accuracy against inline: inline is the default")
 
     @field_validator("merge_lag_frames")
     @classmethod
@@ -195,9 +187,8 @@ def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], 
     One frame's keyframe is sampled at the LiDAR's spacing (35-50 cm at 40-70 m for 0.5 deg):
     each point's normal spans the edges of bulwarks and coamings, and a frame seen from another
     height matches its points to the wrong side of an edge. The registrations to it are then
-    off by a function of the viewpoint (sts-loaded seed 7: 2.1 cm in y on average, correlated
-    0.8 with the feeder's height, starting from the true pose with the keyframe at the true
-    pose); to 50 frames merged at their true poses, 8 mm RMS (mean -2 mm)."""
+    off by a function of the viewpoint (centimetres in y, following the feeder's height);
+    registrations to frames merged from many viewpoints are off by millimetres."""
     def register(i: int, model: Surface) -> np.ndarray:
         res = icp_refined(model, icp_source(frames_level[i], cfg), poses[i], cfg)
         ok = np.all(np.isfinite(res.T)) and len(res.source_index) >= cfg.min_points

@@ -37,9 +37,9 @@ Modules: this one runs the chain (and the sparse fix for a far block); steps 2-3
 perception.hook_segment, 4a-b in perception.hook_fit, 4c in perception.hook_rays, the block model
 in perception.hook_block, the configuration and result in perception.hook_types.
 
-Accuracy and speed (simulated OS1-128, 1024 columns, 1.5 cm noise growing for weak returns, sensor
-0.85 m from the rope; 2 shared cores): see the report of tests/perception/test_hook_segmentation.py.
-About 10 ms per frame at 20 m (ICP only), 15-25 ms for a sparse far block (ray refinement).
+Accuracy (simulated OS1-128, 1024 columns, 1.5 cm noise growing for weak returns, sensor 0.85 m
+from the rope): see the report of tests/perception/test_hook_segmentation.py. A near block costs
+the ICP alone; a sparse far block adds the ray refinement, the dearer step.
 """
 
 from __future__ import annotations
@@ -173,7 +173,7 @@ def sparse_block_fix(
     sensor and the rope cross the rope before they reach the block's far half, which they never
     hit. When every point lies within ``sparse_rope_plane_m`` of that plane (one scan line
     along it: the usual case with 1-3 points), the hits sample only the near half and their
-    mean is off by a quarter of the block (~0.3 m, measured on hook-2). Such frames keep their
+    mean is off by a quarter of the block (~0.3 m). Such frames keep their
     segmentation but give no fix (status "segmented: ...").
     Returns the detection, or a reason string.
     """

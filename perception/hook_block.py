@@ -43,7 +43,7 @@ class BlockModel:
         self.shape = np.ceil((self.points.max(axis=0) + margin_m - self.lo) / grid_cell_m).astype(np.int64) + 1
         axes = [self.lo[i] + (np.arange(self.shape[i]) + 0.5) * grid_cell_m for i in range(3)]
         self.grid = np.empty(tuple(self.shape), np.int32)
-        # in slabs along x: all 600,000 cell centres and their answers at once were about 40 MB
+        # in slabs along x: all 600,000 cell centres and their answers at once would be about 40 MB
         for a in range(0, self.shape[0], 16):
             centres = np.stack(np.meshgrid(axes[0][a:a + 16], axes[1], axes[2], indexing="ij"), axis=-1).reshape(-1, 3)
             d, idx = self.tree.query(centres, distance_upper_bound=margin_m + grid_cell_m, workers=-1)

@@ -188,9 +188,8 @@ def initial_guesses(p: np.ndarray, cfg: HookConfig) -> list[tuple[np.ndarray, fl
 def fit_block(p: np.ndarray, cfg: HookConfig, rng: np.random.Generator, prior_t: np.ndarray | None = None) -> BlockFit:
     """Fit the known block model to the cluster points p (levelled frame); the best of a few
     starts (most inliers, then lowest RMS). ``prior_t``, a precise prediction of the reference
-    point, adds starts there (the cluster's yaw and the perpendicular one): a far block's 8-10
-    points start the ICP in a wrong basin about one frame in 25 (hook-1 at 80 m), with 6 of 10
-    points explained.
+    point, adds starts there (the cluster's yaw and the perpendicular one): a far block's few
+    points can start the ICP in a wrong basin that still explains most of them.
 
     If none fits well (RMS above icp_good_rms_m + icp_good_rms_per_m * range), e.g. a partly
     occluded block, whose visible part is nearly square (poor principal axis) and whose top

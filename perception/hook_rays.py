@@ -128,8 +128,8 @@ def ray_pick(rays: RayEvidence, t: np.ndarray, yaw: float, model: BlockModel, cf
     """Of the fitted pose and its near-symmetric copies (AMBIGUOUS_SHIFTS_M, one sheave pitch along
     the axle: a partly hidden block can be fitted one pitch off, with the same point-to-model RMS),
     the one the rays agree with best: the wrong copy puts the block on rays that went past it.
-    With a sparse block the rays often cannot tell (on hook-2 at 115 m one fix in four was a pitch
-    off); a filter prediction ``prior`` = (mean, covariance) then joins the choice: the copy with
+    With a sparse block the rays often cannot tell; a filter prediction ``prior`` = (mean,
+    covariance) then joins the choice: the copy with
     the least ray cost / (2 ray_sigma^2) + Mahalanobis^2 / 2. The prior only picks the copy; the
     fix itself comes from the rays and points (no double counting in the filter)."""
     R = hanging_pose(t, yaw)

@@ -55,9 +55,8 @@ class HookConfig(BaseModel):
     # --- 3. clustering ---------------------------------------------------------------------------
     cluster_method: Literal["auto", "kdtree", "dbscan"] = Field(
         "auto", description="kdtree: scipy radius graph + connected components; dbscan: Open3D cluster_dbscan "
-        "(min_points=1, the same partition); auto: dbscan below cluster_auto_points points, else kdtree. Measured "
-        "(2 shared cores): 23-170 points dbscan 0.03-0.2 ms vs kdtree 0.4-0.6 ms; 1k/5k/20k points dbscan "
-        "3.2/17/54 ms vs kdtree 2.6/12/36 ms",
+        "(min_points=1, the same partition); auto: dbscan below cluster_auto_points points, else kdtree: dbscan is "
+        "the faster on a few hundred points, kdtree on thousands",
     )
     cluster_auto_points: int = Field(500, ge=0)
     lidar_angular_step_rad: float = Field(
@@ -96,7 +95,7 @@ class HookConfig(BaseModel):
     )
     ray_refine_max_points: int = Field(
         100, ge=0, description="refine only sparse blocks (at most this many points): with more, the ICP alone is "
-        "good to ~2-3 cm and the refinement would cost ~20 ms"
+        "good to a few cm and the refinement would cost tens of ms"
     )
     ray_cone_margin_m: float = Field(0.4, ge=0, description="evidence rays pass within model radius + this")
     ray_max_block: int = Field(60, ge=4, description="block rays used at most (random subsample)")
@@ -120,7 +119,7 @@ class HookConfig(BaseModel):
     ray_sigma_max_m: float = Field(0.06, gt=0)
     min_fit_points: int = Field(
         6, ge=4, description="fewer block points: no fix (4 unknowns; with 3-5 points of a far block the error "
-        "reached 35 cm in simulation)"
+        "reaches decimetres)"
     )
     mask_distance_m: float = Field(0.15, gt=0, description="segmented block points: within this of the posed mesh")
     max_fit_rms_m: float = Field(0.10, gt=0, description="worse fit RMS: not the block")

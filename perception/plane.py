@@ -27,8 +27,8 @@ Speed
 The RANSAC is vectorised: a batch of minimal samples gives a batch of candidate planes, all
 scored on a random subsample of the cloud with a single matrix product; only the best
 hypothesis is refined (least squares on its subsample inliers, then on its inliers among ALL
-points). About 4-5 ms for 100k points on the 2-core development VM (Open3D ``segment_plane``
-with 1000 iterations: 35-65 ms). See ``ransac_plane``.
+points). A few ms for 100k points, an order of magnitude less than Open3D's ``segment_plane``
+with 1000 iterations. See ``ransac_plane``.
 """
 
 from __future__ import annotations
@@ -214,8 +214,8 @@ def ransac_plane(points: np.ndarray, cfg: RansacConfig | None = None, rng: np.ra
     3. Adaptive stop: after each batch, stop when the hypotheses drawn reach
        ``log(1 - confidence) / log(1 - w^3)`` with w the best subsample inlier ratio: the chance
        that a plane with that support was never sampled is then below 1 - confidence. A ground
-       that is 6 % of a real scan needs about 32,000 hypotheses (a fixed 1,000 missed it in
-       half the seeds). ``cfg.max_iterations`` caps the search (deterministic: the same cloud
+       that is 6 % of a real scan needs about 32,000 hypotheses (a fixed 1,000 often misses
+       it). ``cfg.max_iterations`` caps the search (deterministic: the same cloud
        and seed give the same plane on any machine); ``cfg.max_time_ms``, off by default, adds a
        time cap for live use. The fit says when a cap ended it (``capped``).
     4. Refinement, ``cfg.refit_iterations`` least-squares rounds (float64). With
@@ -267,8 +267,8 @@ def ransac_plane_cols(cols: np.ndarray, cfg: RansacConfig | None = None, rng: np
     sub_h[3] = 1.0
     thr32 = np.float32(thr)
     # OpenBLAS runs a GEMM single-threaded when m*n*k < 65536 * 4; bigger ones wake helper threads,
-    # and on a loaded 2-core machine one (128 x 4) @ (4 x 4000) product then took 30 ms instead of
-    # 0.3 ms (measured). Scoring in row chunks below that size is as fast and never waits.
+    # and on a busy machine a (128 x 4) @ (4 x 4000) product can then wait tens of ms for them
+    # instead of taking a fraction of one. Scoring in row chunks below that size is as fast and never waits.
     chunk = max(1, 262143 // (4 * s))
     dist_buf = np.empty((min(chunk, cfg.batch_size), s), dtype=np.float32)
     # inlier counts accumulate in 16 bits while they fit: summing uint8 into int32 costs twice as much

@@ -55,8 +55,8 @@ def moments_cols(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     m = cols.shape[1]
     s = cols.sum(axis=1)
-    # numpy's own sum-of-products loop, not BLAS: on a loaded 2-core machine a multithreaded BLAS
-    # dot/GEMM here waited up to 100 ms for its helper thread (measured), einsum never does
+    # numpy's own sum-of-products loop, not BLAS: on a busy machine a multithreaded BLAS dot/GEMM
+    # here can wait tens of ms for its helper thread, einsum never does
     raw = np.einsum("ij,kj->ik", cols, cols)
     raw -= (s[:, None] * s) / m  # np.outer's products, without its wrapper
     return s / m, raw

@@ -23,8 +23,8 @@ def _biweight_step(rows4: np.ndarray, plane: list[float], inv_scale: float) -> t
     the weights w = (1 - (r / scale)^2)^2 (0 beyond the scale), and ONE product rows (rows w)^T
     (1.5x faster than (rows w) rows^T here) whose 4 x 4 result holds the weighted sums of x x^T,
     of x and of w; the rest is 3x3 (the eigendecomposition) or 3-long, in Python floats. As a
-    weighted sum and mean, a scatter and a 3x3 fit in numpy, the same round took some thirty
-    numpy calls, whose per-call overhead showed in the deck's refine stage."""
+    weighted sum and mean, a scatter and a 3x3 fit in numpy, the same round would take some
+    thirty numpy calls, whose per-call overhead would show in the deck's refine stage."""
     w = np.array([v * inv_scale for v in plane]) @ rows4  # r / scale
     np.multiply(w, w, out=w)
     np.subtract(1.0, w, out=w)
@@ -56,8 +56,8 @@ def refine_plane_biweight(points: np.ndarray, plane: np.ndarray, scale_m: float,
     RANSAC's consensus plane is one of many near-equal ones on a surface that is not flat at
     the centimetre level (a cambered road, a sagging deck): which one depends on the seed, and
     a least-squares refit on a hard inlier band inherits it. The biweight's smooth weights
-    converge to the same plane from any of them (on real Ouster scans: 0.1-0.8 cm from seed to
-    seed where the band's refit spread 2-5 cm). Stops when the plane moves less than tol_m
+    converge to the same plane from any of them (on real scans millimetres apart from seed to
+    seed, where the band's refit spreads by centimetres). Stops when the plane moves less than tol_m
     over a 10 m span. The iterations run on at most max_points of the points near the start (an
     even stride through them), the last on all of them. Sensor frame, metres; oriented like
     the start (d >= 0)."""

@@ -1,8 +1,8 @@
 """Point-to-plane ICP with a Tukey kernel against a surface whose search index is built once.
 
 Open3D's `registration_icp` does the same iteration but builds a k-d tree of the target on
-every call: against the feeder's merged model (27 000 points) that build was 9.8 of a
-call's 17 ms on a 128 x 1024 LiDAR, while the model changes only at a merge. Here the index
+every call: against the feeder's merged model (tens of thousands of points) that build is
+most of a call's time, while the model changes only at a merge. Here the index
 (Open3D's tensor nearest-neighbour search, built once per model) is kept, and each
 iteration is one batched k-nearest query and a 6 x 6 solve.
 
@@ -17,8 +17,8 @@ The nearest-neighbour queries are most of an iteration's time, and after the fir
 moves by millimetres: each source point's nearest and second-nearest surface points are kept,
 and a point is queried again only when it has moved by half their distances' gap or more since
 (below that the nearest cannot have changed: every other point is at least d2 - moved away,
-the nearest at most d1 + moved). The correspondences are the full query's, for about 1.2 of
-the 3 queries a registration from a good prediction took.
+the nearest at most d1 + moved). The correspondences are the full query's: from a good
+prediction, few points need a second query.
 """
 
 from __future__ import annotations

@@ -14,10 +14,9 @@ Pipeline of :func:`preprocess` (each step optional except the first):
   5. voxel downsampling: one point per occupied voxel;
   6. statistical outlier removal (document 000's pcdenoise).
 
-Implementation choices (measured on 100k deck-like points, 2-core VM shared with other jobs; see
-the numbers in the docstrings of ``voxel_downsample`` and ``statistical_outlier_mask``):
+Implementation choices (see the docstrings of ``voxel_downsample`` and ``statistical_outlier_mask``):
   * voxel: a numpy voxel hash (int64 voxel keys packed with the point index, one ``np.sort``,
-    ``np.bincount`` centroids). It is 4-10x faster than Open3D here and keeps attributes EXACTLY:
+    ``np.bincount`` centroids). It is several times faster than Open3D and keeps attributes EXACTLY:
     attributes come from a real point of the
     voxel (the first one in input order), so a label stays a label. Open3D's tensor
     ``voxel_down_sample`` averages every attribute (a mean label is meaningless) and the legacy
@@ -93,12 +92,10 @@ def voxel_downsample(
     voxel, ``np.bincount`` the centroids. When the packed value could overflow, ``np.argsort`` of
     the keys is used instead (same result).
 
-    Measured on 100k points, voxel 0.2 m, 60k voxels (CPU time, best of 10, 2-vCPU VM shared with
-    other jobs, so only the ratios matter): this 11-20 ms; ``np.unique(return_index,
-    return_inverse)`` + bincount 25-43 ms; Open3D legacy ``voxel_down_sample`` 54-80 ms (carries no
-    attributes); Open3D tensor ``voxel_down_sample`` 100-250 ms (and it AVERAGES every attribute: a
-    mean label is meaningless); legacy ``voxel_down_sample_and_trace`` 190 ms (Python lists of
-    indices). Hence numpy.
+    Faster than ``np.unique(return_index, return_inverse)`` + bincount, and several times faster
+    than Open3D: the legacy ``voxel_down_sample`` carries no attributes, the tensor one AVERAGES
+    every attribute (a mean label is meaningless) and is slower still, and the legacy
+    ``voxel_down_sample_and_trace`` returns Python lists of indices. Hence numpy.
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = len(pts)
@@ -157,10 +154,9 @@ def statistical_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: f
     and left out of the statistic's sums, though not out of its counts (Open3D's arithmetic; a
     cloud without such stacks is judged exactly as above). Fewer than 2 points: all kept.
 
-    Open3D's own call, because it is the faster one here: on the 128 x 1024 spinning LiDAR's
-    frames (28k points, k = 20, 2 shared cores) 63-128 ms against 115-188 ms for the scipy
-    cKDTree query with the same statistic (``workers=-1``), with the same kept points on every
-    frame; Open3D's tensor k-NN search was no faster than cKDTree (127-265 ms).
+    Open3D's own call, because it is the faster one here: on a spinning LiDAR's frames it beats
+    the scipy cKDTree query with the same statistic (``workers=-1``), which keeps the same points;
+    Open3D's tensor k-NN search is no faster than cKDTree.
     """
     import open3d as o3d  # only this filter needs it here
 
@@ -212,8 +208,8 @@ def preprocess(
 
     # 1. non-finite and zero-range points, before anything else. The arithmetic runs on a (3, N)
     # copy, one contiguous row per axis, into two buffers: products over (N, 3) rows stride
-    # through memory, and each further full-size temporary cost page faults on the busy test
-    # machine. The kept points are returned as the transpose of that copy (an (N, 3) view).
+    # through memory, and each further full-size temporary costs page faults on a busy machine.
+    # The kept points are returned as the transpose of that copy (an (N, 3) view).
     cols = np.ascontiguousarray(pts.T)
     r2, tmp = np.empty(n0), np.empty(n0)
     with np.errstate(over="ignore", invalid="ignore"):

@@ -6,7 +6,7 @@ it taut). A 200 m block gets 0-3 returns per frame from an OS1-128, but the rope
 of metres below the tip, a few metres from the sensor, get hundreds. Their axis, a line
 through the known suspension point, is the hook's direction u from the tip; with the hoist
 length it is the hook's position across the rope, to a lateral error of l times the angular
-error (about 1.5 cm per frame at 200 m on the simulated OS1-128 with a well-levelled cloud).
+error (centimetres per frame at 200 m with a well-levelled cloud).
 
 Steps (all vectorised over points):
 
@@ -24,7 +24,7 @@ Steps (all vectorised over points):
 The radius is the rope's nominal one (the scenario's ``hook.rope_radius_m``), not estimated:
 with the sensor beside the rope, a radius error shifts the axis towards the sensor by the same
 amount at every depth, which a free radius can only separate from a tilt through the points'
-depth spread (3.6 cm worse at 200 m in simulation).
+depth spread, a short lever (a free radius would cost centimetres at 200 m).
 
 Returns the direction and its covariance (3x3, rank 2, across the rope), so the filter can
 turn it into its own angles (fusion.hook_kalman.HookFilter.update_rope).
@@ -219,8 +219,8 @@ def fit_rope(
 def _free_radius(q: np.ndarray, u: np.ndarray, radius_m: float, iterations: int = 4) -> float:
     """The radius the rope's points fit best with the tilt free as well (3 unknowns). Not used for
     the direction (a radius error and a tilt are told apart only by the points' depth spread),
-    but a check of the configured radius: 0.3 mm scatter per frame on the simulated OS1-128, and
-    1 mm of radius error is ~4 cm at a 200 m hook."""
+    but a check of the configured radius: its scatter per frame is a fraction of a millimetre,
+    and 1 mm of radius error is ~4 cm at a 200 m hook."""
     for _ in range(iterations):
         d, res, n_off = _surface_residuals(q, u, radius_m)
         J_tilt, E = _tilt_jacobian(d, n_off, u)

@@ -1,7 +1,7 @@
 """Returns that are static in the sensor frame: the own vessel, the boom, the rope, the hook
 and its load. They move with the sensor, not with the feeder, so a registration to the
-feeder's model must not see them: 2k of them in a 20k-point frame raised kiss-icp's error
-from 1.3 to 8 cm.
+feeder's model must not see them: static returns making up a tenth of a frame are enough to
+bias a registration by centimetres.
 
 Two tests, chosen by `method`:
 - `rays` (the default, for a LiDAR whose beams repeat their directions frame after frame:
@@ -10,9 +10,9 @@ Two tests, chosen by `method`:
   moved by the waves, changes every beam's range by decimetres; the own hull keeps its range
   to the noise, even when waves at its waterline or the feeder in front take the return away
   now and then (counting against the frames the beam returned, not all frames, is what keeps
-  those). On sts-irregular it marks 0.4 % of the feeder's returns static where the voxel test
-  marked 40 % (every surface within a voxel and a half of where it was), and the registration
-  that is left with the whole structure is far less biased (BENCHMARKS.md, issue 13).
+  those). It marks a tiny share of the feeder's returns static where the voxel test marks a
+  large part of them (every surface within a voxel and a half of where it was), and the
+  registration that is left with the whole structure is far less biased.
 - `voxels` (for non-repeating patterns, e.g. rosette scanners): a sensor-frame voxel that has
   held a return in nearly every frame of the window is static; the feeder's deck crosses a
   voxel and leaves it. Each frame's occupancy is dilated by one voxel before it is counted,

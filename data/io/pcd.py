@@ -1,9 +1,9 @@
 """PCD (v0.7) reading and writing with numpy.
 
 Written by hand rather than through `open3d.t.io` because Open3D cannot write an empty
-cloud (a radar frame with no detection is a valid frame), reorders fields, takes ~18 ms to
-read a 15k-point frame (numpy: well under 1 ms), and on a corrupt file only logs a warning
-and returns an empty cloud. Here a bad file raises `PcdError` naming the file and what was
+cloud (a radar frame with no detection is a valid frame), reorders fields, reads a frame
+an order of magnitude slower than numpy, and on a corrupt file only logs a warning and
+returns an empty cloud. Here a bad file raises `PcdError` naming the file and what was
 wrong, and `binary_compressed` files (PCL, Open3D) are decoded here too (Open3D's tensor
 reader aborts the whole process on the padding fields `pcl_ros` writes).
 """

@@ -27,7 +27,7 @@ class SensorSimConfig(BaseModel):
     sigma_mru_angle_rad: float = 0.02 * DEG
     sigma_mru_rate_rad_s: float = 0.025 * DEG
     # the rope's direction in the LiDAR frames (not in document 002): None = no rope stream;
-    # perception.rope measures 0.1-0.13 mrad per frame on the simulated OS1-128
+    # perception.rope's per-frame noise on an OS1-128 is of the order of 0.1 mrad
     sigma_rope_rad: float | None = None
 
 

@@ -190,7 +190,7 @@ class StoredTruth(Truth):
 
 class FrameSchedule(Sequence):
     """A simulation's frame schedule, (time stamp, sensor, index) in order, as arrays (13 bytes a
-    frame): as a list of tuples a 700 s hook run's 14,000 frames took 1.7 MB for the whole run."""
+    frame): as a list of tuples a 700 s hook run's 14,000 frames would hold 1.7 MB for the whole run."""
 
     def __init__(self, items: list[tuple[float, str, int]]) -> None:
         self._sensors = sorted({s for _, s, _ in items})
@@ -317,7 +317,7 @@ class HookSimulation(Simulation):
     def _mru_log(self) -> MruLog:
         """Simulation's MRU log (the same noise draws, the same numbers), with the vessel's states
         evaluated TRUTH_CHUNK samples at a time: all at once, a 700 s log's states (six (N, 3)
-        arrays, 20 MB) raised the run's memory by 35 MB, which the heap then kept."""
+        arrays, 20 MB) would raise the run's memory by more than that, and the heap would keep it."""
         cfg, mm = self.scenario.installation.mru, self.scenario.world.mismatch
         t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
         rpy, rate = np.empty((len(t), 3)), np.empty((len(t), 3))

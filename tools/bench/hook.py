@@ -8,8 +8,8 @@ by the process's CPU time (on a machine shared with other work the wall clock al
 waits for a core); the peak RSS is read after each part (where the memory goes).
 
 The block segmentation and fit's baseline: on every frame, the stage (perception.hook.detect_hook)
-is run a second time on the same inputs with its block fit and ray steps as they were
-(tools/bench/references/hook.py), the two in alternating order; their CPU times give the ratio, and the
+is run a second time on the same inputs with the earlier implementation of its block fit and
+ray steps (tools/bench/references/hook.py), the two in alternating order; their CPU times give the ratio, and the
 second run is kept out of the perception's time.
 
 The parts above run one after the other in one process. A run (`boomtip run`) makes a
@@ -101,7 +101,7 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
         ukf_core[name] = {"cpu_s": run.cpu_s, "runtime_s": run.runtime_s,
                           "same_estimate": store.states_sha1 == result.stores[name].states_sha1,
                           "cpu_ratio": run.cpu_s / result.runs[name].cpu_s}
-    # each estimator with RK4 (the integrator before the midpoint rule, otherwise the same code
+    # each estimator with RK4 (document 002's integrator; otherwise the same code
     # and the same operations) on the same measurements, the two run in turn twice (the least
     # CPU time of each: on a shared machine a single pair is out by 10-20 %)
     against_rk4 = {}
@@ -109,7 +109,7 @@ def bench_hook(program: str = "hook-2", duration_s: float = 20.0, overrides: lis
         kind, model = name.split("_")
         params = chain.params.model_copy(update={"flexible": model == "flexible"})
         cpu, last = {"rk4": [], "chain": [], "stepwise": []}, {}
-        # "stepwise": the filters before the UKF's window and the EKF's mean by its Jacobian
+        # "stepwise": the filters without the UKF's window and the EKF's mean by its Jacobian
         stepwise = {"ukf_window_s": 0.005, "ekf_mean": "model", "jacobian_interval_s": 0.02}
         for _ in range(2):
             for label, cfg in (("rk4", chain.filter_cfg.model_copy(update={"integrator": "rk4"})), ("chain", chain.filter_cfg),

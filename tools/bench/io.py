@@ -133,7 +133,7 @@ def bench_ground(pcaps: list[Path] | None = None, seeds: int = 20, tolerance_m: 
                  reference_iterations: int = 20000) -> dict:
     """Deck D (the ground below the sensor) against Open3D's segment_plane on the same points,
     over `seeds` seeds of the pipeline. The reference is an exhaustive segment_plane (no early
-    stop, `reference_iterations` hypotheses, about 0.3 cm from seed to seed); Open3D's usual
+    stop, `reference_iterations` hypotheses: millimetres from seed to seed); Open3D's usual
     call (1000 hypotheses with its early stop) is run over the same seeds for its own spread."""
     from boomtip.data.frames import MruLog
     from boomtip.perception.pipeline import HeavePipeline, PipelineConfig

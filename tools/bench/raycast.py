@@ -18,7 +18,7 @@ SPINNING_128x1024 = ["lidar.pattern=spinning", "lidar.channels=128", "lidar.colu
 
 
 def reference_lidar_hits(sim, t_s: float, fixed_hits=None):
-    """The LiDAR's hits as the simulator cast them before fans: every ray in world axes (its
+    """The LiDAR's hits the straightforward way, without fans: every ray in world axes (its
     column's pose with motion during the sweep), moved into each body's frame ray by ray,
     every ray cast into every body (`RayCaster.cast`)."""
     w, pat = sim.world, sim.lidar_pattern

@@ -124,8 +124,8 @@ def bench_perception(scenario: Scenario, frames: int = 30, voxel_m: float = 0.2,
 
 def _heave_stages_vs_reference(pipe, recorded: list, repeats: int = 5) -> dict:
     """The heave chain's stages (LiDAR deck, reflectors, the Doppler fit and the deck's spin for
-    the rotation-aware D-dot) against the same stages as they were (tools.heave_reference_deck,
-    tools.heave_reference), on the inputs the pipeline gave them. Each input is run `repeats`
+    the rotation-aware D-dot) against their earlier implementation (tools/bench/references/
+    heave_deck.py and heave.py), on the inputs the pipeline gave them. Each input is run `repeats`
     times by each, alternating, and the least wall time of each counts (as timeit does: on a
     shared machine a call that was preempted measures the machine, not the code). Ms per call
     (the mean of those least times), their ratio, and the largest difference between the two
@@ -226,7 +226,7 @@ def bench_fusion(program: str = "hook-2", duration_s: float = 60.0, seed: int = 
     vs the same filter with numerically differenced Jacobians, on the
     same measurement streams (truth + document 002's sensor noise), plus its accuracy; and the
     exact-Jacobian filter as boomtip's chain runs it, with the rope's direction in every LiDAR
-    frame as well (0.1 mrad, what perception.rope measures)."""
+    frame as well (0.1 mrad, the order of perception.rope's per-frame noise)."""
     from boomtip.data.crane_model import CraneParams
     from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
     from boomtip.data.sim.crane_truth import simulate_crane

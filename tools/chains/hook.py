@@ -34,8 +34,8 @@ from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import hook as outputs
 
-# each estimator's CPU time relative to the others (bench hook, 20 s of hook-2): to split them
-# evenly between two cores
+# each estimator's CPU time relative to the others (as `boomtip bench hook` reports them): to
+# split them evenly between two cores
 ESTIMATOR_COST = {"ukf_flexible": 5.3, "ukf_rigid": 2.9, "ekf_flexible": 0.95, "ekf_rigid": 0.85}
 
 
@@ -234,7 +234,7 @@ class HookChain:
 
     def visualise_result(self, viz, result: HookResult, truth: Truth | None) -> None:
         # without a recording nothing is logged: the estimates are not read back (a 700 s run's
-        # whole estimate, read at the run's peak, raised it by about 9 MB)
+        # whole estimate, read at the run's peak, would raise it by megabytes)
         if not result.runs or isinstance(viz, NullVisualiser):
             return
         name = "ekf_flexible" if "ekf_flexible" in result.runs else next(iter(result.runs))

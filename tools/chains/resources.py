@@ -46,9 +46,9 @@ def keep_freed_memory(mmap_threshold_bytes: int = KEEP_MMAP_THRESHOLD_BYTES,
     ``trim_threshold_bytes`` of freed heap, process-wide. By default glibc maps large blocks
     (above 128 KiB, a threshold it raises as they are freed) from the system and trims freed heap
     back to it, so frame after frame the large arrays (a 128 x 1024 frame's columns, ranges and
-    masks: 0.2-0.7 MB each) are faulted in afresh: 20-250 page faults and up to 1 ms of CPU per
-    LiDAR frame (the deck's preprocessing 0.40-0.71 ms -> 0.21-0.39 ms). Frames of one sensor
-    have the same size, so the heap settles after the first few. False where there is no glibc
+    masks: 0.2-0.7 MB each) are faulted in afresh: hundreds of page faults and up to a
+    millisecond of CPU per LiDAR frame. Frames of one sensor have the same size, so the heap
+    settles after the first few. False where there is no glibc
     mallopt: the allocator's defaults stay."""
     mallopt = _libc("mallopt")
     if mallopt is None:
@@ -66,7 +66,7 @@ def release_free_memory() -> None:
     """Give the heap's free pages back to the system (glibc's malloc_trim; nothing elsewhere).
     glibc keeps what a run freed inside its heap, and once its threshold for mapping blocks on
     their own has risen (to the largest block freed, up to 32 MB) a run's arrays come from that
-    heap: the freed holes a long run left then stayed in its memory to the end, the report's
+    heap: the freed holes a long run leaves then stay in its memory to the end, the report's
     peak included. Freed pages are returned, not the heap's layout: a few ms a call."""
     if _MALLOC_TRIM is not None:
         _MALLOC_TRIM(0)

@@ -4,7 +4,7 @@ the perception on the previous ones, and the estimators shared between two child
 The children are forks that run exactly the code a serial run would (same inputs, same random
 draws, same order), so a run's outputs do not depend on it; only the wall clock does. Processes
 and not threads: the simulator and the filters are mostly small numpy calls holding the GIL
-(measured: a frame-producing thread gave no gain at all).
+(a frame-producing thread gains nothing).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from boomtip.data.frames import Frame, FrameSource
 
 __all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost"]
 
-FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (hook-2: 0.6 MB each)
+FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (a hook frame: 0.6 MB)
 _serial_depth = 0
 
 
@@ -139,8 +139,8 @@ def _run_group(jobs: Sequence[str], work: Callable[[str], object], conn) -> None
 def run_split(names: Sequence[str], costs: dict[str, float], work: Callable[[str], object]) -> dict[str, object]:
     """{name: work(name)} for every name, the names split by cost between two forked children
     (each runs its share first to last, as a serial run would). Both in children, not one here:
-    an estimator's working memory then goes back to the system when its child ends (three
-    estimators run here left a 700 s run's process 19 MB larger, at the run's peak, the report).
+    an estimator's working memory then goes back to the system when its child ends (estimators
+    run here would leave a long run's process larger at the run's peak, the report).
     What ``work`` returns must pickle; it may write to files opened before the call (the
     children share them)."""
     names = list(names)

@@ -10,7 +10,7 @@ import sys
 __all__ = ["main", "tune_threads"]
 
 # boomtip's numerics are small dense products (3x3 solves, N x 3 scoring). Multithreaded
-# OpenBLAS stalls on those when the machine is busy (a 0.3 ms product measured at 31 ms), so
+# OpenBLAS stalls on those when the machine is busy (a sub-millisecond product can take tens of ms), so
 # the command line pins BLAS to one thread unless the user says otherwise. OpenMP workers that
 # spin after a parallel region (the default wait policy) steal a core from the pipeline thread
 # when simulation and perception alternate frame by frame: passive waiting puts them to sleep.

@@ -14,9 +14,8 @@ from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
 from boomtip.tools.report.hook_store import P, EstimateStore, atomic_text_file
 
 PLOT_EVERY = 4  # the report's plots take every 4th estimator sample (50 Hz): a 700 s run is 140,000 samples
-# and at most about this many points per line: a plotted line's memory grows with its points (the
-# report raised a 700 s run's peak RSS by 97 MiB with 35,000 points a line and the truth's 140,000,
-# by 30 MiB with 5,000; a 100 s run's, which keeps every 4th sample, by 17)
+# and at most about this many points per line: a plotted line's memory grows with its points, and
+# a long run's lines at every 4th sample would add a hundred MB to the run's peak
 PLOT_MAX_POINTS = 5_000
 
 WARMUP_S = 5.0
@@ -128,7 +127,7 @@ def rope_kpis(rows: FrameRows, truth) -> dict:
 
 def write_rows(path: Path, rows: FrameRows) -> None:
     """hook_measurements.csv: a row per LiDAR frame (empty for NaN), written ROWS_CHUNK rows at a
-    time (a 700 s run's 14,000 rows as Python strings all at once were about 35 MB)."""
+    time (a 700 s run's 14,000 rows as Python strings all at once would be about 35 MB)."""
     columns = {c: rows[c] for c in COLUMNS}
     with atomic_text_file(path) as fh:
         fh.write(",".join(COLUMNS) + "\n")

@@ -1,6 +1,6 @@
 """The hook chain's per-frame rows, kept on disk while the run goes on: a 700 s run has 14,000
-LiDAR frames (a dict of Python objects per frame took about 2.3 kB, 33 MB; typed columns in
-memory 0.4 kB, 5.3 MB, which still grew with the run). Each frame's numbers are one float64
+LiDAR frames, which in memory (a dict of Python objects per frame, tens of MB; even typed columns,
+megabytes) would grow with the run. Each frame's numbers are one float64
 record in an unnamed temporary file, appended a chunk of frames at a time; a column is read back
 a chunk of records at a time."""
 
@@ -172,7 +172,7 @@ class FrameRows:
 
 class DiskTable:
     """A float64 table (N, k) in an unnamed temporary file, read back by row slices: the chain's
-    encoder and MRU tables, which a 700 s run held in memory (6.2 MB) for the whole run. Slicing
+    encoder and MRU tables, which in memory would hold a 700 s run's 6 MB for the whole run. Slicing
     gives an array, so the tracker takes this or an array alike."""
 
     def __init__(self, table: np.ndarray) -> None:

@@ -1,6 +1,6 @@
 """A hook estimator's recorded samples kept on disk while the run goes on, so that a run's memory
 does not grow with its length: a 700 s run records 140,000 samples per estimator (200 Hz), four
-estimators, which in memory took several hundred MB. The KPIs, the estimates CSV and the report
+estimators, which in memory would take several hundred MB. The KPIs, the estimates CSV and the report
 read them back a chunk at a time.
 
 Each sample is one float64 record: t, the hook's world position and velocity (from the states),

@@ -34,7 +34,7 @@ def _hex(c: str) -> list[int]:
 def _stream(application_id: str):
     """A recording stream that batches rows into large chunks: rerun's default flushes every few
     milliseconds, and an offline run logs a frame's small entities (plane, wire, markers) each
-    into a chunk of its own whose schema outweighs its data (5 of 33 MB for 60 s)."""
+    into a chunk of its own whose schema outweighs its data (a sixth of a recording's size)."""
     import rerun as rr
 
     return rr.RecordingStream(application_id, batcher_config=rr.ChunkBatcherConfig(

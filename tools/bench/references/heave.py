@@ -1,8 +1,7 @@
-"""The heave chain's reflector, Doppler and deck-spin stages as they were before the work on
-128 x 1024 frames (commit 13d4ea1), kept (docstrings and comments removed) as the baseline that
-`boomtip bench perception` times the stages against: the same algorithms and results, the
-earlier implementation. Not used by any run. The deck stage's reference:
-tools.heave_reference_deck."""
+"""A frozen earlier implementation of the heave chain's reflector, Doppler and deck-spin stages
+(docstrings and comments left out): the baseline that `boomtip bench perception` times the stages
+against, with the same algorithms and results. No run uses it. The deck stage's reference:
+tools/bench/references/heave_deck.py."""
 
 from __future__ import annotations
 
@@ -25,7 +24,7 @@ from boomtip.perception.timing import StageTimes
 
 
 class ReferenceNormalRate(NormalRate):
-    """The deck's spin with the quadratic fit as it was."""
+    """The deck's spin by the quadratic fit, in the earlier implementation."""
 
     def _fit(self) -> list[list[float]]:
         if self._coef is None:

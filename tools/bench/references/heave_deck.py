@@ -1,7 +1,6 @@
-"""The heave chain's LiDAR deck stage as it was before the work on 128 x 1024 frames (commit
-13d4ea1), kept (docstrings and comments removed) as the baseline that `boomtip bench
-perception` times the stage against: the same algorithm and results, the earlier
-implementation. Not used by any run. The other stages' references: tools.heave_reference."""
+"""A frozen earlier implementation of the heave chain's LiDAR deck stage (docstrings and comments
+left out): the baseline that `boomtip bench perception` times the stage against, with the same
+algorithm and results. No run uses it. The other stages' reference: tools/bench/references/heave.py."""
 
 from __future__ import annotations
 
@@ -204,7 +203,7 @@ def refine_plane_biweight(points: np.ndarray, plane: np.ndarray, scale_m: float,
 
 
 def preprocess(points: np.ndarray, cfg: PreprocessConfig) -> np.ndarray:
-    """The deck's preprocessing as it was: non-finite, zero-range and out-of-range points dropped."""
+    """The deck's preprocessing: non-finite, zero-range and out-of-range points dropped."""
     if (cfg.crop_box_min, cfg.random_fraction, cfg.voxel_size_m, cfg.outlier_nb_neighbors) != (None,) * 4:
         raise ValueError("the reference covers the range crop only (the LiDAR deck's preprocessing)")
     pts = as_points(points)

@@ -1,8 +1,7 @@
-"""The hook stage's block fit (perception.hook_fit) and ray-consistency steps (perception.hook_rays)
-as they were before the work on the hook chain's speed (commit 6893f62), kept (docstrings
-removed) as the baseline that `boomtip bench hook` times the stage against in the same run: the
-same algorithms, the earlier implementation (one ICP per start, one ray cast per pose grid).
-Not used by any run."""
+"""A frozen earlier implementation of the hook stage's block fit (perception.hook_fit) and
+ray-consistency steps (perception.hook_rays), docstrings left out: the baseline that `boomtip
+bench hook` times the stage against in the same run, with the same algorithms (one ICP per start,
+one ray cast per pose grid). No run uses it."""
 
 from __future__ import annotations
 
