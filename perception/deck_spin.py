@@ -1,6 +1,6 @@
 """The deck plane and its spin in one frame: a plane whose height and slopes change linearly
-over the frame's sweep, fitted to the deck returns with their own times (issue 13, item 2:
-"the deck normal's spin for the rates").
+over the frame's sweep, fitted to the deck returns with their own times: the deck normal's
+spin gives the roll and pitch rates.
 
 A scanning LiDAR's deck returns span its sweep (a grid's columns, a spinning head's
 revolution: 0.05-0.1 s). Fitted in the level frame at the tip with each point's time t from

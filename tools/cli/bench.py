@@ -88,7 +88,7 @@ def bench_perception_cmd(
     print(f"  deck D MAE: boomtip {1e3 * r['deck_mae_m']['boomtip']:.2f} mm (max {1e3 * r['deck_max_m']['boomtip']:.2f}), "
           f"Open3D {1e3 * r['deck_mae_m']['open3d']:.2f} mm (max {1e3 * r['deck_max_m']['open3d']:.2f})")
     print(f"  ratio {r['ratio']:.1f}x")
-    print("  the heave stages vs the same stages as they were (tools/heave_reference*.py), on the pipeline's inputs, least of 5 calls each:")
+    print("  the heave stages vs their frozen references (tools/bench/references/heave*.py), on the pipeline's inputs, least of 5 calls each:")
     print(f"    {'stage':20s} {'boomtip ms':>11s} {'reference ms':>13s} {'ratio':>7s} {'max |difference|':>17s} {'cold, CPU: boomtip, reference ms':>34s}")
     for stage, k in r["heave_stages"].items():
         print(f"    {stage:20s} {k['boomtip_ms']:11.3f} {k['reference_ms']:13.3f} {k['ratio']:6.2f}x {k['max_abs_difference']:17.2e} "
