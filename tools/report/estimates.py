@@ -13,7 +13,8 @@ from boomtip.data.frames import MruLog
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import SENSOR_OF, Measurement
-from boomtip.tools.report.heave import COLORS, legend
+from boomtip.tools.report.heave import COLORS
+from boomtip.tools.report.plots import legend
 
 
 def stream_gaps(t_s: np.ndarray, nominal_dt_s: float, factor: float = 1.5) -> list[tuple[float, float]]:

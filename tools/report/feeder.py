@@ -27,6 +27,7 @@ from boomtip.tools.report.feeder_truth import (
     feeder_twist_truth,
 )
 from boomtip.tools.report.kpis import WARMUP_S
+from boomtip.tools.report.plots import legend
 
 RATES = tuple(f"{a}_rate" for a in POSE)
 COLUMNS = ("t",) + POSE + RATES + tuple(f"var_{a}" for a in POSE + RATES)
@@ -303,7 +304,7 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
             ax.plot(res.t_s, res.pose[:, i] * scale[i], lw=0.8)
             ax.set_ylabel(f"{POSE[i]} [{units[i]}]")
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right")
+    legend(axes[0], loc="upper right")
     axes[-1].set_xlabel("t [s]")
     fig.tight_layout()
     path = out / "plots" / "feeder_pose.png"

@@ -11,6 +11,7 @@ from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import Measurement
 from boomtip.tools.report.kpis import WARMUP_S
+from boomtip.tools.report.plots import legend
 
 # Document 000, Table 5.4 (after its Kalman filter) and its truth amplitudes (section 5.1.2).
 DOC000 = {
@@ -22,13 +23,6 @@ DOC000 = {
 DOC000_AMPLITUDE = {"D_m": 3.06, "D_dot_mps": 2.3}
 COLORS = {"deck_lidar": "#1f77b4", "deck_radar": "#ff7f0e", "reflectors_lidar": "#2ca02c", "doppler_radar": "#9467bd", "fused": "#d62728",
           "doppler_radar_rot": "#8c564b"}
-
-
-def legend(ax, **kwargs) -> None:
-    """The axes' legend, when it has anything labelled (an empty panel, e.g. no radar's D-dot,
-    gets none: matplotlib would warn)."""
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(**kwargs)
 
 
 def _fmt(v, pct_of=None, unit_mm=False) -> str:

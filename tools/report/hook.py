@@ -12,6 +12,7 @@ from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.hook_run import HookFilterRun
 from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
 from boomtip.tools.report.hook_store import P, EstimateStore, atomic_text_file
+from boomtip.tools.report.plots import legend
 
 PLOT_EVERY = 4  # the report's plots take every 4th estimator sample (50 Hz): a 700 s run is 140,000 samples
 # and at most about this many points per line: a plotted line's memory grows with its points, and
@@ -94,7 +95,9 @@ def segmentation_kpis(rows: FrameRows, truth: Truth) -> dict:
         if fixes.any():
             t, det = t_all[fixes], det_all[fixes]
             ref = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
-            seg[key] = np.sqrt(np.nanmean((det - ref) ** 2, axis=0)).tolist()
+            sq = (det - ref) ** 2
+            n = np.count_nonzero(np.isfinite(sq), axis=0)  # the truth may not cover every fix
+            seg[key] = np.where(n > 0, np.sqrt(np.nansum(sq, axis=0) / np.maximum(n, 1)), np.nan).tolist()
     return seg
 
 
@@ -232,7 +235,7 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
     ax[0].set_xlabel("x [m]")
     ax[0].set_ylabel("y [m]")
     ax[0].set_aspect("equal", adjustable="datalim")
-    ax[0].legend()
+    legend(ax[0])
     ax[0].set_title("hook path seen from above (world)")
     ax[1].plot(tt, truth_plotted("hook_z"), "k", lw=2, label="truth z")
     ax[1].plot(t_best, p[:, 2], "r", lw=1, label="estimate z")
@@ -243,7 +246,7 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
         ax[1].plot(t_ok, tip_z + rows["z"][ok], ".", ms=2, color="tab:blue", label="LiDAR detections")
     ax[1].set_xlabel("t [s]")
     ax[1].set_ylabel("z [m]")
-    ax[1].legend()
+    legend(ax[1])
     ax[1].set_title("hook height")
     fig.tight_layout()
     fig.savefig(out / "hook_trajectory.png", dpi=90)
@@ -264,7 +267,7 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
     ax[1].set_xlabel("t [s]")
     for a in ax:
         a.axvspan(0, WARMUP_S, color="0.9")
-        a.legend(fontsize=8, ncol=4)
+        legend(a, fontsize=8, ncol=4)
         a.set_yscale("log")
     ax[0].set_title("hook errors (world frame); grey: not scored")
     fig.tight_layout()

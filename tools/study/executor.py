@@ -17,6 +17,7 @@ import json
 
 from boomtip.data.io.recording import RecordingError, check_output_folder, write_json
 from boomtip.tools.study.tasks import TIMING_KEYS, Task, run_task, summarise
+from boomtip.tools.report.plots import legend
 
 FIRST_COLUMNS = ("task", "seed", "status", "error", "wall_s")
 
@@ -181,7 +182,7 @@ def plot_kpis(out: Path, summary: list[dict], grid_keys: list[str], kpis: list[s
         ax.set_ylabel("KPI (SI units)")
         ax.grid(alpha=0.3)
         if drawn:
-            ax.legend(fontsize=8)
+            legend(ax, fontsize=8)
         ax.set_title("mean and 95 % confidence interval over seeds")
         fig.tight_layout()
         path = out / f"sweep_{key.replace('.', '_')}.png"
