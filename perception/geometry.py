@@ -156,7 +156,11 @@ class NormalRate:
 
     def add(self, t_s: float, normal_level: np.ndarray) -> bool:
         """Add a deck normal; refused (False) when it is further than max_jump_deg from what
-        the recent normals predict: a wrong plane must not corrupt the spin for a window."""
+        the recent normals predict: a wrong plane must not corrupt the spin for a window; and
+        when it is no later than the last one (a repeated or late time stamp says nothing of the
+        rate, and equal times would leave the fit without a slope)."""
+        if self.t and not t_s > self.t[-1]:
+            return False
         n = normal_level / np.linalg.norm(normal_level)
         n = n if n[2] > 0 else -n
         if len(self.t) >= self.min_samples and t_s - self.t[-1] <= self.window_s:

@@ -19,7 +19,7 @@ import numpy as np
 from boomtip.data.frames import MRU_COLUMNS, Frame, FrameSource, MruLog, SourceMeta
 from boomtip.data.installation import Installation
 from boomtip.data.io.pcd import PcdError, read_pcd
-from boomtip.data.io.recording import MRU_BOUNDS, RecordingError, read_csv
+from boomtip.data.io.recording import MRU_BOUNDS, MRU_STEPS, RecordingError, read_csv
 
 SUFFIXES = (".pcd", ".ply", ".bin")
 TIMES_FILES = ("times.txt", "timestamps.txt")
@@ -75,12 +75,14 @@ def check_overlap(log: MruLog, t0_s: float, t1_s: float, where: str) -> None:
                              f"{t0_s:.3f} to {t1_s:.3f} s: no overlap, so the two are on different clocks")
 
 
-def attitude_stream(root: Path, installation: Installation, t0_s: float, t1_s: float) -> MruLog:
-    """The MRU log of a recording without one of its own: an `mru.csv` beside the clouds, or,
-    with `attitude: level` in the installation, a level boom-tip frame over [t0, t1]."""
+def attitude_stream(root: Path, installation: Installation, t0_s: float, t1_s: float, notes: list[str] | None = None,
+                    strict: bool = False) -> MruLog:
+    """The MRU log of a recording without one of its own: an `mru.csv` beside the clouds (its bad
+    samples dropped into `notes`, or refused when `strict`), or, with `attitude: level` in the
+    installation, a level boom-tip frame over [t0, t1]."""
     path = root / "mru.csv"
     if path.is_file():
-        log = MruLog.from_columns(read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS))
+        log = MruLog.from_columns(read_csv(path, MRU_COLUMNS, bounds=MRU_BOUNDS, steps=MRU_STEPS, strict=strict, notes=notes))
         check_overlap(log, t0_s, t1_s, str(path))
         return log
     if installation.attitude != "level":
@@ -90,7 +92,7 @@ def attitude_stream(root: Path, installation: Installation, t0_s: float, t1_s: f
 
 
 class FolderSource(FrameSource):
-    def __init__(self, root: str | Path, installation: Installation, sensor: str = "lidar") -> None:
+    def __init__(self, root: str | Path, installation: Installation, sensor: str = "lidar", strict: bool = False) -> None:
         self.root = Path(root)
         if not self.root.is_dir():
             raise RecordingError(f"{self.root}: no such folder")
@@ -109,7 +111,7 @@ class FolderSource(FrameSource):
         duration = float(self.t_s[-1] - self.t_s[0]) + 1.0 / getattr(installation, sensor).rate_hz
         self.meta = SourceMeta(installation=installation, duration_s=duration, name=self.root.name,
                                t_start_s=float(self.t_s[0]))
-        self.mru = attitude_stream(self.root, installation, float(self.t_s[0]), float(self.t_s[-1]))
+        self.mru = attitude_stream(self.root, installation, float(self.t_s[0]), float(self.t_s[-1]), self.meta.notes, strict)
         self.truth = None
 
     def _times_file(self, path: Path) -> np.ndarray:

@@ -22,10 +22,16 @@ def load_installation(path: str | Path) -> Installation:
         raise RecordingError(f"{path}: no such installation file") from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise RecordingError(f"{path}: not a YAML text file: {exc}") from None
-    if raw is None:
-        raw = {}
+    if raw is None or raw == {}:
+        raise RecordingError(f"{path}: empty; expected installation keys (lidar, radar, mru, crane, ...): "
+                             "`boomtip installation --template` prints every one")
     if not isinstance(raw, dict):
         raise RecordingError(f"{path}: expected a mapping of installation keys (lidar, radar, mru, crane, ...)")
+    if isinstance(raw, dict) and {"boomtip", "installation", "processing"} <= set(raw):  # a run's settings.json
+        raw = raw["installation"]
+    if "processing" in raw:
+        raise RecordingError(f"{path}: key 'processing': an installation file says what the rig is; processing "
+                             "settings go in `--processing FILE.yaml` or `--set processing.KEY=VALUE`")
     raw = raw.get("installation", raw) if set(raw) <= {"installation"} else raw
     try:
         return Installation.model_validate(raw)

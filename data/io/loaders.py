@@ -4,6 +4,8 @@ model): a guess from the path, `--format` to force one, and a selection of the f
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
@@ -16,7 +18,7 @@ from boomtip.data.io.recording import RecordingError
 def _boomtip(path: Path, installation: Installation | None, options: dict) -> FrameSource:
     from boomtip.data.io.recording import Recording
 
-    rec = Recording(path)
+    rec = Recording(path, options.get("strict", False))
     if installation is not None:  # the user's survey replaces the recording's own
         rec.meta.installation = installation
     return rec
@@ -32,13 +34,13 @@ def _needs(path: Path, installation: Installation | None, what: str) -> Installa
 def _folder(path: Path, installation: Installation | None, options: dict) -> FrameSource:
     from boomtip.data.io.folder import FolderSource
 
-    return FolderSource(path, _needs(path, installation, "a folder of clouds"))
+    return FolderSource(path, _needs(path, installation, "a folder of clouds"), strict=options.get("strict", False))
 
 
 def _ouster(path: Path, installation: Installation | None, options: dict) -> FrameSource:
     from boomtip.data.io.ouster import OusterPcapSource
 
-    return OusterPcapSource(path, _needs(path, installation, "an Ouster pcap"), options.get("meta"))
+    return OusterPcapSource(path, _needs(path, installation, "an Ouster pcap"), options.get("meta"), options.get("strict", False))
 
 
 def _ros(path: Path, installation: Installation | None, options: dict) -> FrameSource:
@@ -97,14 +99,16 @@ def parse_topics(items: list[str] | None) -> dict[str, str]:
 
 def open_source(path: str | Path, format: str | None = None, installation: Installation | None = None,
                 start_s: float | None = None, duration_s: float | None = None, every: int = 1,
-                topics: dict[str, str] | None = None, meta: Path | None = None) -> FrameSource:
+                topics: dict[str, str] | None = None, meta: Path | None = None, strict: bool = False) -> FrameSource:
+    """The frame source for a path (`format`, else guessed from it). strict: a bad sample in a
+    stream refuses the source; else it is dropped and counted in the source's notes."""
     path = Path(path)
     kind = format or guess_format(path)
     if kind not in LOADERS:
         raise RecordingError(f"--format {kind!r}: expected one of {', '.join(LOADERS)}")
     if topics and LOADERS[kind] is not _ros:
         raise RecordingError(f"--topic: the {kind} loader has no topics (only ros1, ros2, mcap)")
-    source = LOADERS[kind](_inner_file(path, kind), installation, {"topics": topics or {}, "meta": meta})
+    source = LOADERS[kind](_inner_file(path, kind), installation, {"topics": topics or {}, "meta": meta, "strict": strict})
     if start_s is not None or duration_s is not None or every != 1:
         source = Selection(source, start_s or 0.0, duration_s, every)
     return source
@@ -115,9 +119,10 @@ class Selection(FrameSource):
     sensor (like kiss-icp's --jump and --n-scans); the streams pass through."""
 
     def __init__(self, source: FrameSource, start_s: float, duration_s: float | None, every: int) -> None:
-        if every < 1 or start_s < 0 or (duration_s is not None and duration_s <= 0):
-            raise RecordingError(f"--start {start_s}, --duration {duration_s}, --every {every}: expected start >= 0, "
-                                 "duration > 0 and every >= 1")
+        # `not (x >= 0)`: NaN compares false, so a NaN start or duration is refused too
+        if every < 1 or not (0 <= start_s < math.inf) or (duration_s is not None and not (0 < duration_s < math.inf)):
+            raise RecordingError(f"--start {start_s}, --duration {duration_s}, --every {every}: expected a finite "
+                                 "start >= 0, a finite duration > 0 and every >= 1")
         t0 = source.meta.t_start_s
         self.source, self.every = source, every
         self.start_s = t0 + start_s  # --start counts from the source's first time stamp

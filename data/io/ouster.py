@@ -50,7 +50,7 @@ def metadata_for(pcap: Path, meta: Path | None = None) -> Path:
 
 
 class OusterPcapSource(FrameSource):
-    def __init__(self, pcap: str | Path, installation: Installation, meta: Path | None = None) -> None:
+    def __init__(self, pcap: str | Path, installation: Installation, meta: Path | None = None, strict: bool = False) -> None:
         self.pcap = Path(pcap)
         if not self.pcap.is_file():
             raise RecordingError(f"{self.pcap}: no such pcap")
@@ -85,7 +85,8 @@ class OusterPcapSource(FrameSource):
             self._said_capture = True
             self.meta.notes.append(f"{self.pcap.name}: the first frame has no column time stamps; every frame is "
                                    "timed by the pcap's capture clock")
-        self.mru = attitude_stream(self.pcap.parent, installation, self.t_start_s, self.t_start_s + duration)
+        self.mru = attitude_stream(self.pcap.parent, installation, self.t_start_s, self.t_start_s + duration, self.meta.notes,
+                                   strict)
         self.truth = None
 
     def _read_metadata(self) -> OusterMetadata:

@@ -83,6 +83,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 
 MAX_POINTS = 50_000_000  # a frame of a 128 x 2048 LiDAR at 2 returns is 0.5 M; beyond this is a corrupt header
+MAX_FIELD_COUNT = 1 << 16  # values per point in one field (PCL's histograms have a few hundred)
 
 
 def _ints(path: Path, key: str, vals: list[str], line_no: int) -> list[int]:
@@ -141,8 +142,8 @@ def _layout(path: Path, header: dict[str, list[str]], lines: dict[str, int]):
     for i, (n, size, t, c) in enumerate(zip(names, sizes, header["TYPE"], counts)):
         if (t, size) not in _TYPES:
             raise PcdError(f"{path}: field {n!r}: TYPE {t} SIZE {size} is not a PCD type (F 4/8, I or U 1/2/4/8)")
-        if c < 1:
-            raise PcdError(f"{path}: field {n!r}: COUNT {c}; expected >= 1")
+        if not 1 <= c <= MAX_FIELD_COUNT:
+            raise PcdError(f"{path}: field {n!r}: COUNT {c}; expected 1 to {MAX_FIELD_COUNT}")
         pad = n == "_"  # pcl_ros and PCL's PointXYZI pad records with '_' fields
         key = f"__pad{i}" if pad else n
         if not pad and n in seen:
@@ -156,7 +157,11 @@ def _layout(path: Path, header: dict[str, list[str]], lines: dict[str, int]):
             raise PcdError(f"{path}: no '{axis}' field; fields are {names}")
         if dict(kept)[axis] != 1:
             raise PcdError(f"{path}: field '{axis}' has COUNT {dict(kept)[axis]}; expected 1")
-    return np.dtype(fmt), kept, n_points
+    try:
+        dtype = np.dtype(fmt)
+    except (ValueError, OverflowError) as exc:  # a record numpy cannot lay out
+        raise PcdError(f"{path}: fields {names} make no record numpy can lay out ({exc})") from None
+    return dtype, kept, n_points
 
 
 def read_pcd(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -27,6 +25,8 @@ from pydantic import ValidationError
 from boomtip.data.frames import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.io.pcd import PcdError, atomic_write_bytes, read_pcd, write_pcd
 from boomtip.data.installation import Installation
+from boomtip.data.io.errors import RecordingError  # noqa: F401 - this module's error, where callers import it
+from boomtip.data.io.output_folder import check_output_folder, output_folder  # noqa: F401 - check_output_folder: the studies'
 from boomtip.data.keys import format_validation, leaf_keys
 
 FORMAT_VERSION = 2
@@ -36,58 +36,14 @@ MAX_DURATION_S = 30 * 86400.0  # a month of recording; beyond is a corrupt meta.
 # stays within +-90 deg; no crane pays out 5 km of rope.
 MRU_BOUNDS = {"roll": 1.5708, "pitch": 1.5708, "yaw": 7.0, "roll_rate": 5.0, "pitch_rate": 5.0, "yaw_rate": 5.0}
 ENCODER_BOUNDS = {"slew": 1000.0, "luff": 1.5708, "hoist": 5000.0}
-
-
-class RecordingError(ValueError):
-    """A recording is unusable; the message names the file (and line) and what was expected."""
+# No vessel turns its roll, pitch or heading by more than this per second (rad/s): a step
+# faster between two samples is a glitch, and what follows it until the angle is back is too.
+MRU_STEPS = {"roll": 1.0, "pitch": 1.0, "yaw": 1.0}
+STEP_TOLERANCE_RAD = 0.005  # beyond the steps' bound: the angles' noise between two samples
 
 
 # ---------------------------------------------------------------------------------------
-# Output folders: atomic, never clobbering without --force
-
-
-def check_output_folder(out: Path, inputs: tuple[Path, ...] = ()) -> Path:
-    """The resolved output folder, refused when replacing it (--force) could delete more than
-    results: the current folder or one of its parents, the home folder, the root, an input."""
-    if str(out).strip() in ("", "."):
-        raise RecordingError(f"--out '{out}': name a folder for the results (not the current folder)")
-    out = Path(out).resolve()
-    if out == Path.cwd() or out in Path.cwd().parents or out == Path.home() or out == Path(out.anchor):
-        raise RecordingError(f"--out {out}: is the current folder, one of its parents or your home; "
-                             "name a folder of its own for the results")
-    for inp in inputs:
-        inp = Path(inp).resolve()
-        if out == inp or inp in out.parents or out in inp.parents:
-            raise RecordingError(f"--out {out} overlaps the input {inp}; refusing to write over an input")
-    return out
-
-
-def prepare_output(out: Path, force: bool, inputs: tuple[Path, ...] = ()) -> Path:
-    """Check that OUT may be written and return a fresh staging folder beside it.
-
-    Results are written into the staging folder and moved into place by `commit_output`, so
-    an interrupted run never leaves a half-written OUT.
-    """
-    out = check_output_folder(out, inputs)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
-        raise RecordingError(f"--out {out} exists and is not empty; pass --force to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = out.parent / f".{out.name}.partial-{os.getpid()}"
-    if staging.exists():
-        shutil.rmtree(staging)
-    staging.mkdir()
-    return staging
-
-
-def commit_output(staging: Path, out: Path) -> None:
-    out = Path(out).resolve()
-    if out.exists():
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        out.rename(old)
-        staging.rename(out)
-        shutil.rmtree(old) if old.is_dir() else old.unlink()
-    else:
-        staging.rename(out)
+# JSON (output folders: data/io/output_folder.py)
 
 
 def write_json(path: Path, obj) -> None:
@@ -131,10 +87,15 @@ def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
     atomic_write_bytes(path, buf.getvalue().encode())
 
 
-def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t",
-             bounds: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t", bounds: dict[str, float] | None = None,
+             steps: dict[str, float] | None = None, strict: bool = True, notes: list[str] | None = None) -> dict[str, np.ndarray]:
     """Read a numeric CSV with a header; errors name the file, line and what was expected.
-    Every value must be finite, and |value| <= bounds[column] where a bound is given."""
+
+    A sample (row) is bad when a value is not finite, beyond |bounds[column]|, a step from the
+    last good sample faster than steps[column] per second (an angle, wrapped: a glitch no vessel
+    makes), or when its time is not after the last good sample's. `strict`: a bad sample refuses
+    the file; else it is dropped, counted in `notes` with its first lines, and the stream has a gap
+    there (refused when half the samples are bad: that is no log)."""
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
@@ -147,7 +108,7 @@ def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t",
     missing = [c for c in expected if c not in names]
     if missing:
         raise RecordingError(f"{path}: line 1: missing column(s) {', '.join(missing)}; header is {lines[0]!r}")
-    rows = []
+    rows, line_no = [], []
     for i, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue
@@ -158,31 +119,67 @@ def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t",
             rows.append([float(p) for p in parts])
         except ValueError:
             raise RecordingError(f"{path}: line {i}: a value is not a number: {line!r}") from None
+        line_no.append(i)
     table = np.array(rows, dtype=float).reshape(-1, len(names))
     if len(table) == 0:
         raise RecordingError(f"{path}: a header and no samples; expected rows of {','.join(expected)}")
-    bad = ~np.isfinite(table)
-    for j, n in enumerate(names):
-        if bounds and n in bounds:
-            bad[:, j] |= np.abs(np.nan_to_num(table[:, j])) > bounds[n]
+    why = _bad_samples(table, names, time_column, bounds or {}, steps or {})
+    bad = np.array([w is not None for w in why])
     if bad.any():
-        i, j = (int(v) for v in np.argwhere(bad)[0])
-        v = float(table[i, j])
-        limit = (f" (expected |{names[j]}| <= {bounds[names[j]]:g})" if np.isfinite(v) and bounds and names[j] in bounds
-                 else " (expected a finite number)")
-        raise RecordingError(f"{path}: line {i + 2}: column '{names[j]}' is {v!r}{limit}")
-    cols = {n: table[:, j] for j, n in enumerate(names)}
-    t = cols[time_column]
-    if not np.all(np.isfinite(t)):
-        bad = int(np.flatnonzero(~np.isfinite(t))[0]) + 2
-        raise RecordingError(f"{path}: line {bad}: time '{time_column}' is not finite")
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if len(back):
-        j = int(back[0]) + 1
-        raise RecordingError(
-            f"{path}: line {j + 2}: timestamps out of order: t={t[j]:.6f} after t={t[j - 1]:.6f}; expected strictly increasing times"
-        )
-    return cols
+        first = int(np.flatnonzero(bad)[0])
+        if strict:
+            raise RecordingError(f"{path}: line {line_no[first]}: {why[first]}")
+        if 2 * int(bad.sum()) > len(table):
+            raise RecordingError(f"{path}: {int(bad.sum())} of {len(table)} samples are bad (first: line {line_no[first]}: "
+                                 f"{why[first]}); expected a log of mostly good samples")
+        lines_bad = [line_no[k] for k in np.flatnonzero(bad)[:5]]
+        if notes is not None:
+            notes.append(f"{path}: dropped {int(bad.sum())} of {len(table)} samples (lines "
+                         f"{', '.join(map(str, lines_bad))}{', ...' if bad.sum() > 5 else ''}): first {why[first]}")
+        table = table[~bad]
+    return {n: table[:, j] for j, n in enumerate(names)}
+
+
+def _bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: dict[str, float],
+                 steps: dict[str, float]) -> list[str | None]:
+    """Per row, why it is a bad sample (None: good); see read_csv."""
+    why: list[str | None] = [None] * len(table)
+    values = np.nan_to_num(table)
+    for j, n in enumerate(names):
+        for k in np.flatnonzero(~np.isfinite(table[:, j]) | (np.abs(values[:, j]) > bounds.get(n, np.inf))):
+            if why[k] is None:
+                v = float(table[k, j])
+                limit = f"expected |{n}| <= {bounds[n]:g}" if np.isfinite(v) and n in bounds else "expected a finite number"
+                why[k] = f"column '{n}' is {v!r} ({limit})"
+    t = table[:, names.index(time_column)]
+    step_cols = [(names.index(n), rate) for n, rate in steps.items() if n in names]
+    ok = [k for k in range(len(table)) if why[k] is None]
+    # Times and steps against the last good sample: a glitch of several samples (a plateau
+    # between two impossible steps) is dropped whole. The common log has no such sample: only
+    # logs with a suspect step or a backward time take the loop.
+    t_ok = t[ok]
+    suspect = len(ok) > 1 and (np.any(np.diff(t_ok) <= 0) or any(
+        np.any(np.abs(_wrapped(np.diff(table[ok, j]))) > rate * np.diff(t_ok) + STEP_TOLERANCE_RAD) for j, rate in step_cols))
+    if suspect:
+        last = ok[0]
+        for k in ok[1:]:
+            dt = t[k] - t[last]
+            if not dt > 0:
+                why[k] = f"time {t[k]!r} is not after the previous sample's {t[last]!r}; expected strictly increasing times"
+                continue
+            for j, rate in step_cols:
+                step = abs(float(_wrapped(table[k, j] - table[last, j])))
+                if step > rate * dt + STEP_TOLERANCE_RAD:
+                    why[k] = (f"column '{names[j]}' steps {step:.4g} in {dt:.4g} s (expected at most {rate:g} per second: "
+                              "a glitch)")
+                    break
+            else:
+                last = k
+    return why
+
+
+def _wrapped(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 # ---------------------------------------------------------------------------------------
@@ -194,11 +191,12 @@ def frame_file_name(t_s: float) -> str:
 
 
 def write_recording(
-    source: FrameSource, out: Path, force: bool = False, progress: Callable[[int], None] | None = None
+    source: FrameSource, out: Path, force: bool = False, progress: Callable[[int], None] | None = None,
+    inputs: tuple[Path | None, ...] = (),
 ) -> dict:
-    """Write every frame, the MRU log and the truth of a source into OUT (atomically)."""
-    staging = prepare_output(out, force)
-    try:
+    """Write every frame, the MRU log and the truth of a source into OUT (atomically; never over
+    one of `inputs`)."""
+    with output_folder(out, force, inputs) as staging:
         for sensor in ("lidar", "radar"):
             (staging / sensor).mkdir()
         counts = {"lidar": 0, "radar": 0}
@@ -217,10 +215,6 @@ def write_recording(
             write_csv(staging / "truth.csv", {k: source.truth.columns[k] for k in source.truth.columns})
         meta = meta_to_json(source.meta, counts)
         write_json(staging / "meta.json", meta)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    commit_output(staging, out)
     return meta
 
 
@@ -268,7 +262,9 @@ def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict
 class Recording(FrameSource):
     """A recording folder as a FrameSource."""
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(self, root: str | Path, strict: bool = False) -> None:
+        """strict: a bad sample in a stream (mru.csv, encoders.csv, ...) refuses the recording;
+        else it is dropped and counted in the notes (read_csv)."""
         self.root = Path(root)
         if not self.root.is_dir():
             raise RecordingError(f"{self.root}: no such recording folder")
@@ -287,19 +283,20 @@ class Recording(FrameSource):
         if version != FORMAT_VERSION:
             raise RecordingError(f"{meta_path}: format_version {version!r}; this boomtip reads version {FORMAT_VERSION}")
         self.meta = self._read_meta(meta, meta_path)
-        mru = read_csv(self.root / "mru.csv", MRU_COLUMNS, bounds=MRU_BOUNDS)
+        streams = dict(strict=strict, notes=self.meta.notes)
+        mru = read_csv(self.root / "mru.csv", MRU_COLUMNS, bounds=MRU_BOUNDS, steps=MRU_STEPS, **streams)
         if len(mru["t"]) < 2:
             raise RecordingError(f"{self.root / 'mru.csv'}: {len(mru['t'])} samples; the attitude needs at least 2")
         self.mru = MruLog.from_columns(mru)
         feeder_mru_path = self.root / "feeder_mru.csv"
         if feeder_mru_path.exists():
-            feeder_mru = read_csv(feeder_mru_path, MRU_COLUMNS, bounds=MRU_BOUNDS)
+            feeder_mru = read_csv(feeder_mru_path, MRU_COLUMNS, bounds=MRU_BOUNDS, steps=MRU_STEPS, **streams)
             if len(feeder_mru["t"]) < 2:
                 raise RecordingError(f"{feeder_mru_path}: {len(feeder_mru['t'])} samples; an attitude log needs at least 2")
             self.feeder_mru = MruLog.from_columns(feeder_mru)
         hook = (self.root / "encoders.csv").exists()
         if hook:
-            self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS, bounds=ENCODER_BOUNDS)
+            self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS, bounds=ENCODER_BOUNDS, **streams)
         truth_path = self.root / "truth.csv"
         expected = HOOK_TRUTH_COLUMNS if hook else TRUTH_COLUMNS
         self.truth = Truth(read_csv(truth_path, expected)) if truth_path.exists() else None

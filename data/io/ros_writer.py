@@ -7,14 +7,14 @@ layout's label) and /boomtip/meta (String: the meta.json a boomtip recording car
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from boomtip.data.frames import FrameSource
-from boomtip.data.io.recording import commit_output, json_text, meta_to_json, prepare_output
+from boomtip.data.io.output_folder import output_folder
+from boomtip.data.io.recording import json_text, meta_to_json
 from boomtip.data.io.ros_messages import encode_cloud, imu_from_mru
 
 KINDS = ("mcap", "ros2", "ros1")
@@ -71,19 +71,18 @@ class _Messages:
 
 
 def write_bag(source: FrameSource, out: Path, kind: str = "mcap", force: bool = False,
-              progress: Callable[[int], None] | None = None) -> dict:
+              progress: Callable[[int], None] | None = None, inputs: tuple[Path | None, ...] = ()) -> dict:
     """Every frame, stream and the truth of a source into OUT, atomically: a ROS 2 bag folder
     (mcap or sqlite3 storage) or a folder holding OUT.bag (ROS 1)."""
     from rosbags.typesys import Stores, get_typestore
 
     if kind not in KINDS:
         raise ValueError(f"bag kind {kind!r}: expected one of {', '.join(KINDS)}")
-    staging = prepare_output(out, force)
     ros1 = kind == "ros1"
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     msgs = _Messages(store, ros1)
     counts = {"lidar": 0, "radar": 0}
-    try:
+    with output_folder(out, force, inputs) as staging:
         stem = out.stem if out.suffix.lower() in (".mcap", ".bag", ".db3") else out.name  # --out x.mcap: x.mcap/x.mcap
         bag_path = staging / (f"{stem}.bag" if ros1 else stem)
         if ros1:
@@ -134,8 +133,4 @@ def write_bag(source: FrameSource, out: Path, kind: str = "mcap", force: bool = 
             for p in bag_path.iterdir():
                 p.rename(staging / p.name)
             bag_path.rmdir()
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    commit_output(staging, out)
     return meta

@@ -365,3 +365,21 @@ def test_normal_rate_fit_equals_a_quadratic_least_squares_fit():
             assert np.all(coef[2] == 0.0)
         assert nr.omega_floats(0.95) == nr.omega(0.95).tolist()
         assert nr.normal_floats(0.95) == nr.normal(0.95).tolist()
+
+
+def test_repeated_time_stamps_leave_the_decks_spin_as_it_was():
+    """Frames sharing a time stamp (a folder's names, a times.txt of zeros, a bag's equal
+    stamps): their normals say nothing of the rate and never reach the fit (equal times would
+    leave it without a slope)."""
+    from boomtip.perception.geometry import NormalRate
+
+    rate = NormalRate(window_s=1.0)
+    n = np.array([0.01, -0.02, 1.0])
+    assert rate.add(0.0, n)
+    assert not any(rate.add(0.0, n) for _ in range(7))
+    assert rate.t == [0.0] and rate.omega_floats(0.0) is None
+    for k in range(1, 8):
+        assert rate.add(0.1 * k, n + [0.001 * k, 0.0, 0.0])
+    assert not rate.add(0.35, n)  # a late one
+    w = rate.omega(0.7)
+    assert w is not None and np.all(np.isfinite(w)) and abs(w[1]) > 0

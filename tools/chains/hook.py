@@ -101,6 +101,7 @@ class HookChain:
         self._times: tuple | None = None  # the times, once the frames are done
         self.rows = FrameRows()
         self.warnings: list[str] = []
+        self.source_notes = source.meta.notes  # the loader's (dropped samples, ...): it may add to it while frames are read
 
     def frames(self, source: FrameSource):
         return self.resources.frames(source)
@@ -218,7 +219,8 @@ class HookChain:
             seg.update(outputs.segmentation_kpis(rows, truth))
         hook["segmentation"] = seg
         hook["rope"] = outputs.rope_kpis(rows, truth)
-        return {"hook": hook, **({"warnings": list(self.warnings)} if self.warnings else {})}
+        warnings = list(self.source_notes) + list(self.warnings)
+        return {"hook": hook, **({"warnings": warnings} if warnings else {})}
 
     def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
         if not result.runs or truth is None:  # the CSVs and kpis.json say what was estimated

@@ -9,7 +9,6 @@ Everything is written into a staging folder and moved into place at the end.
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -17,7 +16,8 @@ from typing import Callable
 from pydantic import ValidationError
 
 from boomtip.data.frames import FrameSource
-from boomtip.data.io.recording import RecordingError, commit_output, prepare_output, write_json
+from boomtip.data.io.output_folder import output_folder
+from boomtip.data.io.recording import RecordingError, write_json
 from boomtip.data.keys import format_validation, leaf_keys
 from boomtip.tools.chains.chain import Chain, NullVisualiser
 from boomtip.tools.chains.heave import HeaveChain
@@ -26,6 +26,7 @@ from boomtip.tools.chains.provenance import outage_windows, run_labels
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.chains.ship import ShipChain
 from boomtip.tools.config.processing import Processing
+from boomtip.tools.config.settings import boomtip_commit, boomtip_version
 
 
 @dataclass
@@ -61,23 +62,44 @@ def build_chain(source: FrameSource, processing: Processing, resources: RunResou
 
 def run(source: FrameSource, out: Path, force: bool = False, processing: Processing | None = None, rerun: bool = False,
         report: bool = True, inputs: tuple[Path, ...] = (), progress: Callable[[int], None] | None = None,
-        resources: RunResources | None = None) -> RunResult:
-    staging = prepare_output(out, force, inputs)
-    try:
-        result = run_into(source, staging, processing, rerun, report, progress, resources)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    commit_output(staging, out)
+        resources: RunResources | None = None, command: dict | None = None) -> RunResult:
+    """`run_into` a staging folder moved into place as OUT when complete (data/io/output_folder).
+    command: what was run, for OUT/settings.json (the inputs' first is the recording)."""
+    with output_folder(out, force, inputs) as staging:
+        result = run_into(source, staging, processing, rerun, report, progress, resources,
+                          run_record(command, inputs[0] if inputs else None))
     return result
+
+
+def run_record(command: dict | None, recording: Path | None) -> dict:
+    """What settings.json says of how the run was made: the command and the recording's path and size."""
+    out: dict = {"command": command}
+    if recording is not None:
+        path = Path(recording).resolve()
+        size = path.stat().st_size if path.is_file() else sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+        out["input"] = {"path": str(path), "bytes": size}
+    return out
+
+
+def settings_record(source: FrameSource, processing: Processing, record: dict | None = None) -> dict:
+    """OUT/settings.json: everything the run was made from, so that it can be repeated
+    (`--installation` and `--processing` take this file as it is)."""
+    return {"boomtip": {"version": boomtip_version(), "commit": boomtip_commit()}, **(record or {}),
+            "source": {"name": source.meta.name, "t_start_s": source.meta.t_start_s, "duration_s": source.duration_s},
+            "installation": source.meta.installation.model_dump(mode="json"),
+            # the settings as given (a default left unset follows the installation: the Doppler band, the
+            # markers' height, ...), which repeat the run, and every setting as it resolved, to read
+            "processing": processing.model_dump(mode="json", exclude_unset=True),
+            "processing_resolved": processing.model_dump(mode="json")}
 
 
 def run_into(source: FrameSource, staging: Path, processing: Processing | None = None, rerun: bool = False,
              report: bool = True, progress: Callable[[int], None] | None = None,
-             resources: RunResources | None = None) -> RunResult:
+             resources: RunResources | None = None, record: dict | None = None) -> RunResult:
     resources = resources or RunResources()
     resources.start()
-    chain = build_chain(source, processing_for(source, processing), resources)
+    processing = processing_for(source, processing)
+    chain = build_chain(source, processing, resources)
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
     frames = 0
     for frame in chain.frames(source):
@@ -95,7 +117,8 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
         kpis.setdefault("warnings", []).append(f"the truth ends at {source.truth.end_s:.2f} s of "
                                                f"{source.duration_s:.2f} s: only its span is scored")
     write_json(staging / "kpis.json", kpis)
-    written.append("kpis.json")
+    write_json(staging / "settings.json", settings_record(source, processing, record))
+    written += ["kpis.json", "settings.json"]
     if report:
         written += chain.report(staging, kpis, result, source.truth)
     chain.visualise_result(viz, result, source.truth)

@@ -14,21 +14,36 @@ from boomtip.tools.config.scenario import ScenarioError, available_scenarios, lo
 from rich.markup import escape
 
 from boomtip.tools.cli.bench import bench_app
-from boomtip.tools.cli.common import (ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario,
+from boomtip.tools.config.settings import processing_settings
+from boomtip.tools.cli.common import (ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario, scenario_inputs,
                                        terminate_like_interrupt, user_errors)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
 app.add_typer(bench_app, name="bench")
 
 
+ProcessingSetOpt = typer.Option(None, "--set", help="A processing setting: processing.KEY=VALUE (repeatable; the "
+                                 "section may be left out where the key is only processing's).")
+ProcessingFileOpt = typer.Option(None, "--processing", help="Processing settings from a YAML file (or a run's "
+                                 "settings.json); --set comes on top.")
 LeanOpt = typer.Option(True, "--lean/--plain", help="lean (default): a long run's memory flat in its length and both "
                        "cores used (per-run tables on disk, a simulation's frames and the hook estimators in child "
                        "processes, freed heap returned to the system); plain: everything in this process's memory. The "
                        "outputs are the same.")
 
 
+def _version(value: bool) -> None:
+    if value:
+        from boomtip.tools.config.settings import boomtip_commit, boomtip_version
+
+        commit = boomtip_commit()
+        print(f"boomtip {boomtip_version()}" + (f" ({commit})" if commit else ""))
+        raise typer.Exit()
+
+
 @app.callback()
 def _main(
+    _show_version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
     no_thread_tuning: bool = typer.Option(False, "--no-thread-tuning", help="Keep the environment's BLAS and OpenMP "
                                           "threading (by default the command sets OPENBLAS_NUM_THREADS=1, "
                                           "MKL_NUM_THREADS=1 and OMP_WAIT_POLICY=PASSIVE where unset)"),
@@ -77,10 +92,11 @@ def simulate(
         t0 = time.perf_counter()
         sim = simulation_for(s)
         with progress_bar(len(sim), "simulating") as advance:
+            inputs = scenario_inputs(scenario)
             if format == "boomtip":
-                meta = write_recording(sim, out, force=force, progress=advance)
+                meta = write_recording(sim, out, force=force, progress=advance, inputs=inputs)
             else:
-                meta = write_bag(sim, out, format, force=force, progress=advance)
+                meta = write_bag(sim, out, format, force=force, progress=advance, inputs=inputs)
         wall = time.perf_counter() - t0
     frames = meta["frames"]
     console.print(
@@ -152,18 +168,27 @@ def feeder_online_line(f: dict) -> str | None:
     return f"  online (causal calibration): position RMSE x/y/z {mm} mm, angles r/p/y {deg} deg, NEES {o['nees_mean']:.2f} (6)"
 
 
-def _run_and_report(source, out: Path, force: bool, rerun: bool, inputs=(), lean: bool = True) -> None:
+def _command_record(ctx: typer.Context) -> dict:
+    """The command as settings.json records it: its name and its parsed options (paths as text)."""
+    plain = lambda v: [plain(x) for x in v] if isinstance(v, (list, tuple)) else (str(v) if isinstance(v, Path) else v)  # noqa: E731
+    return {"name": ctx.info_name, "params": {k.rstrip("_"): plain(v) for k, v in ctx.params.items()}}
+
+
+def _run_and_report(ctx: typer.Context, source, out: Path, force: bool, rerun: bool, inputs=(), lean: bool = True,
+                    processing=None) -> None:
     from boomtip.tools.chains.resources import RunResources
     from boomtip.tools.chains.runner import run
 
     with progress_bar(len(source), "processing") as advance:
-        result = run(source, out, force=force, rerun=rerun, inputs=inputs, progress=advance, resources=RunResources(lean=lean))
+        result = run(source, out, force=force, processing=processing, rerun=rerun, inputs=inputs, progress=advance,
+                     resources=RunResources(lean=lean), command=_command_record(ctx))
     _print_kpis(result.kpis)
     console.print(f"\nwrote {out}: " + ", ".join(result.written))
 
 
 @app.command()
 def run(
+    ctx: typer.Context,
     scenario: str = ScenarioOpt,
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds to simulate (overrides duration_s)."),
@@ -178,11 +203,12 @@ def run(
 
     with user_errors():
         s = resolve_scenario(scenario, set_, duration, seed)
-        _run_and_report(simulation_for(s), out, force, rerun, lean=lean)
+        _run_and_report(ctx, simulation_for(s), out, force, rerun, inputs=scenario_inputs(scenario), lean=lean)
 
 
 @app.command()
 def process(
+    ctx: typer.Context,
     recording: Path = typer.Argument(..., help="A boomtip recording, a folder of .pcd/.ply/.bin clouds, an Ouster "
                                      ".pcap, a ROS 1 .bag, a ROS 2 bag folder or an .mcap."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
@@ -198,6 +224,11 @@ def process(
     rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
     lean: bool = LeanOpt,
+    set_: Optional[list[str]] = ProcessingSetOpt,
+    processing: Optional[Path] = ProcessingFileOpt,
+    strict: bool = typer.Option(False, "--strict", help="Refuse a recording with a bad sample in a stream (NaN, beyond "
+                                "physical bounds, an impossible step, a time not after the last) instead of dropping it "
+                                "with a warning that counts it."),
 ) -> None:
     """Run perception + fusion on a recording (any format the loaders read)."""
     from boomtip.data.io.installation_file import load_installation
@@ -205,8 +236,11 @@ def process(
 
     with user_errors():
         inst = load_installation(installation) if installation else None
-        source = open_source(recording, format, inst, start, duration, every, topics=parse_topics(topic), meta=meta)
-        _run_and_report(source, out, force, rerun, inputs=(recording,), lean=lean)
+        source = open_source(recording, format, inst, start, duration, every, topics=parse_topics(topic), meta=meta,
+                             strict=strict)
+        settings = processing_settings(source.meta.processing, processing, set_) if (processing or set_) else None
+        _run_and_report(ctx, source, out, force, rerun, inputs=(recording, installation, meta, processing), lean=lean,
+                        processing=settings)
 
 
 @app.command("installation")
@@ -320,17 +354,23 @@ def batch(
     scheduler: Optional[str] = SchedulerOpt,
     resume: bool = typer.Option(False, "--resume"),
     force: bool = typer.Option(False, "--force"),
+    set_: Optional[list[str]] = ProcessingSetOpt,
+    processing: Optional[Path] = ProcessingFileOpt,
 ) -> None:
     """Process many recordings the same way, one task each, one summary."""
     from boomtip.data.io.recording import Recording
     from boomtip.tools.study.tasks import Task
 
     with user_errors():
-        for p in paths:
-            Recording(p)  # refuse an unreadable recording before spawning anything
-        tasks = [Task(f"{i}:{p}", "", (), None, 0, {"recording": str(p)}, recording=str(p.resolve())) for i, p in enumerate(paths)]
+        tasks = []
+        for i, p in enumerate(paths):
+            rec = Recording(p)  # refuse an unreadable recording before spawning anything
+            settings = (processing_settings(rec.meta.processing, processing, set_).model_dump(mode="json")
+                        if (processing or set_) else None)
+            tasks.append(Task(f"{i}:{p}", "", (), None, 0, {"recording": str(p)}, recording=str(p.resolve()),
+                              processing=settings))
         _study(tasks, out, ["recording"], {}, list(kpi or []), executor, workers, scheduler, resume, force, None,
-               inputs=tuple(paths))
+               inputs=(*paths, processing))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import sys
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Iterator
 
 import typer
@@ -31,6 +32,11 @@ def user_errors() -> Iterator[None]:
     except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
         console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)  # a key's [a, b] is not markup
         raise typer.Exit(2) from None
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (terminate_like_interrupt)
+        why = str(exc) or "interrupt"
+        console.print(f"[bold yellow]stopped ({escape(why)}):[/] no output was replaced and no input was touched; "
+                      "the run's partial results were removed", highlight=False)
+        raise typer.Exit(130) from None
     except OSError as exc:  # a read-only or full disk: say so; the staging folder is already gone
         where = f" {exc.filename}" if exc.filename else ""
         console.print("[bold red]error:[/] " + escape(f"cannot read or write{where}: {exc.strerror or exc}; nothing was replaced"),
@@ -57,6 +63,12 @@ def progress_bar(total: int, label: str) -> Iterator:
     ) as prog:
         task = prog.add_task(label, total=total)
         yield lambda n=1: prog.advance(task, n)
+
+
+def scenario_inputs(scenario: str) -> tuple[Path, ...]:
+    """A scenario given as a file is an input of the command: --force never deletes it."""
+    path = Path(scenario)
+    return (path,) if path.is_file() else ()
 
 
 def resolve_scenario(scenario: str, overrides: list[str] | None, duration: float | None = None, seed: int | None = None):

@@ -106,7 +106,7 @@ def resolve_key(key: str, where: str = "--set") -> str:
     raise ScenarioError(f"{where}: unknown scenario key '{key}'; nearest valid keys: {_nearest(key, keys)}")
 
 
-def _set(data: dict, key: str, value: Any, where: str) -> None:
+def set_key(data: dict, key: str, value: Any, where: str) -> None:
     node = data
     parts = key.split(".")
     for p in parts[:-1]:
@@ -131,7 +131,7 @@ def sectioned(raw: dict, source: str) -> dict:
     out: dict = {}
     for key, value in _flatten(raw):
         full = key if key.split(".")[0] in TOP_LEVEL else resolve_key(key, source)
-        _set(out, full, value, source)
+        set_key(out, full, value, source)
     return out
 
 
@@ -142,7 +142,7 @@ def apply_overrides(data: dict, overrides: list[str]) -> tuple[dict, dict[str, s
     for text in overrides:
         key, value = parse_override(text)
         full = resolve_key(key)
-        _set(data, full, value, "--set")
+        set_key(data, full, value, "--set")
         overridden[full] = text
     return data, overridden
 

@@ -101,6 +101,7 @@ class Task:
     seed: int
     grid: dict = field(default_factory=dict)
     recording: str | None = None  # batch: process this recording instead of simulating
+    processing: dict | None = None  # batch: the settings (a Processing's dump) instead of the recording's own
 
 
 def sweep_tasks(scenario: str, axes: list[Axis], seeds: int, base_overrides: list[str], duration_s: float | None,
@@ -154,8 +155,13 @@ def run_task(task: Task) -> dict:
             extra = [f"seed={task.seed}"] + ([f"duration_s={task.duration_s}"] if task.duration_s is not None else [])
             extra += list(task.overrides)
             source = simulation_for(load_scenario(task.scenario, extra))
+        processing = None
+        if task.processing is not None:
+            from boomtip.tools.config.processing import Processing
+
+            processing = Processing.model_validate(task.processing)
         with tempfile.TemporaryDirectory() as tmp:
-            res = run_into(source, Path(tmp), report=False, resources=RunResources(lean=True))
+            res = run_into(source, Path(tmp), processing, report=False, resources=RunResources(lean=True))
         row.update({k: v for k, v in flatten(res.kpis).items() if k not in row})
     except Exception as exc:  # a failed run is a row; the study goes on
         row["status"] = "failed"

@@ -97,7 +97,7 @@ def test_reflector_plane_is_moved_down_by_the_marker_height(tmp_path):
 
 @pytest.mark.parametrize("value, expect", [("nan", "'roll' is nan"), ("1e300", "expected |roll| <= 1.5708"),
                                            ("inf", "'roll' is inf")])
-def test_non_finite_or_absurd_mru_samples_are_refused_with_their_line(rec, tmp_path, value, expect):
+def test_non_finite_or_absurd_mru_samples_are_dropped_or_refused_with_their_line(rec, tmp_path, value, expect):
     r = _copy(rec, tmp_path)
     lines = (r / "mru.csv").read_text().splitlines()
     parts = lines[5].split(",")
@@ -105,7 +105,9 @@ def test_non_finite_or_absurd_mru_samples_are_refused_with_their_line(rec, tmp_p
     lines[5] = ",".join(parts)
     (r / "mru.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(RecordingError, match=rf"mru.csv: line 6: column {expect}"):
-        Recording(r)
+        Recording(r, strict=True)
+    kept = Recording(r)  # by default the sample is dropped and said
+    assert len(kept.mru.t_s) == len(lines) - 2 and any("mru.csv: dropped 1 of" in n and "(lines 6)" in n for n in kept.meta.notes)
 
 
 def test_a_non_utf8_log_is_refused_naming_the_file(rec, tmp_path):
@@ -171,6 +173,8 @@ def test_sigterm_leaves_no_staging_folder(tmp_path):
         time.sleep(0.1)
     assert list(tmp_path.glob(".rec.partial-*")), "the run never started writing"
     proc.send_signal(signal.SIGTERM)
-    proc.wait(timeout=240)
-    assert proc.returncode != 0
-    assert not list(tmp_path.glob(".rec.partial-*")) and not out.exists()
+    _, err = proc.communicate(timeout=240)
+    assert proc.returncode == 130
+    assert not list(tmp_path.glob(".rec.partial-*")) and not out.exists() and not list(tmp_path.glob(".rec.lock"))
+    # one line says what was left untouched, no traceback
+    assert b"no output was replaced and no input was touched" in err and b"Traceback" not in err

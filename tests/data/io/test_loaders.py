@@ -143,3 +143,17 @@ def test_absolute_time_stamps_start_the_outputs_at_the_first_frame(tmp_path):
     with open(tmp_path / "o" / "estimates.csv") as fh:
         rows = [row for row in csv.DictReader(fh) if row["solution"] == "fused"]
     assert len(rows) >= 90 and abs(float(rows[0]["t"]) - 1.7e9) < 1.0 and float(rows[-1]["D"]) == pytest.approx(12.5, abs=0.01)
+
+
+@pytest.mark.parametrize("start, duration, every", [(float("nan"), None, 1), (0.0, float("nan"), 1), (float("inf"), None, 1),
+                                                    (0.0, float("inf"), 1), (-1.0, None, 1), (0.0, 0.0, 1), (0.0, None, 0)])
+def test_a_selection_that_is_not_a_finite_part_is_refused(start, duration, every):
+    from boomtip.data.io.loaders import Selection
+    from boomtip.data.io.recording import RecordingError
+
+    class Source:
+        meta = type("M", (), {"t_start_s": 0.0})()
+        duration_s = 10.0
+
+    with pytest.raises(RecordingError, match="expected a finite start >= 0, a finite duration > 0 and every >= 1"):
+        Selection(Source(), start, duration, every)

@@ -140,3 +140,15 @@ def test_our_own_frames_round_trip(tmp_path):
     back, fields = read_pcd(tmp_path / "a.pcd")
     np.testing.assert_allclose(back, pts.astype(np.float32))
     assert fields["label"].dtype == np.uint16
+
+
+def test_a_huge_count_on_any_field_is_a_clear_error(tmp_path):
+    """A COUNT numpy cannot lay out as a record (on a field beside x y z) is the file's error,
+    which the loaders turn into a missing frame, never a traceback."""
+    from boomtip.data.io.pcd import MAX_FIELD_COUNT, PcdError, read_pcd
+
+    p = tmp_path / "huge.pcd"
+    p.write_bytes(b"VERSION .7\nFIELDS x y z i\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1000000000000\nWIDTH 1\n"
+                  b"HEIGHT 1\nPOINTS 1\nDATA binary\n" + bytes(16))
+    with pytest.raises(PcdError, match=f"field 'i': COUNT 1000000000000; expected 1 to {MAX_FIELD_COUNT}"):
+        read_pcd(p)

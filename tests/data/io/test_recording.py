@@ -254,9 +254,11 @@ def test_mru_out_of_order_names_the_line(rec_copy):
     lines[3], lines[4] = lines[4], lines[3]  # rows t=0.010 and t=0.015 swapped
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(RecordingError) as exc:
-        Recording(rec_copy)
+        Recording(rec_copy, strict=True)
     msg = str(exc.value)
-    assert "mru.csv" in msg and "line 5" in msg and "out of order" in msg
+    assert "mru.csv" in msg and "line 5" in msg and "is not after the previous sample" in msg
+    kept = Recording(rec_copy)  # by default the late sample is dropped and said
+    assert np.all(np.diff(kept.mru.t_s) > 0) and any("dropped 1 of" in n for n in kept.meta.notes)
 
 
 def test_mru_duplicate_timestamp_is_out_of_order(rec_copy):
@@ -265,7 +267,7 @@ def test_mru_duplicate_timestamp_is_out_of_order(rec_copy):
     lines[10] = lines[9]
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(RecordingError, match=r"mru\.csv: line 11"):
-        Recording(rec_copy)
+        Recording(rec_copy, strict=True)
 
 
 @pytest.mark.parametrize(
@@ -451,5 +453,6 @@ def test_a_bad_feeder_mru_csv_names_the_file_and_line(feeder_mru_rec, tmp_path):
     lines[5] = ",".join(["nan" if i == 1 else v for i, v in enumerate(lines[5].split(","))])
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(RecordingError) as exc:
-        Recording(dst)
+        Recording(dst, strict=True)
     assert "feeder_mru.csv" in str(exc.value) and "line 6" in str(exc.value)
+    assert any("feeder_mru.csv: dropped 1 of" in n for n in Recording(dst).meta.notes)
