@@ -4,6 +4,7 @@ errors that name the key, the file and what was expected."""
 from __future__ import annotations
 
 import difflib
+import math
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
@@ -21,6 +22,23 @@ def leaf_keys(model: BaseModel, prefix: str = "") -> list[str]:
         return [p]
 
     return walk(prefix.rstrip("."), model.model_dump(mode="json"))
+
+
+def settings_dump(model: BaseModel, exclude_unset: bool = False) -> dict:
+    """A settings model as JSON-ready values that validate back to the same model: an infinite
+    or NaN setting (a range without limit) as the text "inf", "-inf" or "nan", which strict
+    JSON has no number for (a null would not validate back)."""
+    return _non_finite_as_text(model.model_dump(mode="json", exclude_unset=exclude_unset))
+
+
+def _non_finite_as_text(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {k: _non_finite_as_text(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_non_finite_as_text(v) for v in o]
+    if isinstance(o, float) and not math.isfinite(o):
+        return str(o)
+    return o
 
 
 def nearest_keys(key: str, keys: list[str]) -> str:

@@ -2,12 +2,16 @@
 moved into place when complete; OUT is locked while a run writes it (a second run into it is
 refused with the holder's PID); replacing OUT (--force) is refused when that would delete an
 input of the command or a folder that holds more than results (the current folder, its
-parents, the home folder, the root); staging folders left by runs that died (SIGKILL, a power
-cut) are removed by the next run into the same parent.
+parents, the home folder, the root); what a run that died (SIGKILL, a power cut) left beside
+an OUT is cleared by the next run that takes that OUT's lock.
 
     with output_folder(out, force, inputs=(recording, installation)) as staging:
         ...write into staging...
     # complete: staging became OUT; failed or interrupted: staging removed, OUT as it was
+
+The lock is an OS lock (`flock`) on `.OUT.lock`, held for the whole run: the kernel releases it
+when its process dies, however it dies, so a lock is never stale and no PID is ever guessed
+alive or dead. The PID written into the lock file only names the holder in the message.
 """
 
 from __future__ import annotations
@@ -15,22 +19,30 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import signal
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
 from boomtip.data.io.errors import RecordingError
 
-__all__ = ["OutputError", "check_output_folder", "output_folder", "clear_dead_staging"]
+__all__ = ["OutputError", "InterruptedAfterCommit", "check_output_folder", "output_folder", "locked_output", "clear_dead_staging"]
 
-STAGING = re.compile(r"^\..+\.(partial|old)-(\d+)$")  # what output_folder leaves beside OUT while it runs
+# what output_folder leaves beside OUT while it runs: `.OUT.partial-PID` (the results being
+# written, holding STAGING_MARKER) and, for the instant of the swap, `.OUT.old-PID` (the former OUT)
+STAGING = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d{1,10})$")
+STAGING_MARKER = ".boomtip-staging"
 
 
 class OutputError(RecordingError):
     """OUT may not be written: the message names it and why."""
 
 
-def check_output_folder(out: Path, inputs: tuple[Path, ...] = ()) -> Path:
+class InterruptedAfterCommit(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM that arrived while the results were swapped in: OUT is complete."""
+
+
+def check_output_folder(out: Path, inputs: tuple[Path | None, ...] = ()) -> Path:
     """The resolved output folder, refused when replacing it (--force) could delete more than
     results: the current folder or one of its parents, the home folder, the root, an input or a
     folder that holds one."""
@@ -40,95 +52,190 @@ def check_output_folder(out: Path, inputs: tuple[Path, ...] = ()) -> Path:
     if out == Path.cwd() or out in Path.cwd().parents or out == Path.home() or out == Path(out.anchor):
         raise OutputError(f"--out {out}: is the current folder, one of its parents or your home; "
                           "name a folder of its own for the results")
-    for inp in inputs:
-        if inp is None:
-            continue
-        inp = Path(inp).resolve()
+    for inp in _resolved(inputs):
         if out == inp or inp in out.parents or out in inp.parents:
             raise OutputError(f"--out {out} overlaps the input {inp}; refusing to write over an input")
     return out
 
 
-def _alive(pid: int) -> bool:
-    if pid == os.getpid():
+def _resolved(paths: tuple[Path | None, ...]) -> list[Path]:
+    return [Path(p).resolve() for p in paths if p is not None]
+
+
+# --- the lock ---------------------------------------------------------------------------------
+
+def _try_lock(fd: int) -> bool:
+    """Take the OS's exclusive lock on `fd` without waiting; False when another process holds it."""
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        import msvcrt
+
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        except OSError:
+            return False
         return True
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
         return False
-    except PermissionError:  # another user's process: alive
-        return True
     return True
 
 
-def clear_dead_staging(parent: Path) -> list[Path]:
-    """Remove the staging folders in `parent` whose run is gone (their PID is no process's);
-    returns what was removed."""
+def _lock_path(out: Path) -> Path:
+    return out.parent / f".{out.name}.lock"
+
+
+def _acquire(out: Path) -> int | None:
+    """The descriptor holding OUT's lock, or None when another process holds it. A lock file
+    that its holder removed while this process waited is not the lock any more: take it again."""
+    path = _lock_path(out)
+    while True:
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        if not _try_lock(fd):
+            os.close(fd)
+            return None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+            return fd
+        os.close(fd)
+
+
+def _release(out: Path, fd: int) -> None:
+    """Remove the lock file while still holding the lock (so nobody takes a file about to go),
+    then let go of it."""
+    try:
+        _lock_path(out).unlink(missing_ok=True)
+    finally:
+        os.close(fd)
+
+
+def _holder(out: Path) -> str:
+    try:
+        pid = _lock_path(out).read_text().strip()
+    except OSError:
+        pid = ""
+    return f"PID {pid}" if pid.isdigit() else "another process"
+
+
+@contextmanager
+def locked_output(out: Path, inputs: tuple[Path | None, ...] = ()) -> Iterator[Path]:
+    """Hold OUT's lock for the block (a run writing OUT in place, such as a study with --resume);
+    refused, naming the holder, while another run holds it. Clears what dead runs left beside OUT."""
+    out = check_output_folder(out, inputs)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd = _acquire(out)
+    if fd is None:
+        raise OutputError(f"--out {out} is being written by another run ({_holder(out)}); wait for it or "
+                          "name another --out")
+    try:
+        _recover(out, inputs)
+        clear_dead_staging(out.parent, inputs)
+        yield out
+    finally:
+        _release(out, fd)
+
+
+# --- what dead runs left ----------------------------------------------------------------------
+
+def _recover(out: Path, inputs: tuple[Path | None, ...] = ()) -> list[Path]:
+    """With OUT's lock held, every `.OUT.partial-N` / `.OUT.old-N` is a dead run's: an `old` whose
+    OUT is missing is the former OUT of a swap cut short and is put back; the rest is removed."""
+    keep = set(_resolved(inputs))
     removed = []
-    if not parent.is_dir():
-        return removed
-    for p in parent.iterdir():
+    for p in sorted(out.parent.iterdir()):
         m = STAGING.match(p.name)
-        if m and p.is_dir() and not p.is_symlink() and not _alive(int(m.group(2))):
+        if not m or m["name"] != out.name or p.is_symlink() or p.resolve() in keep:
+            continue
+        if m["kind"] == "old" and not out.exists() and not out.is_symlink():
+            p.rename(out)
+        elif m["kind"] == "old" and not p.is_dir():
+            p.unlink(missing_ok=True)
+            removed.append(p)
+        elif m["kind"] == "old" or (p / STAGING_MARKER).is_file():
             shutil.rmtree(p, ignore_errors=True)
             removed.append(p)
     return removed
 
 
-def _lock(out: Path) -> Path:
-    """`.OUT.lock` beside OUT, created exclusively with this process's PID; a lock whose PID is
-    no process's is stale and taken over."""
-    lock = out.parent / f".{out.name}.lock"
-    for _ in range(2):
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                pid = int(lock.read_text().strip() or "0")
-            except (OSError, ValueError):
-                pid = 0
-            if pid > 0 and _alive(pid):
-                raise OutputError(f"--out {out} is being written by another run (PID {pid}); wait for it or name "
-                                  f"another --out (if no such run exists, remove {lock})") from None
-            lock.unlink(missing_ok=True)
+def clear_dead_staging(parent: Path, inputs: tuple[Path | None, ...] = ()) -> list[Path]:
+    """What dead runs left in `parent` beside any output folder whose lock nobody holds (a held
+    lock means that run is alive and its folders are its own); never an input. Returns what was
+    removed."""
+    removed: list[Path] = []
+    if not parent.is_dir():
+        return removed
+    names = {m["name"] for p in parent.iterdir() if (m := STAGING.match(p.name))}
+    for name in sorted(names):
+        out = parent / name
+        fd = _acquire(out)
+        if fd is None:
             continue
-        with os.fdopen(fd, "w") as fh:
-            fh.write(f"{os.getpid()}\n")
-        return lock
-    raise OutputError(f"--out {out}: could not take its lock {lock}")
+        try:
+            removed += _recover(out, inputs)
+        finally:
+            _release(out, fd)
+    return removed
 
+
+# --- the run ----------------------------------------------------------------------------------
 
 @contextmanager
 def output_folder(out: Path, force: bool, inputs: tuple[Path | None, ...] = ()) -> Iterator[Path]:
     """A staging folder for OUT's results, moved into place when the block completes (see the
     module). Refused: a non-empty OUT without `force`, an OUT another run holds, an OUT that
     replacing could delete an input."""
-    out = check_output_folder(out, inputs)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
-        raise OutputError(f"--out {out} exists and is not empty; pass --force to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    lock = _lock(out)
-    try:
-        clear_dead_staging(out.parent)
+    with locked_output(out, inputs) as out:
+        if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
+            raise OutputError(f"--out {out} exists and is not empty; pass --force to replace it")
         staging = out.parent / f".{out.name}.partial-{os.getpid()}"
         if staging.exists():
             shutil.rmtree(staging)
         staging.mkdir()
+        (staging / STAGING_MARKER).touch()
         try:
             yield staging
-        except BaseException:
-            shutil.rmtree(staging, ignore_errors=True)
-            raise
-        _commit(staging, out)
-    finally:
-        lock.unlink(missing_ok=True)
+            _commit(staging, out)
+        finally:
+            if staging.exists():
+                shutil.rmtree(staging, ignore_errors=True)
 
 
 def _commit(staging: Path, out: Path) -> None:
-    if out.exists():
+    """Swap the finished staging folder in for OUT with Ctrl-C and SIGTERM held back (they take
+    effect right after): OUT is the old results or the new, never neither. Should the second
+    rename fail, the old OUT is put back."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    blocked = hasattr(signal, "pthread_sigmask")
+    if blocked:
+        signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        if not out.exists() and not out.is_symlink():
+            staging.rename(out)
+            (out / STAGING_MARKER).unlink()
+            return
         old = out.parent / f".{out.name}.old-{os.getpid()}"
         out.rename(old)
-        staging.rename(out)
-        shutil.rmtree(old) if old.is_dir() else old.unlink()
-    else:
-        staging.rename(out)
+        try:
+            staging.rename(out)
+        except BaseException:
+            old.rename(out)
+            raise
+        (out / STAGING_MARKER).unlink()
+        # the new results are in place; the old ones go (what cannot be removed is cleared next run)
+        if old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            old.unlink(missing_ok=True)
+    finally:
+        if blocked:
+            try:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+            except KeyboardInterrupt as exc:  # held back during the swap, delivered now
+                raise InterruptedAfterCommit(str(exc)) from None

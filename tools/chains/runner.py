@@ -26,6 +26,7 @@ from boomtip.tools.chains.provenance import outage_windows, run_labels
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.chains.ship import ShipChain
 from boomtip.tools.config.processing import Processing
+from boomtip.data.keys import settings_dump
 from boomtip.tools.config.settings import boomtip_commit, boomtip_version
 
 
@@ -86,11 +87,11 @@ def settings_record(source: FrameSource, processing: Processing, record: dict | 
     (`--installation` and `--processing` take this file as it is)."""
     return {"boomtip": {"version": boomtip_version(), "commit": boomtip_commit()}, **(record or {}),
             "source": {"name": source.meta.name, "t_start_s": source.meta.t_start_s, "duration_s": source.duration_s},
-            "installation": source.meta.installation.model_dump(mode="json"),
+            "installation": settings_dump(source.meta.installation),
             # the settings as given (a default left unset follows the installation: the Doppler band, the
             # markers' height, ...), which repeat the run, and every setting as it resolved, to read
-            "processing": processing.model_dump(mode="json", exclude_unset=True),
-            "processing_resolved": processing.model_dump(mode="json")}
+            "processing": settings_dump(processing, exclude_unset=True),
+            "processing_resolved": settings_dump(processing)}
 
 
 def run_into(source: FrameSource, staging: Path, processing: Processing | None = None, rerun: bool = False,

@@ -14,9 +14,11 @@ from boomtip.tools.config.scenario import ScenarioError, available_scenarios, lo
 from rich.markup import escape
 
 from boomtip.tools.cli.bench import bench_app
+from boomtip.data.io.output_folder import locked_output
+from boomtip.data.keys import settings_dump
 from boomtip.tools.config.settings import processing_settings
-from boomtip.tools.cli.common import (ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario, scenario_inputs,
-                                       terminate_like_interrupt, user_errors)
+from boomtip.tools.cli.common import (INTERRUPTED_STUDY, ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario,
+                                       scenario_inputs, terminate_like_interrupt, user_errors)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
 app.add_typer(bench_app, name="bench")
@@ -215,8 +217,9 @@ def process(
     format: Optional[str] = typer.Option(None, "--format", help="Force a loader: boomtip, folder, ouster, ros1, ros2, "
                                          "mcap (default: guessed from the path)."),
     installation: Optional[Path] = typer.Option(None, "--installation", help="Installation YAML (sensors, mounts, crane)."),
-    topic: Optional[list[str]] = typer.Option(None, "--topic", help="Bags: ROLE=NAME for lidar, radar, mru, encoders "
-                                              "(default: guessed by message type)."),
+    topic: Optional[list[str]] = typer.Option(None, "--topic", help="Bags: ROLE=NAME for lidar, radar, mru, "
+                                              "feeder_mru, encoders (default: guessed by message type); ROLE=none "
+                                              "reads no topic for that role."),
     meta: Optional[Path] = typer.Option(None, "--meta", help="Ouster: the sensor-metadata JSON (default: beside the pcap)."),
     start: Optional[float] = typer.Option(None, "--start", help="Skip the frames before this time (s)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Process this many seconds from --start."),
@@ -295,13 +298,14 @@ def _study(tasks, out: Path, grid_keys: list[str], labels: dict, kpis: list[str]
     check_executor(executor)
     study = {"scenario": scenario_dump, "grid": grid_keys, "tasks": [[t.id, list(t.overrides), t.duration_s, t.recording]
                                                                      for t in tasks]}
-    done = prepare_study_dir(out, force, resume, json.loads(json.dumps(study)), inputs)
-    with progress_bar(len(tasks), "tasks") as advance, make_executor(executor, workers, scheduler) as pool:
-        rows = run_study(tasks, out, grid_keys, pool, done, advance)
-    summary = write_summary(out, rows, grid_keys)
-    present = {r["kpi"] for r in summary}
-    plots = plot_kpis(out, summary, grid_keys, [k for k in (kpis or DEFAULT_KPIS) if k in present], labels)
-    write_sweep_json(out, sys.argv, scenario_dump, tasks, rows)
+    with locked_output(out, inputs) as out, user_errors(INTERRUPTED_STUDY):  # the study writes OUT in place (--resume)
+        done = prepare_study_dir(out, force, resume, json.loads(json.dumps(study)), inputs)
+        with progress_bar(len(tasks), "tasks") as advance, make_executor(executor, workers, scheduler) as pool:
+            rows = run_study(tasks, out, grid_keys, pool, done, advance)
+        summary = write_summary(out, rows, grid_keys)
+        present = {r["kpi"] for r in summary}
+        plots = plot_kpis(out, summary, grid_keys, [k for k in (kpis or DEFAULT_KPIS) if k in present], labels)
+        write_sweep_json(out, sys.argv, scenario_dump, tasks, rows)
     failed = [r for r in rows if r["status"] != "ok"]
     console.print(f"wrote {out}: runs.csv ({len(rows)} runs, {len(failed)} failed), summary.csv, sweep.json"
                   + "".join(f", {p.name}" for p in plots))
@@ -365,7 +369,7 @@ def batch(
         tasks = []
         for i, p in enumerate(paths):
             rec = Recording(p)  # refuse an unreadable recording before spawning anything
-            settings = (processing_settings(rec.meta.processing, processing, set_).model_dump(mode="json")
+            settings = (settings_dump(processing_settings(rec.meta.processing, processing, set_), exclude_unset=True)
                         if (processing or set_) else None)
             tasks.append(Task(f"{i}:{p}", "", (), None, 0, {"recording": str(p)}, recording=str(p.resolve()),
                               processing=settings))

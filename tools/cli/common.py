@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from boomtip.data.io.output_folder import InterruptedAfterCommit
 from boomtip.data.io.pcd import PcdError
 from boomtip.data.io.recording import RecordingError
 from boomtip.tools.config.scenario import ScenarioError, load_scenario
@@ -24,18 +25,26 @@ ScenarioOpt = typer.Option(..., "--scenario", "-s", help="Built-in scenario name
 SetOpt = typer.Option(None, "--set", help="Override a scenario key: dotted.key=value (repeatable).")
 
 
+INTERRUPTED_RUN = "no output was replaced and no input was touched; the run's partial results were removed"
+INTERRUPTED_STUDY = "no input was touched; the finished runs are in runs.csv: --resume does the rest"
+
+
 @contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn expected user-input errors into one clear message and exit code 2."""
+def user_errors(interrupted: str = INTERRUPTED_RUN) -> Iterator[None]:
+    """Turn expected user-input errors into one clear message and exit code 2; an interrupt
+    into one line saying what `interrupted` leaves behind, and exit code 130."""
     try:
         yield
     except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
         console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)  # a key's [a, b] is not markup
         raise typer.Exit(2) from None
+    except InterruptedAfterCommit as exc:
+        console.print(f"[bold yellow]stopped ({escape(str(exc) or 'interrupt')}):[/] after the results were in place; "
+                      "the output folder is complete", highlight=False)
+        raise typer.Exit(130) from None
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (terminate_like_interrupt)
         why = str(exc) or "interrupt"
-        console.print(f"[bold yellow]stopped ({escape(why)}):[/] no output was replaced and no input was touched; "
-                      "the run's partial results were removed", highlight=False)
+        console.print(f"[bold yellow]stopped ({escape(why)}):[/] {interrupted}", highlight=False)
         raise typer.Exit(130) from None
     except OSError as exc:  # a read-only or full disk: say so; the staging folder is already gone
         where = f" {exc.filename}" if exc.filename else ""

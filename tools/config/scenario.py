@@ -18,7 +18,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from boomtip.data.keys import format_validation, leaf_keys, nearest_keys
+from boomtip.data.keys import format_validation, leaf_keys, nearest_keys, settings_dump
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.tools.config.processing import Processing
 
@@ -37,7 +37,7 @@ class Scenario(SimulatedRun):
     processing: Processing = Processing()
 
     def processing_settings(self) -> dict:
-        return self.processing.model_dump(mode="json", exclude_unset=True)
+        return settings_dump(self.processing, exclude_unset=True)
 
 
 SECTIONS = ("world", "installation", "processing")

@@ -84,15 +84,19 @@ def boomtip_version() -> str:
         return "unknown"
 
 
-def boomtip_commit() -> str | None:
-    """The git commit of the code that runs, when it runs from a checkout (an editable install)."""
-    here = Path(__file__).resolve().parent
+def boomtip_commit(root: Path | None = None) -> str | None:
+    """The git commit of the code that runs, when it runs from boomtip's own checkout (an
+    editable install); None for an installed package, even one inside another repository.
+    root: where boomtip's code is (default: this file's checkout)."""
+    root = Path(root or Path(__file__).resolve().parents[2]).resolve()  # tools/config/settings.py -> the root
+    git = ["git", "--no-optional-locks", "-C", str(root)]
     try:
-        out = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
+        top = subprocess.run([*git, "rev-parse", "--show-toplevel", "HEAD"], capture_output=True, text=True, timeout=5)
+        lines = top.stdout.splitlines()
+        if top.returncode != 0 or len(lines) != 2 or Path(lines[0]).resolve() != root:
+            return None
+        dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True, timeout=5)
     except (OSError, subprocess.SubprocessError):
         return None
-    if out.returncode != 0:
-        return None
-    dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                           text=True, timeout=5).stdout.strip()
-    return out.stdout.strip() + ("+local changes" if dirty else "")
+    return lines[1] + ("+local changes" if dirty.stdout.strip() else "")

@@ -20,13 +20,6 @@ from boomtip.tools.cli import app
 runner = CliRunner()
 
 
-def _dead_pid() -> int:
-    """A PID that was a process and is no longer one."""
-    proc = subprocess.Popen([sys.executable, "-c", "pass"])
-    proc.wait()
-    return proc.pid
-
-
 def test_a_block_that_completes_becomes_out_and_one_that_fails_leaves_out_as_it_was(tmp_path):
     out = tmp_path / "out"
     with output_folder(out, force=False) as staging:
@@ -42,21 +35,43 @@ def test_a_block_that_completes_becomes_out_and_one_that_fails_leaves_out_as_it_
             pass
 
 
-def test_an_out_being_written_is_refused_with_the_holders_pid(tmp_path):
+HOLD = """
+import sys, time
+from boomtip.data.io.output_folder import output_folder
+with output_folder(sys.argv[1], force=True) as staging:
+    (staging / "mine").write_text("x")
+    print("holding", flush=True)
+    time.sleep(60)
+"""
+
+
+def _holder(out):
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(out)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "holding"
+    return proc
+
+
+def test_an_out_another_process_writes_is_refused_with_its_pid_and_freed_when_it_dies(tmp_path):
     out = tmp_path / "out"
-    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    holder = _holder(out)
     try:
-        (tmp_path / ".out.lock").write_text(f"{holder.pid}\n")
         with pytest.raises(RecordingError, match=f"another run \\(PID {holder.pid}\\)"):
             with output_folder(out, force=True):
                 pass
+        assert (tmp_path / f".out.partial-{holder.pid}" / "mine").is_file()  # its staging folder is its own
     finally:
-        holder.kill()
+        holder.kill()  # SIGKILL: no cleanup of its own; the kernel frees its lock
         holder.wait()
-    assert (tmp_path / ".out.lock").read_text().strip() == str(holder.pid)  # not ours to remove while it lived
-    with output_folder(out, force=True) as staging:  # its PID gone: a stale lock, taken over
+    with output_folder(out, force=False) as staging:
         (staging / "x").write_text("x")
-    assert (out / "x").exists() and not (tmp_path / ".out.lock").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and sorted(p.name for p in out.iterdir()) == ["x"]
+
+
+def test_a_lock_file_left_behind_holds_nothing(tmp_path):
+    (tmp_path / ".out.lock").write_text(f"{os.getppid()}\n")  # a live PID in it: the file is not the lock
+    with output_folder(tmp_path / "out", force=False):
+        pass
+    assert not (tmp_path / ".out.lock").exists()
 
 
 def test_a_second_run_into_the_same_out_is_refused_while_the_first_writes(tmp_path):
@@ -68,18 +83,79 @@ def test_a_second_run_into_the_same_out_is_refused_while_the_first_writes(tmp_pa
     assert out.is_dir()
 
 
-def test_staging_folders_of_dead_runs_are_cleared_and_a_live_runs_kept(tmp_path):
-    dead, live = tmp_path / f".rec.partial-{_dead_pid()}", tmp_path / f".other.partial-{os.getppid()}"
-    old = tmp_path / f".rec.old-{_dead_pid()}"
-    for p in (dead, live, old):
-        p.mkdir()
-        (p / "frame.pcd").write_text("x")
-    keep = tmp_path / "rec.partial-1"  # not a staging folder's name: never touched
-    keep.mkdir()
+def test_a_non_empty_out_is_judged_under_the_lock(tmp_path):
+    out = tmp_path / "out"
+    with output_folder(out, force=False) as staging:
+        (staging / "a").write_text("a")
+        with pytest.raises(OutputError, match="PID"):  # the lock first: not "not empty"
+            with output_folder(out, force=False):
+                pass
+
+
+def _staging(path, marker=True):
+    path.mkdir()
+    (path / "frame.pcd").write_text("x")
+    if marker:
+        (path / ".boomtip-staging").touch()
+    return path
+
+
+def test_what_dead_runs_left_is_cleared_and_nothing_else(tmp_path):
+    dead = _staging(tmp_path / ".rec.partial-12345")
+    old = _staging(tmp_path / ".rec.old-12345", marker=False)
+    (tmp_path / "rec").mkdir()  # rec exists: its old copy is a leftover
+    foreign = _staging(tmp_path / ".notes.partial-7", marker=False)  # a user's folder of that name: no marker
+    huge = _staging(tmp_path / (".x.partial-" + "9" * 30))  # not a PID
+    keep = _staging(tmp_path / "rec.partial-1")  # not a staging folder's name
     with output_folder(tmp_path / "out", force=False):
         pass
-    assert not dead.exists() and not old.exists() and live.is_dir() and keep.is_dir()
+    assert not dead.exists() and not old.exists()
+    assert foreign.is_dir() and huge.is_dir() and keep.is_dir()
     assert clear_dead_staging(tmp_path / "missing") == []
+
+
+def test_a_staging_folder_named_as_an_input_is_never_removed(tmp_path):
+    rec = _staging(tmp_path / ".rec.partial-3")
+    assert clear_dead_staging(tmp_path, inputs=(rec,)) == [] and rec.is_dir()
+
+
+def test_a_swap_cut_short_gets_the_former_out_back(tmp_path):
+    old = _staging(tmp_path / ".out.old-4242", marker=False)  # killed between the two renames
+    partial = _staging(tmp_path / ".out.partial-4242")
+    with pytest.raises(OutputError, match="not empty"):
+        with output_folder(tmp_path / "out", force=False):
+            pass
+    assert (tmp_path / "out" / "frame.pcd").is_file() and not old.exists() and not partial.exists()
+
+
+def test_a_live_runs_staging_beside_another_out_is_kept(tmp_path):
+    holder = _holder(tmp_path / "a")
+    try:
+        with output_folder(tmp_path / "b", force=False):
+            pass
+        assert (tmp_path / f".a.partial-{holder.pid}" / "mine").is_file()
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_a_failed_swap_puts_the_former_out_back(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "a").write_text("first")
+    real = pathlib.Path.rename
+
+    def failing(self, target):
+        if ".partial-" in self.name:
+            raise OSError(28, "No space left on device")
+        return real(self, target)
+
+    monkeypatch.setattr(pathlib.Path, "rename", failing)
+    with pytest.raises(OSError):
+        with output_folder(out, force=True) as staging:
+            (staging / "a").write_text("second")
+    monkeypatch.undo()
+    assert (out / "a").read_text() == "first" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
 REAL = pathlib.Path(__file__).resolve().parents[1] / "real" / "ouster"

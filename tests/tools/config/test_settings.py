@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
 
 import pytest
 from typer.testing import CliRunner
@@ -13,7 +14,9 @@ from boomtip.data.io.installation_file import load_installation
 from boomtip.data.io.recording import RecordingError
 from boomtip.tools.cli import app
 from boomtip.tools.config.scenario import ScenarioError
-from boomtip.tools.config.settings import processing_settings
+from boomtip.data.keys import settings_dump
+from boomtip.tools.config.processing import Processing
+from boomtip.tools.config.settings import boomtip_commit, processing_settings
 
 runner = CliRunner()
 
@@ -55,6 +58,40 @@ def test_an_installation_file_is_not_empty_and_holds_no_processing(tmp_path):
     f.write_text("attitude: level\nprocessing: {seed: 1}\n")
     with pytest.raises(RecordingError, match="--processing FILE.yaml"):
         load_installation(f)
+
+
+def test_a_setting_without_limit_survives_the_json_record():
+    p = processing_settings({}, None, ["processing.heave.deck_lidar.preprocess.max_range_m=inf"])
+    record = json.loads(json.dumps(settings_dump(p, exclude_unset=True), allow_nan=False))
+    assert record == {"heave": {"deck_lidar": {"preprocess": {"max_range_m": "inf"}}}}
+    again = Processing.model_validate(record)
+    assert again == p and again.model_fields_set == p.model_fields_set
+
+
+def test_only_what_was_set_is_set_after_the_round_trip():
+    """A setting left unset follows the installation (the markers' height, the Doppler band):
+    the record must not mark every default as given."""
+    p = processing_settings({}, None, ["processing.seed=4"])
+    again = Processing.model_validate(settings_dump(p, exclude_unset=True))
+    assert settings_dump(again, exclude_unset=True) == {"seed": 4}
+    assert "reflectors" not in again.heave.model_fields_set
+
+
+def test_the_commit_is_only_boomtips_own(tmp_path):
+    """A checkout's commit, marked when it has local changes; none for code inside another
+    repository (a virtualenv's site-packages in someone's project)."""
+    repo = tmp_path / "repo"
+    (repo / "site-packages" / "boomtip").mkdir(parents=True)
+    (repo / "a.txt").write_text("a")
+    git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
+    for args in (["init", "-q"], ["add", "a.txt"], ["commit", "-q", "-m", "a"]):
+        subprocess.run([*git, *args], check=True, capture_output=True)
+    head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    assert boomtip_commit(repo) == head
+    (repo / "a.txt").write_text("b")
+    assert boomtip_commit(repo) == head + "+local changes"
+    assert boomtip_commit(repo / "site-packages") is None
+    assert boomtip_commit(tmp_path) is None
 
 
 def test_the_version_is_printed():
