@@ -46,7 +46,7 @@ def _ouster(path: Path, installation: Installation | None, options: dict) -> Fra
 def _ros(path: Path, installation: Installation | None, options: dict) -> FrameSource:
     from boomtip.data.io.rosbag import RosBagSource
 
-    return RosBagSource(path, installation, options.get("topics"))
+    return RosBagSource(path, installation, options.get("topics"), options.get("strict", False))
 
 
 # ROS 1 bags, ROS 2 bags and MCAP files share one reader (rosbags); the names say what the user has.

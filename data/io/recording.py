@@ -27,6 +27,7 @@ from boomtip.data.io.pcd import PcdError, atomic_write_bytes, read_pcd, write_pc
 from boomtip.data.installation import Installation
 from boomtip.data.io.errors import RecordingError  # noqa: F401 - this module's error, where callers import it
 from boomtip.data.io.output_folder import check_output_folder, output_folder  # noqa: F401 - check_output_folder: the studies'
+from boomtip.data.io.samples import drop_bad_samples
 from boomtip.data.keys import format_validation, leaf_keys
 
 FORMAT_VERSION = 2
@@ -39,7 +40,6 @@ ENCODER_BOUNDS = {"slew": 1000.0, "luff": 1.5708, "hoist": 5000.0}
 # No vessel turns its roll, pitch or heading by more than this per second (rad/s): a step
 # faster between two samples is a glitch, and what follows it until the angle is back is too.
 MRU_STEPS = {"roll": 1.0, "pitch": 1.0, "yaw": 1.0}
-STEP_TOLERANCE_RAD = 0.005  # beyond the steps' bound: the angles' noise between two samples
 
 
 # ---------------------------------------------------------------------------------------
@@ -92,8 +92,9 @@ def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t", boun
     """Read a numeric CSV with a header; errors name the file, line and what was expected.
 
     A sample (row) is bad when a value is not finite, beyond |bounds[column]|, a step from the
-    last good sample faster than steps[column] per second (an angle, wrapped: a glitch no vessel
-    makes), or when its time is not after the last good sample's. `strict`: a bad sample refuses
+    log's good samples faster than steps[column] per second plus the log's noise (an angle,
+    wrapped: a glitch no vessel makes), or when its time is out of the log's order
+    (data/io/samples.py). `strict`: a bad sample refuses
     the file; else it is dropped, counted in `notes` with its first lines, and the stream has a gap
     there (refused when half the samples are bad: that is no log)."""
     try:
@@ -123,63 +124,9 @@ def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t", boun
     table = np.array(rows, dtype=float).reshape(-1, len(names))
     if len(table) == 0:
         raise RecordingError(f"{path}: a header and no samples; expected rows of {','.join(expected)}")
-    why = _bad_samples(table, names, time_column, bounds or {}, steps or {})
-    bad = np.array([w is not None for w in why])
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        if strict:
-            raise RecordingError(f"{path}: line {line_no[first]}: {why[first]}")
-        if 2 * int(bad.sum()) > len(table):
-            raise RecordingError(f"{path}: {int(bad.sum())} of {len(table)} samples are bad (first: line {line_no[first]}: "
-                                 f"{why[first]}); expected a log of mostly good samples")
-        lines_bad = [line_no[k] for k in np.flatnonzero(bad)[:5]]
-        if notes is not None:
-            notes.append(f"{path}: dropped {int(bad.sum())} of {len(table)} samples (lines "
-                         f"{', '.join(map(str, lines_bad))}{', ...' if bad.sum() > 5 else ''}): first {why[first]}")
-        table = table[~bad]
+    table = drop_bad_samples(table, names, str(path), "line", lambda k: str(line_no[k]), strict, notes, time_column,
+                             bounds, steps)
     return {n: table[:, j] for j, n in enumerate(names)}
-
-
-def _bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: dict[str, float],
-                 steps: dict[str, float]) -> list[str | None]:
-    """Per row, why it is a bad sample (None: good); see read_csv."""
-    why: list[str | None] = [None] * len(table)
-    values = np.nan_to_num(table)
-    for j, n in enumerate(names):
-        for k in np.flatnonzero(~np.isfinite(table[:, j]) | (np.abs(values[:, j]) > bounds.get(n, np.inf))):
-            if why[k] is None:
-                v = float(table[k, j])
-                limit = f"expected |{n}| <= {bounds[n]:g}" if np.isfinite(v) and n in bounds else "expected a finite number"
-                why[k] = f"column '{n}' is {v!r} ({limit})"
-    t = table[:, names.index(time_column)]
-    step_cols = [(names.index(n), rate) for n, rate in steps.items() if n in names]
-    ok = [k for k in range(len(table)) if why[k] is None]
-    # Times and steps against the last good sample: a glitch of several samples (a plateau
-    # between two impossible steps) is dropped whole. The common log has no such sample: only
-    # logs with a suspect step or a backward time take the loop.
-    t_ok = t[ok]
-    suspect = len(ok) > 1 and (np.any(np.diff(t_ok) <= 0) or any(
-        np.any(np.abs(_wrapped(np.diff(table[ok, j]))) > rate * np.diff(t_ok) + STEP_TOLERANCE_RAD) for j, rate in step_cols))
-    if suspect:
-        last = ok[0]
-        for k in ok[1:]:
-            dt = t[k] - t[last]
-            if not dt > 0:
-                why[k] = f"time {t[k]!r} is not after the previous sample's {t[last]!r}; expected strictly increasing times"
-                continue
-            for j, rate in step_cols:
-                step = abs(float(_wrapped(table[k, j] - table[last, j])))
-                if step > rate * dt + STEP_TOLERANCE_RAD:
-                    why[k] = (f"column '{names[j]}' steps {step:.4g} in {dt:.4g} s (expected at most {rate:g} per second: "
-                              "a glitch)")
-                    break
-            else:
-                last = k
-    return why
-
-
-def _wrapped(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 # ---------------------------------------------------------------------------------------

@@ -21,18 +21,21 @@ from typing import Iterator
 
 import numpy as np
 
-from boomtip.data.frames import HOOK_TRUTH_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.frames import HOOK_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.installation import Installation
 from pydantic import ValidationError
 
 from boomtip.data.io.folder import check_overlap
-from boomtip.data.io.recording import ENCODER_BOUNDS, MRU_BOUNDS, RecordingError
+from boomtip.data.io.recording import ENCODER_BOUNDS, MRU_BOUNDS, MRU_STEPS, RecordingError
+from boomtip.data.io.samples import drop_bad_samples
 from boomtip.data.keys import format_validation, leaf_keys
 from boomtip.data.io.ros_messages import RADAR_VELOCITY_FIELDS, CloudError, cloud_to_frame, decode_cloud, mru_from_imu
 
 ROLES = {"lidar": "sensor_msgs/msg/PointCloud2", "radar": "sensor_msgs/msg/PointCloud2", "mru": "sensor_msgs/msg/Imu",
          "feeder_mru": "sensor_msgs/msg/Imu", "encoders": "sensor_msgs/msg/JointState", "truth": "std_msgs/msg/Float64MultiArray", "meta": "std_msgs/msg/String"}
 JOINTS = ("slew", "luff", "hoist")
+QUATERNION_NORM_TOLERANCE = 1e-2  # drivers round their quaternions; renormalised
+NO_TOPIC = "none"  # --topic ROLE=none: no topic fills that role, none is guessed for it
 
 
 def _stamp_s(header) -> float:
@@ -44,11 +47,15 @@ def _cloud_fields(msg) -> list[tuple[str, int, int, int]]:
 
 
 class RosBagSource(FrameSource):
-    def __init__(self, path: str | Path, installation: Installation | None, topics: dict[str, str] | None = None) -> None:
+    def __init__(self, path: str | Path, installation: Installation | None, topics: dict[str, str] | None = None,
+                 strict: bool = False) -> None:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
 
         self.path = Path(path)
+        self.strict = strict
+        self._stream_notes: list[str] = []
+        self._no_orientation: dict[str, str] = {}  # role -> its Imu topic, whose messages carry no orientation
         if not self.path.exists():
             raise RecordingError(f"{self.path}: no such bag")
         self._typestore = get_typestore(Stores.ROS2_HUMBLE)  # for ROS 2 bags that do not carry their definitions
@@ -74,7 +81,7 @@ class RosBagSource(FrameSource):
         self._len = sum(counts[self.role_topic[r]] for r in ("lidar", "radar") if r in self.role_topic)
         own = streams.get("meta")
         notes = [f"{self.path.name}: {topic}: {n} message(s) could not be decoded and were skipped"
-                 for topic, n in skipped.items()]
+                 for topic, n in skipped.items()] + self._stream_notes
         if installation is None and own is None:
             raise RecordingError(f"{self.path}: the bag carries no installation; pass --installation FILE.yaml "
                                  "(`boomtip installation --template` prints one)")
@@ -91,6 +98,15 @@ class RosBagSource(FrameSource):
         if not self._stamp_clock:
             notes.append(f"{self.path.name}: the cloud header stamps are zero; frames are timed by the bag's receive time")
         t0, t1 = self._span
+        if "mru" in self._no_orientation and installation.attitude != "level":
+            raise RecordingError(
+                f"{self.path}: {self._no_orientation['mru']}: its Imu messages carry no orientation (an all-zero "
+                "quaternion or orientation_covariance[0] = -1: a gyro-only Imu, REP 145); boomtip needs the boom tip's "
+                "roll and pitch: name an Imu topic with orientation (--topic mru=NAME), or, for a boom tip that "
+                "stays level, set `attitude: level` in the installation")
+        for role, topic in self._no_orientation.items():
+            notes.append(f"{self.path.name}: {topic}: its Imu messages carry no orientation (REP 145): not used as "
+                         f"the {role}" + ("; the boom tip is taken as level (attitude: level)" if role == "mru" else ""))
         if "mru" in streams:
             self.mru = streams["mru"]
             check_overlap(self.mru, t0, t1, f"{self.path}: {self.role_topic['mru']}")
@@ -117,16 +133,19 @@ class RosBagSource(FrameSource):
 
     def _roles(self, given: dict[str, str]) -> dict[str, str]:
         roles: dict[str, str] = {}
+        unused = {role for role, topic in given.items() if topic.strip().lower() == NO_TOPIC}
         for role, topic in given.items():
             if role not in ROLES:
                 raise RecordingError(f"--topic {role}={topic}: unknown role; expected one of {', '.join(ROLES)}")
+            if role in unused:
+                continue
             if topic not in self.topics:
                 raise RecordingError(f"--topic {role}={topic}: {self.path} has no such topic; topics: {self._listing()}")
             if self.topics[topic] != ROLES[role]:
                 raise RecordingError(f"--topic {role}={topic}: a {self.topics[topic]}, expected {ROLES[role]}")
             roles[role] = topic
         for role, msgtype in ROLES.items():
-            if role in roles or role in ("lidar", "radar"):
+            if role in roles or role in unused or role in ("lidar", "radar"):
                 continue
             cands = [t for t, m in self.topics.items() if m == msgtype and t not in roles.values()]
             if role in ("mru", "feeder_mru"):  # the feeder's says so in its name; the crane's is the other
@@ -139,7 +158,7 @@ class RosBagSource(FrameSource):
             if cands:
                 roles[role] = cands[0]
         clouds = [t for t, m in self.topics.items() if m == ROLES["lidar"] and t not in roles.values()]
-        free = [r for r in ("lidar", "radar") if r not in roles]
+        free = [r for r in ("lidar", "radar") if r not in roles and r not in unused]
         if free and clouds:
             named = {r: [t for t in clouds if r in t.lower()] for r in free}
             for r in free:
@@ -147,7 +166,7 @@ class RosBagSource(FrameSource):
                     roles[r] = named[r][0]
             left = [t for t in clouds if t not in roles.values()]
             free = [r for r in free if r not in roles]
-            if len(left) == 1 and free == ["lidar", "radar"]:
+            if len(left) == 1 and free == ["lidar", "radar"] and not unused & {"lidar", "radar"}:
                 roles["lidar"] = left[0]  # one cloud topic whose name says nothing: a LiDAR
             elif len(left) > 1 and free == ["lidar", "radar"]:
                 raise RecordingError(f"{self.path}: cannot tell which PointCloud2 topic is the {' or '.join(free)}: "
@@ -189,13 +208,18 @@ class RosBagSource(FrameSource):
                 rows[role].append((msg.layout.dim[0].label if msg.layout.dim else "", np.asarray(msg.data, float)))
             elif role in ("mru", "feeder_mru"):
                 q, w = msg.orientation, msg.angular_velocity
-                rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, q.x, q.y, q.z, q.w, w.x, w.y, w.z))
+                cov0 = float(msg.orientation_covariance[0]) if len(msg.orientation_covariance) else 0.0
+                rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, q.x, q.y, q.z, q.w, w.x, w.y, w.z, cov0))
             else:
                 rows[role].append((_stamp_s(msg.header) or t_ns * 1e-9, list(msg.name), np.asarray(msg.position, float)))
         out: dict = {}
         for topic, role in wanted.items():
             if rows[role]:
-                out[role] = getattr(self, f"_{role}")(rows[role], topic)
+                stream = getattr(self, f"_{role}")(rows[role], topic)
+                if stream is None:  # an Imu without orientation
+                    self._no_orientation[role] = topic
+                else:
+                    out[role] = stream
         return out, bad
 
     def _meta(self, rows: list[str], topic: str) -> dict:
@@ -207,27 +231,38 @@ class RosBagSource(FrameSource):
             raise RecordingError(f"{self.path}: {topic}: expected a JSON object with an 'installation'")
         return meta
 
-    def _feeder_mru(self, rows: list[tuple], topic: str) -> MruLog:
+    def _feeder_mru(self, rows: list[tuple], topic: str) -> MruLog | None:
         return self._mru(rows, topic)
 
-    def _mru(self, rows: list[tuple], topic: str) -> MruLog:
+    def _screened(self, table: np.ndarray, names: list[str], topic: str, bounds: dict[str, float],
+                  steps: dict[str, float] | None = None, why: list[str | None] | None = None) -> np.ndarray:
+        """A stream's good rows in time order: messages out of order are sorted (a bag interleaves
+        publishers), a repeated stamp, a bad value or a glitch is dropped and counted (refused
+        with --strict); see data/io/samples.py."""
+        order = np.argsort(table[:, 0], kind="stable")
+        why = [why[k] for k in order] if why is not None else None
+        return drop_bad_samples(table[order], names, f"{self.path}: {topic}", "message",
+                                lambda k: f"at t = {table[order[k], 0]:.3f} s", self.strict,
+                                self._stream_notes, "t", bounds, steps, why)
+
+    def _mru(self, rows: list[tuple], topic: str) -> MruLog | None:
+        """Roll, pitch, yaw and their rates from Imu messages; None when no message carries an
+        orientation (REP 145: an all-zero quaternion, or orientation_covariance[0] = -1)."""
         a = np.array(rows, dtype=float)
-        a = a[np.argsort(a[:, 0], kind="stable")]
-        norm = np.linalg.norm(a[:, 1:5], axis=1)
-        ok = np.isfinite(a).all(axis=1) & (np.abs(norm - 1.0) < 1e-2)  # drivers round; renormalised below
-        if not ok.any():
-            raise RecordingError(f"{self.path}: {topic}: no Imu message with a finite orientation quaternion of norm 1 "
-                                 "and finite angular velocities")
-        a = a[ok]
-        a[:, 1:5] /= np.linalg.norm(a[:, 1:5], axis=1)[:, None]
-        rpy, rates = mru_from_imu(a[:, 1:5], a[:, 5:8])
-        bounds = np.array([MRU_BOUNDS[k] for k in ("roll", "pitch", "yaw")])
-        bad = np.flatnonzero(np.any(np.abs(rpy) > bounds, axis=1) | ~np.isfinite(rates).all(axis=1))
-        if len(bad):
-            raise RecordingError(f"{self.path}: {topic}: message at t = {a[bad[0], 0]:.3f} s: attitude "
-                                 f"{np.degrees(rpy[bad[0]]).round(1).tolist()} deg is beyond the MRU's range")
-        return MruLog.from_columns({"t": a[:, 0], **{k: rpy[:, i] for i, k in enumerate(("roll", "pitch", "yaw"))},
-                                    **{k: rates[:, i] for i, k in enumerate(("roll_rate", "pitch_rate", "yaw_rate"))}})
+        quat, no_orientation = a[:, 1:5], (a[:, 8] == -1.0) | np.all(a[:, 1:5] == 0.0, axis=1)
+        if no_orientation.all():
+            return None
+        norm = np.linalg.norm(quat, axis=1)
+        unit = np.isfinite(norm) & (np.abs(norm - 1.0) < QUATERNION_NORM_TOLERANCE)
+        why: list[str | None] = [None] * len(a)
+        for k in np.flatnonzero(no_orientation | ~unit):
+            why[k] = ("no orientation (REP 145)" if no_orientation[k] else
+                      f"orientation quaternion of norm {float(norm[k])!r} (expected 1)")
+        quat = np.where(unit[:, None], quat / np.where(unit, norm, 1.0)[:, None], [0.0, 0.0, 0.0, 1.0])
+        rpy, rates = mru_from_imu(quat, a[:, 5:8])
+        table = np.column_stack([a[:, 0], rpy, rates])
+        good = self._screened(table, list(MRU_COLUMNS), topic, MRU_BOUNDS, MRU_STEPS, why)
+        return MruLog.from_columns({n: good[:, j] for j, n in enumerate(MRU_COLUMNS)})
 
     def _encoders(self, rows: list[tuple], topic: str) -> dict[str, np.ndarray]:
         """Joint positions by name in every message (several publishers may share the topic,
@@ -243,18 +278,11 @@ class RosBagSource(FrameSource):
             seen = sorted({n for r in rows for n in r[1]})
             raise RecordingError(f"{self.path}: {topic}: no message gives positions for the joints "
                                  f"{', '.join(JOINTS)} (joints seen: {', '.join(seen) or 'none'})")
-        t_a, pos_a = np.array(t, float), np.array(pos, float)
-        keep = np.isfinite(pos_a).all(axis=1) & np.isfinite(t_a)
-        limits = np.array([ENCODER_BOUNDS[j] for j in JOINTS])
-        beyond = keep & np.any(np.abs(pos_a) > limits, axis=1)
-        if beyond.any():
-            k = int(np.flatnonzero(beyond)[0])
-            raise RecordingError(f"{self.path}: {topic}: message at t = {t_a[k]:.3f} s: slew, luff, hoist {pos_a[k].round(3).tolist()} "
-                                 f"beyond the encoders' range (|slew|, |luff|, |hoist| <= {limits.tolist()})")
-        if np.count_nonzero(keep) < 2:
-            raise RecordingError(f"{self.path}: {topic}: {np.count_nonzero(keep)} usable encoder messages; at least 2 needed")
-        order = np.argsort(t_a[keep], kind="stable")
-        return {"t": t_a[keep][order], **{j: pos_a[keep][order, i] for i, j in enumerate(JOINTS)}}
+        good = self._screened(np.column_stack([np.array(t, float), np.array(pos, float)]), ["t", *JOINTS], topic,
+                              ENCODER_BOUNDS)
+        if len(good) < 2:
+            raise RecordingError(f"{self.path}: {topic}: {len(good)} usable encoder messages; at least 2 needed")
+        return {"t": good[:, 0], **{j: good[:, i + 1] for i, j in enumerate(JOINTS)}}
 
     def _truth(self, rows: list[tuple], topic: str) -> Truth:
         names = tuple(rows[0][0].split(","))

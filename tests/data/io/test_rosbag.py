@@ -80,8 +80,9 @@ def test_a_hook_run_carries_its_encoders(tmp_path):
 
 
 # --- bags from other software ---------------------------------------------------------------
-def _foreign_bag(path, clouds: dict[str, str], stamp_zero=False, imu=True, radar_field="doppler"):
-    """A ROS 2 bag as a driver stack writes it: topics of its own names."""
+def _foreign_bag(path, clouds: dict[str, str], stamp_zero=False, imu=True, radar_field="doppler", orientation=None):
+    """A ROS 2 bag as a driver stack writes it: topics of its own names. orientation: per Imu
+    message, its quaternion (x, y, z, w) and orientation_covariance[0] (default: level, 0)."""
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -106,7 +107,10 @@ def _foreign_bag(path, clouds: dict[str, str], stamp_zero=False, imu=True, radar
                 w.write(conns[topic], int(t * 1e9), store.serialize_cdr(msg, "sensor_msgs/msg/PointCloud2"))
             if imu:
                 Q, V = T["geometry_msgs/msg/Quaternion"], T["geometry_msgs/msg/Vector3"]
-                m = T["sensor_msgs/msg/Imu"](header=hdr, orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+                (qx, qy, qz, qw), cov0 = orientation[k] if orientation else ((0.0, 0.0, 0.0, 1.0), 0.0)
+                cov = np.zeros(9)
+                cov[0] = cov0
+                m = T["sensor_msgs/msg/Imu"](header=hdr, orientation=Q(x=qx, y=qy, z=qz, w=qw), orientation_covariance=cov,
                                              angular_velocity=V(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=np.zeros(9),
                                              linear_acceleration=V(x=0.0, y=0.0, z=9.81), linear_acceleration_covariance=np.zeros(9))
                 w.write(imu_conn, int(t * 1e9), store.serialize_cdr(m, "sensor_msgs/msg/Imu"))
@@ -235,8 +239,50 @@ def test_joints_are_read_by_name_in_every_message_and_bounded(tmp_path, inst):
     items[2] = (*items[2][:3], JS(header=_header(T, 100.01), name=["hoist", "luff", "slew"], position=np.array([30.0, 45.0, 0.1]),
                                   velocity=np.zeros(0), effort=np.zeros(0)))  # luff in degrees
     _write(tmp_path / "bag2", items)
-    with pytest.raises(RecordingError, match=r"/joint_states: message at t = 100.010 s: slew, luff, hoist \[0.1, 45.0, 30.0\] beyond"):
-        open_source(tmp_path / "bag2", installation=level)
+    src = open_source(tmp_path / "bag2", installation=level)
+    assert len(src.encoders["t"]) == 9 and np.all(src.encoders["luff"] == 0.7)
+    assert any("/joint_states: dropped 1 of 10 samples (messages at t = 100.010 s): first column 'luff' is 45.0 "
+               "(expected |luff| <= 1.5708)" in n for n in src.meta.notes), src.meta.notes
+    with pytest.raises(RecordingError, match=r"/joint_states: message at t = 100.010 s: column 'luff' is 45.0"):
+        open_source(tmp_path / "bag2", installation=level, strict=True)
+
+
+NO_ORIENTATION = [((0.0, 0.0, 0.0, 0.0), 0.0)] * 5 + [((0.0, 0.0, 0.0, 1.0), -1.0)] * 5  # both REP 145 forms
+
+
+def test_an_imu_without_orientation_is_not_an_attitude_and_says_so(tmp_path, inst):
+    _foreign_bag(tmp_path / "bag", {"/points": "lidar"}, orientation=NO_ORIENTATION)
+    with pytest.raises(RecordingError, match=r"/imu/data: its Imu messages carry no orientation .*REP 145.*attitude: level"):
+        open_source(tmp_path / "bag", installation=inst)
+    level = inst.model_copy(update={"attitude": "level"})
+    src = open_source(tmp_path / "bag", installation=level)
+    assert len(list(src)) == 10 and src.mru.attitude(100.5)[0].tolist() == [0.0, 0.0, 0.0]
+    assert any("/imu/data: its Imu messages carry no orientation" in n and "taken as level" in n for n in src.meta.notes)
+
+
+def test_topic_none_reads_no_topic_for_a_role(tmp_path, inst):
+    _foreign_bag(tmp_path / "bag", {"/points": "lidar"})
+    level = inst.model_copy(update={"attitude": "level"})
+    src = open_source(tmp_path / "bag", installation=level, topics={"mru": "none"})
+    assert src.mru.attitude(100.5)[0].tolist() == [0.0, 0.0, 0.0] and "mru" not in src.role_topic
+    with pytest.raises(RecordingError, match="no sensor_msgs/Imu topic"):
+        open_source(tmp_path / "bag", installation=inst, topics={"mru": "none"})
+    with pytest.raises(RecordingError, match="no sensor_msgs/PointCloud2 topic"):
+        open_source(tmp_path / "bag", installation=level, topics={"lidar": "none"})
+
+
+def test_imu_messages_without_orientation_among_good_ones_are_dropped_and_counted(tmp_path, inst):
+    level_q = ((0.0, 0.0, 0.0, 1.0), 0.0)
+    orientation = [level_q] * 10
+    orientation[3] = ((0.0, 0.0, 0.0, 0.0), 0.0)
+    orientation[6] = ((0.0, 0.0, 0.3, 0.5), 0.0)  # not a unit quaternion
+    _foreign_bag(tmp_path / "bag", {"/points": "lidar"}, orientation=orientation)
+    src = open_source(tmp_path / "bag", installation=inst)
+    assert len(src.mru.t_s) == 8
+    assert any("/imu/data: dropped 2 of 10 samples (messages at t = 100.300 s, at t = 100.600 s): first no orientation"
+               in n for n in src.meta.notes), src.meta.notes
+    with pytest.raises(RecordingError, match=r"/imu/data: message at t = 100.300 s: no orientation \(REP 145\)"):
+        open_source(tmp_path / "bag", installation=inst, strict=True)
 
 
 def test_a_bad_meta_is_named_and_an_imu_on_another_clock_is_refused(tmp_path, inst):

@@ -112,3 +112,36 @@ def test_a_hook_recording_with_a_nan_stretch_of_slew_runs_to_the_end(tmp_path):
         assert np.all(np.isfinite(after[col]))
     strict = runner.invoke(app, ["process", str(rec), "--out", str(tmp_path / "s"), "--strict"])
     assert strict.exit_code == 2 and "encoders.csv: line" in strict.output and "column 'slew' is nan" in strict.output
+
+
+def test_a_clean_log_with_its_noise_loses_no_sample(tmp_path):
+    t = np.arange(0, 60, 1 / RATE_HZ)
+    noisy = 0.05 * np.sin(0.6 * t) + np.random.default_rng(3).normal(0.0, np.radians(0.2), len(t))  # 0.2 deg noise
+    path = tmp_path / "mru.csv"
+    _mru_csv(path, t, noisy)
+    cols, notes = _read(path)
+    assert notes == [] and len(cols["t"]) == len(t)
+
+
+@pytest.mark.parametrize("where", [0, 1000, 1990])
+def test_a_glitch_at_the_start_the_middle_or_the_end_takes_only_itself(tmp_path, where):
+    t = np.arange(0, 10, 1 / RATE_HZ)
+    roll = 0.02 * np.sin(t)
+    roll[where:where + 10] = 1.2
+    path = tmp_path / "mru.csv"
+    _mru_csv(path, t, roll)
+    cols, notes = _read(path)
+    assert len(cols["t"]) == len(t) - 10 and not np.any(np.isin(cols["t"], t[where:where + 10]))
+    assert "dropped 10 of 2000" in notes[0] and "np.float64" not in notes[0]
+
+
+def test_a_stamp_far_in_the_future_takes_only_itself(tmp_path):
+    t = np.arange(0, 2, 1 / RATE_HZ)
+    t_bad = t.copy()
+    t_bad[50] = 1e9
+    path = tmp_path / "mru.csv"
+    _mru_csv(path, t_bad, 0.01 * np.sin(t))
+    cols, notes = _read(path)
+    assert len(cols["t"]) == len(t) - 1 and 1e9 not in cols["t"]
+    assert "dropped 1 of 400 samples (lines 52): first time 1000000000.0 is after the samples that follow it" in notes[0]
+    assert "np.float64" not in notes[0]

@@ -1,0 +1,171 @@
+"""Which samples of a logged stream (MRU, encoders) are bad, and why: a value that is not a
+number or lies beyond physical bounds, a time that does not follow the log's own order, an
+angle step no vessel makes (a glitch).
+
+Bad references must not condemn good samples: a glitch in the first row, a stamp far in the
+future, a glitch held for many samples. So times are judged by the log's longest increasing run
+of stamps (one odd stamp cannot reorder the rest), and steps by the log's longest stretch
+without an impossible step, from which the other stretches are joined on in both directions
+when they continue it, and dropped when they do not.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+from typing import Callable
+
+import numpy as np
+
+from boomtip.data.io.errors import RecordingError
+
+__all__ = ["bad_samples", "drop_bad_samples", "STEP_FLOOR_RAD", "STEP_NOISE_SIGMAS"]
+
+# A step is impossible beyond the column's rate bound times the time between the samples plus
+# the log's own noise between two samples: STEP_NOISE_SIGMAS robust sigmas (from the median
+# absolute deviation of its steps), and never less than STEP_FLOOR_RAD (a log quantised coarser
+# than its noise, or one without noise).
+STEP_NOISE_SIGMAS = 8.0
+STEP_FLOOR_RAD = 0.005
+MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
+
+
+def bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: dict[str, float],
+                steps: dict[str, float]) -> list[str | None]:
+    """Per row of `table` (columns `names`), why it is a bad sample; None for a good one.
+    bounds: column -> largest magnitude; steps: angle column -> largest rate (per second)."""
+    why: list[str | None] = [None] * len(table)
+    values = np.nan_to_num(table)
+    for j, n in enumerate(names):
+        for k in np.flatnonzero(~np.isfinite(table[:, j]) | (np.abs(values[:, j]) > bounds.get(n, np.inf))):
+            if why[k] is None:
+                v = float(table[k, j])
+                limit = f"expected |{n}| <= {bounds[n]:g}" if np.isfinite(v) and n in bounds else "expected a finite number"
+                why[k] = f"column '{n}' is {v!r} ({limit})"
+    t = table[:, names.index(time_column)]
+    ok = np.array([k for k in range(len(table)) if why[k] is None], dtype=int)
+    if len(ok) > 1 and np.any(np.diff(t[ok]) <= 0):
+        in_order = ok[_longest_increasing(t[ok])]
+        kept = np.zeros(len(table), dtype=bool)
+        kept[in_order] = True
+        for k in ok[~kept[ok]]:
+            before = in_order[in_order < k]
+            if len(before) and t[k] <= t[before[-1]]:
+                why[k] = (f"time {float(t[k])!r} is not after the previous sample's {float(t[before[-1]])!r}; "
+                          "expected strictly increasing times")
+            else:
+                why[k] = f"time {float(t[k])!r} is after the samples that follow it; expected strictly increasing times"
+        ok = in_order
+    step_cols = [(names.index(n), rate) for n, rate in steps.items() if n in names]
+    if len(ok) > 1 and step_cols:
+        for k, reason in _glitches(table[ok], t[ok], step_cols, names):
+            why[ok[k]] = reason
+    return why
+
+
+def drop_bad_samples(table: np.ndarray, names: list[str], where: str, unit: str, label: Callable[[int], str],
+                     strict: bool, notes: list[str] | None, time_column: str = "t",
+                     bounds: dict[str, float] | None = None, steps: dict[str, float] | None = None,
+                     why: list[str | None] | None = None) -> np.ndarray:
+    """The good rows of a stream's `table`. A bad row (bad_samples, or a reason already in `why`)
+    refuses the stream when `strict`, else is dropped and counted in `notes` with the `label`s
+    of the first five (`unit` "line", label "12"; "message", "4 (t = ...)"); a stream of mostly bad rows is refused:
+    that is no log. `where` names the stream (a file, a bag's topic) in every message."""
+    found = bad_samples(table, names, time_column, bounds or {}, steps or {})
+    why = [given or w for given, w in zip(why or [None] * len(table), found)]
+    bad = np.array([w is not None for w in why], dtype=bool)
+    if not bad.any():
+        return table
+    rows = np.flatnonzero(bad)
+    first = int(rows[0])
+    if strict:
+        raise RecordingError(f"{where}: {unit} {label(first)}: {why[first]}")
+    if 2 * len(rows) > len(table):
+        raise RecordingError(f"{where}: {len(rows)} of {len(table)} samples are bad (first: {unit} {label(first)}: "
+                             f"{why[first]}); expected a log of mostly good samples")
+    if notes is not None:
+        shown = ", ".join(label(int(k)) for k in rows[:5])
+        notes.append(f"{where}: dropped {len(rows)} of {len(table)} samples ({unit}s {shown}{', ...' if len(rows) > 5 else ''}): "
+                     f"first {why[first]}")
+    return table[~bad]
+
+
+def _longest_increasing(t: np.ndarray) -> np.ndarray:
+    """Indices of a longest strictly increasing subsequence of t, keeping the earlier of two
+    samples that compete (a late sample is the one dropped). Patience sorting (n log n) run
+    backwards, on the longest decreasing run of the negated times."""
+    tails: list[float] = []
+    tail_index: list[int] = []
+    parent = np.full(len(t), -1)
+    for i in range(len(t) - 1, -1, -1):
+        v = -float(t[i])
+        p = bisect_left(tails, v)
+        if p == len(tails):
+            tails.append(v)
+            tail_index.append(i)
+        else:
+            tails[p], tail_index[p] = v, i
+        parent[i] = tail_index[p - 1] if p > 0 else -1
+    out = []
+    i = tail_index[-1]
+    while i >= 0:
+        out.append(i)
+        i = parent[i]
+    return np.array(out, dtype=int)
+
+
+def _wrapped(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _tolerances(table: np.ndarray, step_cols: list[tuple[int, float]]) -> np.ndarray:
+    """Per step column, the log's noise between two samples that a step may add to its bound."""
+    tol = []
+    for j, _ in step_cols:
+        d = _wrapped(np.diff(table[:, j]))
+        mad = float(np.median(np.abs(d - np.median(d))))
+        tol.append(max(STEP_FLOOR_RAD, STEP_NOISE_SIGMAS * MAD_TO_SIGMA * mad))
+    return np.array(tol)
+
+
+def _excess(a: np.ndarray, b: np.ndarray, dt: float | np.ndarray, cols: np.ndarray, rates: np.ndarray,
+            tol: np.ndarray) -> np.ndarray:
+    """How far the steps from rows a to rows b exceed what a vessel can do in dt (> 0: a glitch)."""
+    step = np.abs(_wrapped(b[..., cols] - a[..., cols]))
+    return step - (rates * np.asarray(dt)[..., None] + tol)
+
+
+def _glitches(table: np.ndarray, t: np.ndarray, step_cols: list[tuple[int, float]],
+              names: list[str]) -> list[tuple[int, str]]:
+    """(row, why) of the rows in stretches that do not continue the log's longest good stretch."""
+    cols = np.array([j for j, _ in step_cols])
+    rates = np.array([r for _, r in step_cols])
+    tol = _tolerances(table, step_cols)
+    breaks = np.flatnonzero(np.any(_excess(table[:-1], table[1:], np.diff(t), cols, rates, tol) > 0, axis=1)) + 1
+    if len(breaks) == 0:
+        return []
+    starts = np.concatenate([[0], breaks])
+    ends = np.concatenate([breaks, [len(table)]])  # exclusive
+    anchor = int(np.argmax(ends - starts))
+    out: list[tuple[int, str]] = []
+
+    def judge(ref: int, s: int, e: int, first: int) -> bool:
+        """Does the stretch [s, e) continue from row ref (its nearest row being `first`)?"""
+        exc = _excess(table[ref], table[first], abs(t[first] - t[ref]), cols, rates, tol)
+        if np.all(exc <= 0):
+            return True
+        c = int(np.argmax(exc))
+        step = float(abs(_wrapped(table[first, cols[c]] - table[ref, cols[c]])))
+        reason = (f"column '{names[cols[c]]}' steps {step:.4g} in {abs(t[first] - t[ref]):.4g} s from the log's good "
+                  f"samples (expected at most {rates[c]:g} per second and {tol[c]:.2g} of noise: a glitch)")
+        out.extend((k, reason) for k in range(s, e))
+        return False
+
+    last = ends[anchor] - 1
+    for s, e in zip(starts[anchor + 1:], ends[anchor + 1:]):
+        if judge(last, s, e, s):
+            last = e - 1
+    first_good = starts[anchor]
+    for s, e in zip(starts[:anchor][::-1], ends[:anchor][::-1]):
+        if judge(first_good, s, e, e - 1):
+            first_good = s
+    return sorted(out)
