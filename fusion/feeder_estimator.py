@@ -247,7 +247,7 @@ class FeederEstimator:
         cov = np.diag([START_XY_VAR_M2, START_XY_VAR_M2, float(deck.cov[2, 2]), float(deck.cov[1, 1]),
                        float(deck.cov[0, 0]), START_YAW_VAR_RAD2])
         self.filter.start(t_s, pose, cov, tip_velocity, tip_level)
-        self._forecast_row(t_s, "lidar")
+        self._forecast_row(t_s, "lidar", keep=True)  # the frame's own record() row takes it too
         self._feeder_mru(t_s)
         self.tips.append(tip_velocity)
         self.pivots.append(lidar_level)
@@ -360,9 +360,10 @@ class FeederEstimator:
         self.tips.append(tip_velocity)
         self.pivots.append(lidar_level)
 
-    def _forecast_row(self, t_s: float, sensor: str) -> None:
+    def _forecast_row(self, t_s: float, sensor: str, keep: bool = False) -> None:
         """The row just recorded of a frame levelled with a forecast: its error on top of the filter's."""
-        angle_var = self.forecast_frames.pop((t_s, sensor), None)
+        frames = self.forecast_frames
+        angle_var = frames.get((t_s, sensor)) if keep else frames.pop((t_s, sensor), None)
         if angle_var is not None:
             out = self.filter.out
             out.P[-1][:6, :6] += attitude_pose_cov(out.x[-1][:3], angle_var)
