@@ -178,6 +178,9 @@ class SourceMeta:
     processing: dict = field(default_factory=dict)  # processing settings the source asks for (raw keys)
     provenance: dict | None = None
     t_start_s: float = 0.0  # the source's first time stamp: outputs and scoring start here
+    # The source's own clock at t = 0 (a bag's epoch seconds, an Ouster sensor's clock): every
+    # source is read with t counted from its first stamp (data/io/loaders.py, Rebased)
+    t_origin_s: float = 0.0
     notes: list[str] = field(default_factory=list)  # what the loader had to assume (the report repeats them)
 
     @property

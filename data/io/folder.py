@@ -23,6 +23,7 @@ from boomtip.data.io.recording import MRU_BOUNDS, MRU_STEPS, RecordingError, rea
 
 SUFFIXES = (".pcd", ".ply", ".bin")
 TIMES_FILES = ("times.txt", "timestamps.txt")
+FRAME_NUMBER_DIGITS = 10  # an integer name this short is a frame number (as ns it would be under a second)
 _NUMBER = re.compile(r"^[-+]?\d+(\.\d*)?([eE][-+]?\d+)?$")
 
 
@@ -40,9 +41,12 @@ def times_from_names(files: list[Path]) -> np.ndarray:
         integers.append(stem.lstrip("+-").isdigit())
         out.append(int(stem) * 1e-9 if integers[-1] else float(stem))
     t = np.array(out, dtype=float)
-    if all(integers) and len(t) > 1 and np.max(np.diff(np.sort(t))) < 1e-6:
-        # 000000.bin, 000001.bin, ...: frame numbers, not nanoseconds (a sensor frame takes ms)
-        raise RecordingError(f"{files[0].parent}: the file names count frames ({files[0].name}, {files[1].name}, ...); "
+    # 000000.bin, 000001.bin, ...: frame numbers, not nanoseconds (a sensor frame takes ms); one
+    # such file alone is told by its name's length (boomtip's own names have 13 digits)
+    counted = len(t) > 1 and np.max(np.diff(np.sort(t))) < 1e-6
+    if all(integers) and (counted or (len(t) == 1 and len(files[0].stem.lstrip("+-")) < FRAME_NUMBER_DIGITS)):
+        listed = ", ".join(p.name for p in files[:2]) + (", ..." if len(files) > 2 else "")
+        raise RecordingError(f"{files[0].parent}: the file names count frames ({listed}), they are no times; "
                              f"give their times in a {TIMES_FILES[0]} (one time in seconds per file)")
     return t
 

@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
 
-from boomtip.data.frames import Frame, FrameSource
+from boomtip.data.frames import Frame, FrameSource, MruLog, Truth
 from boomtip.data.installation import Installation
 from boomtip.data.io.recording import RecordingError
 
@@ -108,10 +108,48 @@ def open_source(path: str | Path, format: str | None = None, installation: Insta
         raise RecordingError(f"--format {kind!r}: expected one of {', '.join(LOADERS)}")
     if topics and LOADERS[kind] is not _ros:
         raise RecordingError(f"--topic: the {kind} loader has no topics (only ros1, ros2, mcap)")
-    source = LOADERS[kind](_inner_file(path, kind), installation, {"topics": topics or {}, "meta": meta, "strict": strict})
+    source = Rebased(LOADERS[kind](_inner_file(path, kind), installation, {"topics": topics or {}, "meta": meta,
+                                                                            "strict": strict}))
     if start_s is not None or duration_s is not None or every != 1:
         source = Selection(source, start_s or 0.0, duration_s, every)
     return source
+
+
+class Rebased(FrameSource):
+    """A source on one time base: t = 0 at its first stamp, whatever its clock (a folder's file
+    names, an Ouster sensor's clock, a bag's epoch seconds); the clock's value there is kept as
+    `meta.t_origin_s`. The frames and every stream are shifted alike; a source already starting
+    at 0 passes unchanged."""
+
+    def __new__(cls, source: FrameSource):
+        if source.meta.t_start_s == 0.0:
+            return source
+        return super().__new__(cls)
+
+    def __init__(self, source: FrameSource) -> None:
+        t0 = self.origin_s = source.meta.t_start_s
+        self.source = source
+        self.meta = replace(source.meta, t_start_s=0.0, t_origin_s=source.meta.t_origin_s + t0)
+        self.mru = _shifted_log(source.mru, t0)
+        self.feeder_mru = _shifted_log(source.feeder_mru, t0)
+        self.encoders = None if source.encoders is None else {**source.encoders, "t": source.encoders["t"] - t0}
+        self.truth = None if source.truth is None else Truth({**source.truth.columns, "t": source.truth.t_s - t0})
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getattr__(self, name: str):  # what a loader says of itself (a bag's topics) passes through
+        if name == "source":  # not set yet: no recursion
+            raise AttributeError(name)
+        return getattr(self.source, name)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for frame in self.source:
+            yield replace(frame, t_s=frame.t_s - self.origin_s)
+
+
+def _shifted_log(log: MruLog | None, t0_s: float) -> MruLog | None:
+    return None if log is None else replace(log, t_s=log.t_s - t0_s)
 
 
 class Selection(FrameSource):

@@ -13,6 +13,8 @@ def run_labels(source: FrameSource, chain: str) -> dict:
     source, its seed and hook programme."""
     prov = source.meta.provenance or {}
     labels = {"scenario": source.meta.name, "seed": prov.get("seed"), "duration_s": source.duration_s, "chain": chain}
+    if source.meta.t_origin_s:  # t = 0 is the recording's first stamp; its own clock there
+        labels["t_origin_s"] = source.meta.t_origin_s
     program = ((prov.get("world") or {}).get("hook") or {}).get("program")
     if chain == "hook" and program:
         labels["program"] = program

@@ -5,6 +5,7 @@ frames, and the gaps in each stream."""
 from __future__ import annotations
 
 from collections import Counter
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,8 @@ from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import SENSOR_OF, Measurement
 from boomtip.tools.report.heave import COLORS
 from boomtip.tools.report.plots import legend
+
+EPOCH_LIKE_S = 1e8  # a clock beyond this (1973) counts seconds since the epoch; below, a sensor's own
 
 
 def stream_gaps(t_s: np.ndarray, nominal_dt_s: float, factor: float = 1.5) -> list[tuple[float, float]]:
@@ -38,11 +41,25 @@ def method_table(rows: list[Measurement]) -> list[str]:
     return lines
 
 
+def time_base(kpis: dict) -> list[str]:
+    """The report's line on what t = 0 is, for a recording on a clock of its own."""
+    origin = kpis.get("t_origin_s")
+    if not origin:
+        return []
+    if origin > EPOCH_LIKE_S:
+        when = datetime.fromtimestamp(origin, timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+        return [f"Times count from the recording's first stamp: t = 0 s is {when} ({origin:.6f} s since the epoch).", ""]
+    return [f"Times count from the recording's first stamp: t = 0 s is {origin:.6f} s on the source's clock.", ""]
+
+
 def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates], rows: list[Measurement],
-                           mru: MruLog, rates_hz: dict[str, float]) -> list[str]:
+                           mru: MruLog | None, rates_hz: dict[str, float]) -> list[str]:
+    """report.md of a recording without truth. mru: None when the installation logs no attitude
+    (`attitude: level`)."""
     lines = [f"# boomtip relative-heave report: {kpis['scenario']} ({kpis['duration_s']:.0f} s, no truth)", "",
              *[f"**Warning:** {w}" for w in kpis.get("warnings", [])], "",
              "No truth came with this recording: this report says what was estimated, not how well.", "",
+             *time_base(kpis),
              "## Solutions", "", "| solution | D from | D-dot from | D range [m] | median sigma D [mm] | median sigma D-dot [mm/s] |",
              "|---|---|---|---|---|---|"]
     for name, e in estimates.items():
@@ -59,8 +76,11 @@ def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates
         if len(t):
             gaps = stream_gaps(t, 1.0 / rates_hz[s])
             lines.append(f"- {s}: {len(t)} frames, {len(gaps)} gaps" + "".join(f"; {a:.2f}-{b:.2f} s" for a, b in gaps[:10]))
-    gaps = stream_gaps(mru.t_s, float(np.median(np.diff(mru.t_s))) if len(mru.t_s) > 1 else 1.0)
-    lines.append(f"- MRU: {len(mru.t_s)} samples, {len(gaps)} gaps" + "".join(f"; {a:.2f}-{b:.2f} s" for a, b in gaps[:10]))
+    if mru is None:
+        lines.append("- MRU: none (`attitude: level`: the boom tip is taken as level)")
+    else:
+        gaps = stream_gaps(mru.t_s, float(np.median(np.diff(mru.t_s))) if len(mru.t_s) > 1 else 1.0)
+        lines.append(f"- MRU: {len(mru.t_s)} samples, {len(gaps)} gaps" + "".join(f"; {a:.2f}-{b:.2f} s" for a, b in gaps[:10]))
     plot = _plot(out, estimates)
     lines += ["", f"![estimates]({plot.name})", ""]
     atomic_write_bytes(out / "report.md", "\n".join(lines).encode())

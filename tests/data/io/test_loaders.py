@@ -5,6 +5,7 @@ stream; KITTI .bin; a selection of frames; clear errors for the formats not read
 from __future__ import annotations
 
 import csv
+import json
 import shutil
 
 import numpy as np
@@ -71,14 +72,16 @@ def test_level_attitude_and_times_from_names_or_a_file(tmp_path):
     inst.write_text("attitude: level\nradar: {enabled: false}\nlidar: {rate_hz: 10}\ncrane: {geometry: {boom_tip_m: [0, 0, 0]}}\n")
     src = open_source(folder, installation=load_installation(inst))
     frames = list(src)
-    np.testing.assert_allclose([f.t_s for f in frames], [1.5, 1.6, 1.7, 1.8, 1.9])
+    np.testing.assert_allclose([f.t_s for f in frames], [0.0, 0.1, 0.2, 0.3, 0.4], atol=1e-12)  # from the first stamp
+    assert src.meta.t_origin_s == 1.5
     r = runner.invoke(app, ["process", str(folder), "--installation", str(inst), "--out", str(tmp_path / "o")])
     assert r.exit_code == 0, r.output
     assert "attitude: level" in r.output
     vals = [float(v) for _, v, s in _deck_rows(tmp_path / "o" / "measurements.csv") if s == "ok"]
     assert len(vals) == 5 and np.allclose(vals, 12.5, atol=0.01)  # 12 m below the sensor, 0.5 m below the tip
     (folder / "times.txt").write_text("\n".join(str(10 + k) for k in range(5)) + "\n")
-    assert [f.t_s for f in open_source(folder, installation=load_installation(inst))] == [10, 11, 12, 13, 14]
+    timed = open_source(folder, installation=load_installation(inst))
+    assert [f.t_s for f in timed] == [0, 1, 2, 3, 4] and timed.meta.t_origin_s == 10
     (folder / "times.txt").write_text("1\n2\n")
     with pytest.raises(RecordingError, match="2 times for 5 cloud files"):
         open_source(folder, installation=load_installation(inst))
@@ -106,6 +109,16 @@ def test_kitti_bin_and_a_selection_of_frames(tmp_path):
     frames = list(open_source(folder, installation=load_installation(inst), start_s=0.1, duration_s=0.35, every=2))
     assert [round(f.t_s, 3) for f in frames] == [0.1, 0.3]
     assert frames[0].fields["intensity"][0] == pytest.approx(0.3) and frames[0].points_sensor.shape == (4000, 3)
+    single = tmp_path / "one"  # one KITTI file alone: 549 is a frame's number, not 549 ns
+    single.mkdir()
+    (folder / "000003.bin").rename(single / "00549.bin")
+    with pytest.raises(RecordingError, match=r"count frames \(00549.bin\)"):
+        open_source(single, installation=load_installation(inst))
+    (single / "0000000033333.bin").write_bytes((single / "00549.bin").read_bytes())  # boomtip's own: 13 digits of ns
+    (single / "00549.bin").unlink()
+    one = open_source(single, installation=load_installation(inst))
+    assert list(one)[0].t_s == 0.0 and one.meta.t_origin_s == pytest.approx(33333e-9)
+    (folder / "000003.bin").write_bytes((single / "0000000033333.bin").read_bytes())
     (folder / "000006.bin").write_bytes(b"\x00" * 10)
     (folder / "times.txt").write_text("\n".join(f"{0.1 * k:.1f}" for k in range(7)) + "\n")
     bad = list(open_source(folder, installation=load_installation(inst)))[-1]
@@ -142,7 +155,10 @@ def test_absolute_time_stamps_start_the_outputs_at_the_first_frame(tmp_path):
     assert r.exit_code == 0, r.output
     with open(tmp_path / "o" / "estimates.csv") as fh:
         rows = [row for row in csv.DictReader(fh) if row["solution"] == "fused"]
-    assert len(rows) >= 90 and abs(float(rows[0]["t"]) - 1.7e9) < 1.0 and float(rows[-1]["D"]) == pytest.approx(12.5, abs=0.01)
+    assert len(rows) >= 90 and float(rows[0]["t"]) == 0.0 and float(rows[-1]["D"]) == pytest.approx(12.5, abs=0.01)
+    settings = json.loads((tmp_path / "o" / "settings.json").read_text())
+    assert settings["source"]["t_origin_s"] == 1.7e9 and settings["source"]["t_start_s"] == 0.0
+    assert "t = 0 s is 2023-11-14T22:13:20.000Z" in (tmp_path / "o" / "report.md").read_text()
 
 
 @pytest.mark.parametrize("start, duration, every", [(float("nan"), None, 1), (0.0, float("nan"), 1), (float("inf"), None, 1),

@@ -131,7 +131,8 @@ def test_two_unnamed_clouds_are_refused_with_the_topics_listed_until_chosen(tmp_
     src = open_source(tmp_path / "bag", installation=inst, topics={"lidar": "/rear/points"})
     frames = list(src)
     assert len(frames) == 10 and {f.sensor for f in frames} == {"lidar"} and not src.meta.installation.radar.enabled
-    assert frames[0].t_s == pytest.approx(100.0) and src.mru.attitude(100.5) is not None
+    assert frames[0].t_s == 0.0 and src.meta.t_origin_s == pytest.approx(100.0)  # t from the first stamp
+    assert src.mru.attitude(0.5) is not None
     with pytest.raises(RecordingError, match=r"--topic lidar=/nope: .* has no such topic; topics: /front/points"):
         open_source(tmp_path / "bag", installation=inst, topics={"lidar": "/nope"})
     with pytest.raises(RecordingError, match=r"--topic mru=/front/points: a sensor_msgs/msg/PointCloud2, expected sensor_msgs/msg/Imu"):
@@ -144,7 +145,7 @@ def test_radar_and_lidar_by_name_a_velocity_field_and_zero_stamps(tmp_path, inst
     frames = list(src)
     radar = [f for f in frames if f.sensor == "radar"]
     assert len(radar) == 10 and np.all(radar[0].fields["range_rate"] == np.float32(-0.3))
-    assert frames[0].t_s == pytest.approx(100.0)  # the bag's receive time
+    assert frames[0].t_s == 0.0 and src.meta.t_origin_s == pytest.approx(100.0)  # the bag's receive time
     assert any("header stamps are zero" in n for n in src.meta.notes)
     flipped = inst.model_copy(update={"radar": inst.radar.model_copy(update={"velocity_sign": -1})})
     radar = [f for f in open_source(tmp_path / "bag", installation=flipped) if f.sensor == "radar"]
@@ -215,7 +216,7 @@ def test_a_corrupt_cloud_message_is_a_missing_frame_and_the_run_goes_on(tmp_path
     level = inst.model_copy(update={"attitude": "level"})
     frames = list(open_source(tmp_path / "bag", installation=level))
     assert len(frames) == 6 and [f.error is None for f in frames] == [True] * 3 + [False] + [True] * 2
-    assert "message 3: cannot be decoded" in frames[3].error and frames[3].t_s == pytest.approx(100.3)
+    assert "message 3: cannot be decoded" in frames[3].error and frames[3].t_s == pytest.approx(0.3)
 
 
 def test_joints_are_read_by_name_in_every_message_and_bounded(tmp_path, inst):
@@ -241,9 +242,9 @@ def test_joints_are_read_by_name_in_every_message_and_bounded(tmp_path, inst):
     _write(tmp_path / "bag2", items)
     src = open_source(tmp_path / "bag2", installation=level)
     assert len(src.encoders["t"]) == 9 and np.all(src.encoders["luff"] == 0.7)
-    assert any("/joint_states: dropped 1 of 10 samples (messages at t = 100.010 s): first column 'luff' is 45.0 "
+    assert any("/joint_states: dropped 1 of 10 samples (messages stamped 100.010 s): first column 'luff' is 45.0 "
                "(expected |luff| <= 1.5708)" in n for n in src.meta.notes), src.meta.notes
-    with pytest.raises(RecordingError, match=r"/joint_states: message at t = 100.010 s: column 'luff' is 45.0"):
+    with pytest.raises(RecordingError, match=r"/joint_states: message stamped 100.010 s: column 'luff' is 45.0"):
         open_source(tmp_path / "bag2", installation=level, strict=True)
 
 
@@ -256,7 +257,7 @@ def test_an_imu_without_orientation_is_not_an_attitude_and_says_so(tmp_path, ins
         open_source(tmp_path / "bag", installation=inst)
     level = inst.model_copy(update={"attitude": "level"})
     src = open_source(tmp_path / "bag", installation=level)
-    assert len(list(src)) == 10 and src.mru.attitude(100.5)[0].tolist() == [0.0, 0.0, 0.0]
+    assert len(list(src)) == 10 and src.mru.attitude(0.5)[0].tolist() == [0.0, 0.0, 0.0]
     assert any("/imu/data: its Imu messages carry no orientation" in n and "taken as level" in n for n in src.meta.notes)
 
 
@@ -264,7 +265,7 @@ def test_topic_none_reads_no_topic_for_a_role(tmp_path, inst):
     _foreign_bag(tmp_path / "bag", {"/points": "lidar"})
     level = inst.model_copy(update={"attitude": "level"})
     src = open_source(tmp_path / "bag", installation=level, topics={"mru": "none"})
-    assert src.mru.attitude(100.5)[0].tolist() == [0.0, 0.0, 0.0] and "mru" not in src.role_topic
+    assert src.mru.attitude(0.5)[0].tolist() == [0.0, 0.0, 0.0] and "mru" not in src.role_topic
     with pytest.raises(RecordingError, match="no sensor_msgs/Imu topic"):
         open_source(tmp_path / "bag", installation=inst, topics={"mru": "none"})
     with pytest.raises(RecordingError, match="no sensor_msgs/PointCloud2 topic"):
@@ -279,9 +280,9 @@ def test_imu_messages_without_orientation_among_good_ones_are_dropped_and_counte
     _foreign_bag(tmp_path / "bag", {"/points": "lidar"}, orientation=orientation)
     src = open_source(tmp_path / "bag", installation=inst)
     assert len(src.mru.t_s) == 8
-    assert any("/imu/data: dropped 2 of 10 samples (messages at t = 100.300 s, at t = 100.600 s): first no orientation"
+    assert any("/imu/data: dropped 2 of 10 samples (messages stamped 100.300 s, stamped 100.600 s): first no orientation"
                in n for n in src.meta.notes), src.meta.notes
-    with pytest.raises(RecordingError, match=r"/imu/data: message at t = 100.300 s: no orientation \(REP 145\)"):
+    with pytest.raises(RecordingError, match=r"/imu/data: message stamped 100.300 s: no orientation \(REP 145\)"):
         open_source(tmp_path / "bag", installation=inst, strict=True)
 
 
