@@ -20,10 +20,13 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from scipy.spatial.transform import Rotation
 
 
+MAX_ANGLE_DEG = 360.0  # a mount angle beyond a turn is a unit or typing error
+
+
 class StrictModel(BaseModel):
     # Unknown keys are errors: a misspelt key silently falling back to a default is the worst
-    # kind of configuration bug.
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    # kind of configuration bug. No installation or world quantity is infinite or NaN.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 def require_finite(values, what: str):
@@ -44,6 +47,13 @@ class Mount(StrictModel):
     @classmethod
     def _is_finite(cls, v):
         return require_finite(v, "a mount")
+
+    @field_validator("rpy_deg")
+    @classmethod
+    def _is_an_angle(cls, v):
+        if any(abs(a) > MAX_ANGLE_DEG for a in v):
+            raise ValueError(f"mount angles are degrees within +-{MAX_ANGLE_DEG:g}, got {list(v)}")
+        return v
 
     def matrix(self) -> np.ndarray:
         return mount_matrix(self.xyz_m, self.rpy_deg)

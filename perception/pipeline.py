@@ -199,8 +199,11 @@ class HeavePipeline:
     def _implausible(self, sensor: str, quantity: str, value: float, sigma: float) -> str | None:
         """Why a value cannot be right, before it says ok: not finite, a D outside the sensor's
         range, a D-dot faster than any sea moves a deck (the installation's bounds)."""
-        if not (math.isfinite(value) and math.isfinite(sigma) and sigma > 0):
-            return f"implausible: value {value!r} with sigma {sigma!r}"
+        if not (math.isfinite(value) and math.isfinite(sigma)):
+            return f"implausible: value {value:g} with sigma {sigma:g}"
+        if sigma <= 0:  # every point agreeing exactly is no measurement of certainty
+            return (f"degenerate fit: sigma {sigma:g} (the points agree exactly: too few, or values quantised "
+                    "to one bin)")
         if quantity == "D":
             spec = getattr(self.installation, sensor)
             if not 0.0 < value <= spec.max_range_m:

@@ -153,7 +153,8 @@ def test_implausible_values_never_say_ok():
     assert "implausible D" in pipe._implausible("lidar", "D", 3.7e8, 0.01)
     assert "implausible D" in pipe._implausible("lidar", "D", -6.5, 0.01)
     assert "implausible D-dot" in pipe._implausible("radar", "D_dot", 1e297, 0.01)
-    assert "implausible" in pipe._implausible("radar", "D_dot", 0.5, float("nan"))
+    assert pipe._implausible("radar", "D_dot", 0.5, float("nan")) == "implausible: value 0.5 with sigma nan"
+    assert pipe._implausible("radar", "D_dot", -0.0, 0.0).startswith("degenerate fit: sigma 0 (the points agree exactly")
     assert pipe._implausible("lidar", "D", 45.0, 0.002) is None
 
 

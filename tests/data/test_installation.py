@@ -1,0 +1,32 @@
+"""The installation model refuses what no rig has: non-finite quantities, mount angles beyond a
+turn; the world model likewise (a NaN amplitude would run a whole simulation on NaN)."""
+
+from __future__ import annotations
+
+import pytest
+from pydantic import ValidationError
+
+from boomtip.data.installation import Installation, Mount
+from boomtip.tools.config.scenario import ScenarioError, load_scenario
+
+
+@pytest.mark.parametrize("rpy, ok", [((90.0, 90.0, 0.0), True), ((-360.0, 360.0, 0.0), True), ((900.0, 0.0, 0.0), False),
+                                     ((0.0, -361.0, 0.0), False)])
+def test_mount_angles_are_degrees_within_a_turn(rpy, ok):
+    if ok:
+        assert Mount(rpy_deg=rpy).rpy_deg == rpy
+    else:
+        with pytest.raises(ValidationError, match="within \\+-360"):
+            Mount(rpy_deg=rpy)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), "nan", "-inf"])
+def test_no_installation_quantity_is_infinite_or_nan(value):
+    with pytest.raises(ValidationError, match="finite number"):
+        Installation.model_validate({"lidar": {"rate_hz": value}})
+
+
+@pytest.mark.parametrize("key", ["world.crane.motion.heave.amplitude", "duration_s"])
+def test_a_world_quantity_that_is_nan_is_refused_with_its_key(key):
+    with pytest.raises(ScenarioError, match=f"key '{key}': Input should be a finite number"):
+        load_scenario("sts-loaded", [f"{key}=nan"])
