@@ -23,7 +23,7 @@ from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
 from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
 from boomtip.tools.chains.chain import ChainError
-from boomtip.tools.report.kpis import WARMUP_S, measurement_kpis, solution_kpis, truth_amplitudes
+from boomtip.tools.report.kpis import WARMUP_S, estimated_kpis, measurement_kpis, solution_kpis, truth_amplitudes
 
 MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
 
@@ -122,6 +122,8 @@ class HeaveChain:
                                  for n, e in result.estimates.items()}
             kpis["solutions_note"] = f"solution errors exclude the first {WARMUP_S:g} s (filter convergence)"
             kpis["truth_max_amplitude"] = truth_amplitudes(truth)
+        else:
+            kpis["estimated"] = {n: estimated_kpis(e) for n, e in result.estimates.items()}
         return kpis
 
     def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:
@@ -129,7 +131,8 @@ class HeaveChain:
             from boomtip.tools.report.estimates import write_estimates_report
 
             inst = self.pipeline.installation
-            return write_estimates_report(out, kpis, result.estimates, result.rows, self.pipeline.mru,
+            mru = self.pipeline.mru if inst.attitude != "level" else None
+            return write_estimates_report(out, kpis, result.estimates, result.rows, mru,
                                           {"lidar": inst.lidar.rate_hz, "radar": inst.radar.rate_hz})
         from boomtip.tools.report.heave import write_report
 

@@ -86,7 +86,8 @@ def settings_record(source: FrameSource, processing: Processing, record: dict | 
     """OUT/settings.json: everything the run was made from, so that it can be repeated
     (`--installation` and `--processing` take this file as it is)."""
     return {"boomtip": {"version": boomtip_version(), "commit": boomtip_commit()}, **(record or {}),
-            "source": {"name": source.meta.name, "t_start_s": source.meta.t_start_s, "duration_s": source.duration_s},
+            "source": {"name": source.meta.name, "t_start_s": source.meta.t_start_s, "t_origin_s": source.meta.t_origin_s,
+                       "duration_s": source.duration_s},
             "installation": settings_dump(source.meta.installation),
             # the settings as given (a default left unset follows the installation: the Doppler band, the
             # markers' height, ...), which repeat the run, and every setting as it resolved, to read
@@ -102,18 +103,25 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     processing = processing_for(source, processing)
     chain = build_chain(source, processing, resources)
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
-    frames = 0
+    per_sensor = {"lidar": 0, "radar": 0}
     for frame in chain.frames(source):
         viz.log_frame(chain.process(frame))
-        frames += 1
+        per_sensor[frame.sensor] = per_sensor.get(frame.sensor, 0) + 1
         if progress:
             progress(1)
+    frames = sum(per_sensor.values())
     result = chain.finish()
     written = chain.outputs(staging, result)
     kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth, outage_windows(source))}
     if frames == 0:
         kpis.setdefault("warnings", []).append(f"{source.meta.name}: no frame to process (an empty recording?): "
                                                "no measurement, no estimate")
+    else:  # a sensor the installation has, that never sent a frame (a wrong topic, a dead sensor)
+        inst = source.meta.installation
+        silent = [f"installation.{s}.enabled is true, but {source.meta.name} has no {s} frame: nothing was measured "
+                  "with it" for s in ("lidar", "radar") if getattr(inst, s).enabled and per_sensor[s] == 0]
+        if silent:
+            kpis.setdefault("warnings", []).extend(silent)
     if source.truth is not None and source.truth.end_s < source.duration_s - 0.05:
         kpis.setdefault("warnings", []).append(f"the truth ends at {source.truth.end_s:.2f} s of "
                                                f"{source.duration_s:.2f} s: only its span is scored")

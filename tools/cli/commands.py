@@ -108,7 +108,8 @@ def simulate(
 
 
 def _print_kpis(kpis: dict) -> None:
-    from boomtip.tools.report.heave import kpi_table, measurement_table
+    from boomtip.tools.report.feeder import estimated_motion_line
+    from boomtip.tools.report.heave import estimated_tables, kpi_table, measurement_table
 
     seed = kpis['seed'] if kpis.get('seed') is not None else '-'
     print(f"\n{kpis['scenario']} (seed {seed}, {kpis['duration_s']:.0f} s)\n")
@@ -133,8 +134,12 @@ def _print_kpis(kpis: dict) -> None:
                 print(f"{name:14s} {f(k['rmse_pos_m']):>24s} {f(k['rmse_vel_mps']):>24s} {100 * k['runtime_fraction']:8.2f}% "
                       f"{k.get('nees_pos_mean', float('nan')):9.2f} {f(k.get('rmse_rel_pos_m', [float('nan')] * 3)):>20s}")
         return
-    print("Raw measurements (before any filter):")
-    print(measurement_table(kpis))
+    if "estimated" in kpis:  # no truth: what was measured and estimated, not how well
+        print("No truth to score against; what was measured and estimated:")
+        print(estimated_tables(kpis))
+    else:
+        print("Raw measurements (before any filter):")
+        print(measurement_table(kpis))
     if "solutions" in kpis:
         print("\nSolutions after the Kalman filter (" + kpis["solutions_note"] + "), document 000's Table 5.4 beside ours:")
         print(kpi_table(kpis))
@@ -154,6 +159,9 @@ def _print_kpis(kpis: dict) -> None:
     elif f:
         why = f"nothing scored: {f['note']}" if "note" in f else "no truth to score"
         print(f"\nFeeder 6-DOF: {f.get('apt_ms', float('nan')):.1f} ms per LiDAR frame ({why})")
+        motion = estimated_motion_line(f.get("estimated"))
+        if motion:
+            print(motion)
     if side and "feeder_rmse_m" not in side:
         print(f"D from the feeder's pose and the heave chain's fused D: {1000 * side['feeder_minus_fused_rms_m']:.2f} mm RMS apart")
 

@@ -4,6 +4,7 @@ scenario resolution and the common options."""
 from __future__ import annotations
 
 import sys
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -64,14 +65,39 @@ def terminate_like_interrupt() -> None:
     signal.signal(signal.SIGTERM, _raise)
 
 
+PROGRESS_LINE_S = 10.0  # without a terminal (a log file, CI), a progress line this often
+
+
 @contextmanager
 def progress_bar(total: int, label: str) -> Iterator:
-    quiet = not sys.stderr.isatty()
-    with Progress(
-        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console, disable=quiet
-    ) as prog:
+    """`advance(n)` moves a bar on a terminal; elsewhere a line every PROGRESS_LINE_S says how
+    far the run is, so a long run in a log is never silent."""
+    if not sys.stderr.isatty():
+        yield progress_lines(total, label, lambda text: console.print(text, highlight=False))
+        return
+    with Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console) as prog:
         task = prog.add_task(label, total=total)
         yield lambda n=1: prog.advance(task, n)
+
+
+def progress_lines(total: int, label: str, say, every_s: float = PROGRESS_LINE_S, clock=time.monotonic):
+    """An `advance(n)` that calls say("LABEL: done/total (P %), T s, about R s left") at most
+    every `every_s` seconds."""
+    start = clock()
+    state = {"done": 0, "next": start + every_s}
+
+    def advance(n: int = 1) -> None:
+        state["done"] += n
+        now = clock()
+        if now < state["next"]:
+            return
+        state["next"] = now + every_s
+        done, elapsed = state["done"], now - start
+        share = f" ({100 * done / total:.0f} %)" if total else ""
+        left = f", about {elapsed * (total - done) / done:.0f} s left" if total and 0 < done < total else ""
+        say(f"{label}: {done}/{total or '?'}{share}, {elapsed:.0f} s{left}")
+
+    return advance
 
 
 def scenario_inputs(scenario: str) -> tuple[Path, ...]:

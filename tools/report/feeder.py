@@ -131,6 +131,7 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
     if not has_truth:
         if res.online is not None:
             out["online"] = online
+        out["estimated"] = estimated_motion(res, warm)
         return out
     pose_t, rate_t = truth_of(res, truth, p_tip_crane_m)
     e_pose, e_rate = _errors(res, pose_t, rate_t)
@@ -157,6 +158,30 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
                         "offline": _figures(e_pose[part], e_rate[part], res.var[part])}
     out["online"] = online
     return out
+
+
+def estimated_motion(res: FeederResult, warm: np.ndarray) -> dict:
+    """Without truth, what the feeder did as estimated (after the warm-up): each axis' range and
+    standard deviation, and the median sigma the filter gave it."""
+    ok = warm & np.all(np.isfinite(res.pose), axis=1)
+    if not ok.any():
+        return {"samples": 0}
+    pose, sd = res.pose[ok].copy(), np.sqrt(res.var[ok, :6])
+    pose[:, 3:], sd[:, 3:] = np.degrees(pose[:, 3:]), np.degrees(sd[:, 3:])
+    r = lambda v: [round(float(x), 5) for x in v]  # noqa: E731
+    return {"samples": int(ok.sum()), "axes": ["x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg"],
+            "min": r(pose.min(axis=0)), "max": r(pose.max(axis=0)), "std": r(pose.std(axis=0)),
+            "median_sigma": r(np.median(sd, axis=0))}
+
+
+def estimated_motion_line(e: dict) -> str | None:
+    """One line of the feeder's estimated motion (kpis' `feeder.estimated`), or None."""
+    if not e or not e.get("samples"):
+        return None
+    mm = lambda k: " / ".join(f"{1000 * x:.0f}" for x in e[k][:3])  # noqa: E731
+    dg = lambda k: " / ".join(f"{x:.2f}" for x in e[k][3:])  # noqa: E731
+    return (f"Feeder motion as estimated (no truth): std x/y/z {mm('std')} mm, r/p/y {dg('std')} deg; "
+            f"median sigma x/y/z {mm('median_sigma')} mm, r/p/y {dg('median_sigma')} deg")
 
 
 def _errors(est: FeederResult | CausalEstimates, pose_t: np.ndarray, rate_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -201,6 +226,9 @@ def report_section(kpis: dict, windows=()) -> str:
         why = "No scored sample (the run is shorter than the warm-up, or the estimate never started)" \
             if f.get("samples") == 0 else "No feeder truth to score against"
         lines.append(f"{why}. APT {f.get('apt_ms', float('nan')):.2f} ms per LiDAR frame.")
+        motion = estimated_motion_line(f.get("estimated"))
+        if motion:
+            lines += ["", motion + "."]
         lines += _D_side_by_side_lines(f)
         return "\n".join(lines) + "\n"
     lines.append("| period | position RMS x/y/z [mm] | position max [mm] | angle RMS r/p/y [deg] | angle max [deg] | NEES (6) |")

@@ -52,6 +52,26 @@ def kpi_table(kpis: dict) -> str:
     return "\n".join(lines)
 
 
+def estimated_tables(kpis: dict) -> str:
+    """A run without truth: what each method measured and each solution estimated."""
+    lines = ["| method | quantity | valid | min | median | max | median sigma | APT [ms] |", "|---|---|---|---|---|---|---|---|"]
+    for m, k in kpis.get("measurements", {}).items():
+        unit = "m" if k["quantity"] == "D" else "m/s"
+        vals = [f"{k[c]:.3f} {unit}" if c in k else "-" for c in ("min", "median", "max_value")]
+        vals.append(f"{1e3 * k['median_sigma']:.2f} m{unit}" if "median_sigma" in k else "-")
+        lines.append(f"| {m} | {k['quantity']} | {100 * k['valid_fraction']:.1f} % | {' | '.join(vals)} | {k['apt_ms']:.2f} |")
+    lines += ["", "| solution | D range [m] | max abs D-dot [m/s] | median sigma D [mm] | median sigma D-dot [mm/s] | last D [m] (3 sigma) |",
+              "|---|---|---|---|---|---|"]
+    for n, e in kpis.get("estimated", {}).items():
+        if e.get("estimates"):
+            lines.append(f"| {n} | {e['D_min_m']:.3f} to {e['D_max_m']:.3f} | {e['D_dot_abs_max_mps']:.3f} | "
+                         f"{1e3 * e['median_sigma_D_m']:.2f} | {1e3 * e['median_sigma_D_dot_mps']:.2f} | "
+                         f"{e['last_D_m']:.3f} ({3 * e['last_sigma_D_m']:.3f}) at {e['last_t_s']:.1f} s |")
+        else:
+            lines.append(f"| {n} | no estimate | | | | |")
+    return "\n".join(lines)
+
+
 def measurement_table(kpis: dict) -> str:
     lines = ["| method | quantity | MAE | max | APT [ms] | valid |", "|---|---|---|---|---|---|"]
     for m, k in kpis.get("measurements", {}).items():

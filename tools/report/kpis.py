@@ -37,8 +37,25 @@ def measurement_kpis(rows: list[Measurement], truth: Truth | None) -> dict[str, 
             v = np.array([r.value for r in ok])
             stats = error_stats(v - truth.at(mine[0].quantity, t)) if len(ok) else error_stats(np.zeros(0))
             entry.update({"mae": stats["mae"], "max": stats["max"], "rmse": stats["rmse"]})
+        elif ok:  # no truth: what was measured, and how sure each measurement said it was
+            v = np.array([r.value for r in ok])
+            entry.update({"min": float(v.min()), "median": float(np.median(v)), "max_value": float(v.max()),
+                          "median_sigma": float(np.median([r.sigma for r in ok]))})
         out[m] = entry
     return out
+
+
+def estimated_kpis(est: Estimates) -> dict:
+    """A solution without truth: the range of D and D-dot it estimated, its median sigmas and its
+    last estimate, so a run says what it found even when nothing can score it."""
+    ok = np.isfinite(est.x[:, 0]) & np.isfinite(est.var[:, 0])
+    if not ok.any():
+        return {"estimates": 0}
+    x, sd = est.x[ok], np.sqrt(est.var[ok])
+    return {"estimates": int(ok.sum()), "D_min_m": float(x[:, 0].min()), "D_max_m": float(x[:, 0].max()),
+            "D_dot_abs_max_mps": float(np.abs(x[:, 1]).max()), "median_sigma_D_m": float(np.median(sd[:, 0])),
+            "median_sigma_D_dot_mps": float(np.median(sd[:, 1])), "last_t_s": float(est.t_s[ok][-1]),
+            "last_D_m": float(x[-1, 0]), "last_sigma_D_m": float(sd[-1, 0])}
 
 
 def consistency(est: Estimates, truth: Truth, keep: np.ndarray) -> dict:

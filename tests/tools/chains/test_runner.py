@@ -146,3 +146,20 @@ def test_without_a_lidar_fused_falls_back_on_the_radar_deck_and_says_so(tmp_path
     assert kpis["solutions"]["fused"]["mae_D_m"] < 0.004  # 1.6 mm measured; the issue's bound is 15 mm
     assert "deck_lidar" not in kpis["solutions"]  # no distance source: no numbers with a 100 m sigma
     assert "Warning" in (tmp_path / "radar" / "report.md").read_text()
+
+
+def test_a_sensor_the_installation_has_but_the_recording_lacks_is_said(tmp_path):
+    """A radar in the installation whose frames are all missing from the recording (a wrong
+    topic, a dead sensor): the run goes on with the LiDAR and says the radar measured nothing;
+    without truth it says what was estimated."""
+    rec = tmp_path / "rec"
+    assert runner.invoke(app, ["simulate", "-s", "sts-empty", "--duration", "2", "--out", str(rec)]).exit_code == 0
+    for p in (rec / "radar").iterdir():
+        p.unlink()
+    (rec / "truth.csv").unlink()
+    r = runner.invoke(app, ["process", str(rec), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    kpis = json.loads((tmp_path / "o" / "kpis.json").read_text())
+    assert "installation.radar.enabled is true, but sts-empty has no radar frame: nothing was measured with it" in kpis["warnings"]
+    assert kpis["estimated"]["fused"]["estimates"] > 0 and "No truth to score against" in r.output
+    assert "- mm" not in r.output

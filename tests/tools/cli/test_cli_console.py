@@ -39,3 +39,18 @@ def test_the_console_prints_the_online_line_right_after_the_offline_one(capsys):
     del kpis["feeder"]["online"]
     _print_kpis(kpis)
     assert not any("online" in s for s in capsys.readouterr().out.splitlines())
+
+
+def test_without_a_terminal_a_progress_line_every_ten_seconds():
+    from boomtip.tools.cli.common import progress_lines
+
+    now = [0.0]
+    said: list[str] = []
+    advance = progress_lines(100, "processing", said.append, every_s=10.0, clock=lambda: now[0])
+    for _ in range(30):  # 30 frames in 15 s: one line, at 10 s
+        now[0] += 0.5
+        advance()
+    assert said == ["processing: 20/100 (20 %), 10 s, about 40 s left"]
+    now[0] += 10.0
+    advance(70)
+    assert said[-1] == "processing: 100/100 (100 %), 25 s"

@@ -168,3 +168,44 @@ def test_at_most_ten_gaps_are_listed_per_stream(tmp_path):
 def test_a_radar_run_of_doppler_radar_rot_alone_reports_its_stream(tmp_path):
     write_estimates_report(tmp_path, KPIS, estimates(), lidar_rows() + radar_rows(("doppler_radar_rot",)), mru(), RATES)
     assert "- radar: 200 frames, 0 gaps" in (tmp_path / "report.md").read_text().splitlines()
+
+
+# ---------------------------------------------------------------------------------------
+# Without truth: what was estimated, in kpis.json and on the console
+
+
+def test_a_solution_without_truth_says_its_range_sigmas_and_last_estimate():
+    from boomtip.tools.report.kpis import estimated_kpis
+
+    e = estimated_kpis(estimates()["fused"])
+    assert e["estimates"] == 100 and e["D_min_m"] == 29.5 and e["D_max_m"] == 31.25
+    assert e["median_sigma_D_m"] == pytest.approx(0.002) and e["median_sigma_D_dot_mps"] == pytest.approx(0.005)
+    assert e["last_t_s"] == pytest.approx(9.9) and e["last_D_m"] == 30.0 + 0.25 * (99 % 8 - 2)
+    assert estimated_kpis(estimates()["doppler_radar"]) == {"estimates": 0}
+
+
+def test_measurements_without_truth_say_what_they_measured():
+    from boomtip.tools.report.kpis import measurement_kpis
+
+    k = measurement_kpis(lidar_rows() + radar_rows(), None)
+    assert k["deck_lidar"]["median"] == 30.0 and k["deck_lidar"]["median_sigma"] == 0.01 and "mae" not in k["deck_lidar"]
+
+
+def test_the_feeders_motion_without_truth_is_its_spread_and_sigma():
+    from types import SimpleNamespace
+
+    from boomtip.tools.report.feeder import estimated_motion, estimated_motion_line
+
+    t = np.arange(200) / 10
+    pose = np.zeros((200, 6))
+    pose[:, 2] = 0.5 * np.sin(t)  # heave
+    pose[:, 3] = np.radians(2.0) * np.where(np.arange(200) % 2, 1.0, -1.0)  # roll +-2 deg: std 2 deg
+    var = np.full((200, 12), 0.01**2)
+    var[:, 3:6] = np.radians(0.1) ** 2
+    warm = t >= 5.0
+    e = estimated_motion(SimpleNamespace(pose=pose, var=var, t_s=t), warm)
+    assert e["samples"] == 150 and e["std"][3] == pytest.approx(2.0) and e["median_sigma"][0] == pytest.approx(0.01)
+    assert e["std"][2] == pytest.approx(np.std(0.5 * np.sin(t[warm])), abs=1e-5)
+    line = estimated_motion_line(e)
+    assert "r/p/y 2.00 / 0.00 / 0.00 deg" in line and "median sigma x/y/z 10 / 10 / 10 mm" in line
+    assert estimated_motion_line({"samples": 0}) is None
