@@ -15,7 +15,10 @@ receive time, and the report says so.
 
 from __future__ import annotations
 
+import heapq
 import json
+import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Iterator
 
@@ -35,6 +38,7 @@ ROLES = {"lidar": "sensor_msgs/msg/PointCloud2", "radar": "sensor_msgs/msg/Point
          "feeder_mru": "sensor_msgs/msg/Imu", "encoders": "sensor_msgs/msg/JointState", "truth": "std_msgs/msg/Float64MultiArray", "meta": "std_msgs/msg/String"}
 JOINTS = ("slew", "luff", "hoist")
 QUATERNION_NORM_TOLERANCE = 1e-2  # drivers round their quaternions; renormalised
+REORDER_WINDOW_S = 0.5  # how late a bag's cloud message may arrive and still be put in its place
 NO_TOPIC = "none"  # --topic ROLE=none: no topic fills that role, none is guessed for it
 
 
@@ -242,7 +246,7 @@ class RosBagSource(FrameSource):
         order = np.argsort(table[:, 0], kind="stable")
         why = [why[k] for k in order] if why is not None else None
         return drop_bad_samples(table[order], names, f"{self.path}: {topic}", "message",
-                                lambda k: f"at t = {table[order[k], 0]:.3f} s", self.strict,
+                                lambda k: f"stamped {table[order[k], 0]:.3f} s", self.strict,
                                 self._stream_notes, "t", bounds, steps, why)
 
     def _mru(self, rows: list[tuple], topic: str) -> MruLog | None:
@@ -332,6 +336,9 @@ class RosBagSource(FrameSource):
         return self._len
 
     def __iter__(self) -> Iterator[Frame]:
+        return in_stamp_order(self._frames_as_received())
+
+    def _frames_as_received(self) -> Iterator[Frame]:
         index = {"lidar": 0, "radar": 0}
         for sensor, t_ns, msg in self._cloud_messages():
             i = index[sensor]
@@ -355,3 +362,36 @@ class RosBagSource(FrameSource):
                                   "radar.velocity_field in the installation")
                 continue
             yield Frame(sensor, i, t_s, points, fields, path=where)
+
+
+def in_stamp_order(frames: Iterator[Frame], window_s: float = REORDER_WINDOW_S) -> Iterator[Frame]:
+    """Frames in time-stamp order: a bag holds messages in the order they were received, and two
+    publishers (or a network) deliver some late. Each frame waits until a frame `window_s` newer
+    has arrived; one that arrives later than that, or repeats the stamp of its sensor's previous
+    frame, becomes a missing frame with that reason (a filter cannot go back in time)."""
+    heap: list[tuple[float, int, Frame]] = []
+    last_out = -math.inf
+    last_of: dict[str, float] = {}
+    for order, frame in enumerate(frames):
+        if frame.t_s < last_out:
+            yield frame if frame.error else _missing(frame, f"stamped {last_out - frame.t_s:.3f} s before a frame "
+                                                            f"already given (it arrived more than {window_s:g} s late)")
+            continue
+        heapq.heappush(heap, (frame.t_s, order, frame))
+        while heap and heap[0][0] <= frame.t_s - window_s:
+            last_out = yield from _emit(heapq.heappop(heap)[2], last_of, last_out)
+    while heap:
+        last_out = yield from _emit(heapq.heappop(heap)[2], last_of, last_out)
+
+
+def _emit(frame: Frame, last_of: dict[str, float], last_out: float):
+    if frame.error is None and last_of.get(frame.sensor) == frame.t_s:
+        yield _missing(frame, f"repeats the stamp {frame.t_s:.6f} s of the previous {frame.sensor} frame")
+    else:
+        last_of[frame.sensor] = frame.t_s
+        yield frame
+    return max(last_out, frame.t_s)
+
+
+def _missing(frame: Frame, why: str) -> Frame:
+    return replace(frame, points_sensor=frame.points_sensor[:0], fields={}, error=f"{frame.path}: {why}")

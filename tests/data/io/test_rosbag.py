@@ -324,3 +324,21 @@ def test_a_feeder_mru_goes_into_the_bag_and_reads_back_beside_the_cranes(tmp_pat
     np.testing.assert_allclose(bag.feeder_mru.rpy_rad, rec.feeder_mru.rpy_rad, atol=1e-9)
     np.testing.assert_allclose(bag.mru.rpy_rad, rec.mru.rpy_rad, atol=1e-9)
     assert not np.allclose(bag.mru.rpy_rad, bag.feeder_mru.rpy_rad, atol=1e-3)
+
+
+def test_clouds_come_in_stamp_order_and_a_late_or_repeated_one_is_a_missing_frame():
+    from boomtip.data.frames import Frame
+    from boomtip.data.io.rosbag import in_stamp_order
+
+    def f(sensor, t):
+        return Frame(sensor, 0, t, np.ones((4, 3)), {}, path=f"{sensor}@{t}")
+
+    received = [f("lidar", 0.0), f("radar", 0.05), f("lidar", 0.2), f("lidar", 0.1),  # 0.1 a little late: put in place
+                f("lidar", 0.3), f("lidar", 0.3),  # a repeated stamp
+                f("lidar", 0.9), f("lidar", 1.5), f("radar", 0.35)]  # 0.35 comes after 1.5: 1.15 s late
+    out = list(in_stamp_order(iter(received), window_s=0.5))
+    assert [(x.sensor, x.t_s, x.error is None) for x in out] == [
+        ("lidar", 0.0, True), ("radar", 0.05, True), ("lidar", 0.1, True), ("lidar", 0.2, True), ("lidar", 0.3, True),
+        ("lidar", 0.3, False), ("lidar", 0.9, True), ("radar", 0.35, False), ("lidar", 1.5, True)]
+    assert "repeats the stamp 0.300000 s of the previous lidar frame" in out[5].error
+    assert "stamped 0.550 s before a frame already given" in out[7].error and len(out[7].points_sensor) == 0
