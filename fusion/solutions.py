@@ -54,6 +54,11 @@ class FusionConfig(BaseModel):
         3e-3, ge=0, description="the same for D-dot: the rotation-aware Doppler's deck spin comes from a 1 s window "
         "of deck normals, an error its velocity fit cannot see (a few mm/s)",
     )
+    lost_sigma_D_m: float = Field(
+        0.25, gt=0, description="an estimate whose D sigma exceeds this is lost: written with its reason, never "
+        "as a D to use (a crane cannot land a load on a deck known to within a quarter metre)",
+    )
+    lost_sigma_D_dot_mps: float = Field(0.5, gt=0, description="likewise for D-dot")
 
 
 @dataclass
@@ -65,6 +70,22 @@ class Estimates:
     filter_ms: float  # time spent in the filter (adds and estimates)
     inputs: int  # measurements offered
     statuses: dict[str, int]
+    lost: np.ndarray | None = None  # (T,) why each estimate is lost ("" where it is not): lost_reasons
+
+
+def lost_reasons(x: np.ndarray, var: np.ndarray, cfg: FusionConfig, max_D_m: float = np.inf) -> np.ndarray:
+    """Per estimate (rows of x, var: D, D-dot, D-ddot), why it is lost, or "": its D sigma or
+    D-dot sigma beyond the configured bound (no measurement has held it for a while), or a D no
+    sensor could measure (at or above the boom tip, beyond the sensors' range). Causal: each row
+    judged on its own state."""
+    sd = np.sqrt(np.maximum(var[:, :2], 0.0))
+    D = x[:, 0]
+    why = np.full(len(D), "", dtype=object)
+    why[sd[:, 1] > cfg.lost_sigma_D_dot_mps] = f"lost: D-dot sigma beyond {cfg.lost_sigma_D_dot_mps:g} m/s"
+    why[~((D > 0.0) & (D <= max_D_m))] = f"lost: D outside the sensors' 0 to {max_D_m:g} m"
+    why[sd[:, 0] > cfg.lost_sigma_D_m] = f"lost: D sigma beyond {cfg.lost_sigma_D_m:g} m"
+    why[~np.isfinite(D)] = ""  # no estimate at all: not written
+    return why
 
 
 def with_floor(m: Measurement, cfg: FusionConfig) -> Measurement | None:
@@ -91,10 +112,11 @@ def filter_config(cfg: FusionConfig, q: float) -> HeaveFilterConfig:
 
 def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, duration_s: float,
                  sea_state: tuple[float, float] | None = None, methods: tuple[str, ...] | None = None,
-                 t_start_s: float = 0.0) -> Estimates:
+                 t_start_s: float = 0.0, max_D_m: float = np.inf) -> Estimates:
     """One solution over every method's measurements (`source` = method name), causally, on
     the output grid of integer ticks of 1 / output_rate_hz. `methods` overrides the
-    solution's own sources (a fused solution falling back on the radar's deck)."""
+    solution's own sources (a fused solution falling back on the radar's deck). max_D_m: the
+    sensors' range, beyond which a D is lost (lost_reasons)."""
     methods = methods or SOLUTIONS[name]
     inputs = [m2 for m in measurements if m.source in methods for m2 in [with_floor(m, cfg)] if m2 is not None]
     inputs.sort(key=lambda m: (m.t_arrival_s, m.t_acq_s))
@@ -134,7 +156,7 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
             if cfg.wave_predictor and name != "doppler_radar":
                 waves.step(tick, t, t - filt.last_time_s, x[k], var[k])
     filter_ms = (time.perf_counter() - t0) * 1e3
-    return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses)
+    return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses, lost_reasons(x, var, cfg, max_D_m))
 
 
 class _WaveBridge:

@@ -164,3 +164,19 @@ def test_the_wave_predictor_bridges_a_silence_of_every_sensor():
     fc, var = forecast(fit_ar(y, 4, 0.25), y, 40)
     np.testing.assert_allclose(fc, 2.0 * np.sin(2 * np.pi * (t[-1] + 0.25 * np.arange(1, 41)) / 10.0), atol=1e-6)
     assert np.all(np.diff(var) >= 0)
+
+
+def test_an_estimate_no_measurement_holds_is_lost_with_its_reason():
+    import numpy as np
+
+    from boomtip.fusion.solutions import FusionConfig, lost_reasons
+
+    cfg = FusionConfig()  # lost beyond 0.25 m of D sigma, 0.5 m/s of D-dot sigma
+    x = np.array([[30.0, 0.1, 0.0], [30.0, 0.1, 0.0], [30.0, 0.1, 0.0], [-108.8, 0.0, 0.0], [130.0, 0.0, 0.0],
+                  [np.nan, np.nan, np.nan]])
+    var = np.array([[1e-4, 1e-4, 1.0], [0.26**2, 1e-4, 1.0], [1e-4, 0.6**2, 1.0], [133.0**2, 1e-4, 1.0], [1e-4, 1e-4, 1.0],
+                    [np.nan, np.nan, np.nan]])
+    why = lost_reasons(x, var, cfg, max_D_m=120.0).tolist()
+    assert why == ["", "lost: D sigma beyond 0.25 m", "lost: D-dot sigma beyond 0.5 m/s", "lost: D sigma beyond 0.25 m",
+                   "lost: D outside the sensors' 0 to 120 m", ""]
+    assert lost_reasons(x[:1], np.array([[0.25**2, 0.5**2, 1.0]]), cfg).tolist() == [""]  # at the bound: not lost

@@ -65,6 +65,7 @@ class HeaveChain:
         self.fusion = processing.fusion
         self.sea_state = (processing.sea_state.hs_m, processing.sea_state.tp_s) if processing.sea_state else None
         self.latency_s = {"lidar": inst.lidar.latency_s, "radar": inst.radar.latency_s}
+        self.max_D_m = max(getattr(inst, s).max_range_m for s in inst.sensors())  # a D beyond is lost
         self.rows: list[Measurement] = []
         self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
                       if inst.attitude == "level" else [])
@@ -99,7 +100,8 @@ class HeaveChain:
                 if set(methods) & ran:  # its sensor ran but never measured D: say so
                     warnings.append(f"{name}: no distance source in this run; no estimate")
                 continue
-            estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods, t_start_s)
+            estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods, t_start_s,
+                                           self.max_D_m)
         return HeaveResult(self.rows, estimates, sources, warnings)
 
     # -- outputs -------------------------------------------------------------------------
@@ -124,6 +126,11 @@ class HeaveChain:
             kpis["truth_max_amplitude"] = truth_amplitudes(truth)
         else:
             kpis["estimated"] = {n: estimated_kpis(e) for n, e in result.estimates.items()}
+        fused = (kpis.get("solutions") or kpis.get("estimated") or {}).get("fused", {})
+        if fused.get("lost_fraction"):  # the estimate a controller uses was not one at times: say so first
+            kpis.setdefault("warnings", []).insert(0, (
+                f"fused: lost for {100 * fused['lost_fraction']:.1f} % of the run after its first {WARMUP_S:g} s, first at "
+                f"t = {fused['first_lost_t_s']:.2f} s ({fused['first_lost_reason']}); estimates.csv marks those rows"))
         return kpis
 
     def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:
@@ -159,10 +166,13 @@ def write_measurements(path: Path, rows: list[Measurement]) -> None:
 
 
 def write_estimates(path: Path, estimates: dict[str, Estimates]) -> None:
+    """estimates.csv: every solution's estimates at the output rate; `status` is ok, or why the
+    estimate is lost (fusion.solutions.lost_reasons): a row to read, never a D to use."""
     buf = io.StringIO()
-    buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot\n")
+    buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot,status\n")
     for name, e in estimates.items():
         ok = np.isfinite(e.x[:, 0])
-        for t, x, v in zip(e.t_s[ok], e.x[ok], e.var[ok]):
-            buf.write(f"{t:.4f},{name},{x[0]:.6f},{x[1]:.6f},{x[2]:.6f},{v[0]:.6g},{v[1]:.6g}\n")
+        lost = e.lost[ok] if e.lost is not None else np.full(int(ok.sum()), "")
+        for t, x, v, why in zip(e.t_s[ok], e.x[ok], e.var[ok], lost):
+            buf.write(f"{t:.4f},{name},{x[0]:.6f},{x[1]:.6f},{x[2]:.6f},{v[0]:.6g},{v[1]:.6g},{why or 'ok'}\n")
     atomic_write_bytes(path, buf.getvalue().encode())

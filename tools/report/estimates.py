@@ -60,16 +60,22 @@ def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates
              *[f"**Warning:** {w}" for w in kpis.get("warnings", [])], "",
              "No truth came with this recording: this report says what was estimated, not how well.", "",
              *time_base(kpis),
-             "## Solutions", "", "| solution | D from | D-dot from | D range [m] | median sigma D [mm] | median sigma D-dot [mm/s] |",
-             "|---|---|---|---|---|---|"]
+             "## Solutions", "", "Lost: the share of the estimates after the first seconds whose sigma or value no "
+             "measurement holds (estimates.csv's status says why, row by row); the range and sigmas are of the rest.", "",
+             "| solution | D from | D-dot from | D range [m] | median sigma D [mm] | median sigma D-dot [mm/s] | lost |",
+             "|---|---|---|---|---|---|---|"]
     for name, e in estimates.items():
-        ok = np.isfinite(e.x[:, 0])
+        ok = np.isfinite(e.x[:, 0]) & (e.lost == "" if e.lost is not None else True)
         src = kpis.get("sources", {}).get(name, {})
+        lost = (kpis.get("estimated") or {}).get(name, {}).get("lost_fraction")
+        lost = "-" if lost is None else f"{100 * lost:.1f} %"
+        head = f"| {name} | {', '.join(src.get('D', [])) or '-'} | {', '.join(src.get('D_dot', [])) or 'D'} | "
         if not ok.any():
+            if np.isfinite(e.x[:, 0]).any():
+                lines.append(head + f"lost throughout | | | {lost} |")
             continue
-        lines.append(f"| {name} | {', '.join(src.get('D', [])) or '-'} | {', '.join(src.get('D_dot', [])) or 'D'} | "
-                     f"{np.min(e.x[ok, 0]):.3f} to {np.max(e.x[ok, 0]):.3f} | {1e3 * np.sqrt(np.median(e.var[ok, 0])):.2f} | "
-                     f"{1e3 * np.sqrt(np.median(e.var[ok, 1])):.2f} |")
+        lines.append(head + f"{np.min(e.x[ok, 0]):.3f} to {np.max(e.x[ok, 0]):.3f} | {1e3 * np.sqrt(np.median(e.var[ok, 0])):.2f} | "
+                     f"{1e3 * np.sqrt(np.median(e.var[ok, 1])):.2f} | {lost} |")
     lines += ["", "## Measurements", "", *method_table(rows), "", "## Gaps in the streams", ""]
     streams = {s: np.array(sorted({r.t_s for r in rows if SENSOR_OF[r.method] == s})) for s in ("lidar", "radar")}
     for s, t in streams.items():

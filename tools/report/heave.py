@@ -60,15 +60,16 @@ def estimated_tables(kpis: dict) -> str:
         vals = [f"{k[c]:.3f} {unit}" if c in k else "-" for c in ("min", "median", "max_value")]
         vals.append(f"{1e3 * k['median_sigma']:.2f} m{unit}" if "median_sigma" in k else "-")
         lines.append(f"| {m} | {k['quantity']} | {100 * k['valid_fraction']:.1f} % | {' | '.join(vals)} | {k['apt_ms']:.2f} |")
-    lines += ["", "| solution | D range [m] | max abs D-dot [m/s] | median sigma D [mm] | median sigma D-dot [mm/s] | last D [m] (3 sigma) |",
-              "|---|---|---|---|---|---|"]
+    lines += ["", "| solution | D range [m] | max abs D-dot [m/s] | median sigma D [mm] | median sigma D-dot [mm/s] | "
+              "last D [m] (3 sigma) | lost |", "|---|---|---|---|---|---|---|"]
     for n, e in kpis.get("estimated", {}).items():
+        lost = f"{100 * e['lost_fraction']:.1f} %" if "lost_fraction" in e else "-"
         if e.get("estimates"):
             lines.append(f"| {n} | {e['D_min_m']:.3f} to {e['D_max_m']:.3f} | {e['D_dot_abs_max_mps']:.3f} | "
                          f"{1e3 * e['median_sigma_D_m']:.2f} | {1e3 * e['median_sigma_D_dot_mps']:.2f} | "
-                         f"{e['last_D_m']:.3f} ({3 * e['last_sigma_D_m']:.3f}) at {e['last_t_s']:.1f} s |")
+                         f"{e['last_D_m']:.3f} ({3 * e['last_sigma_D_m']:.3f}) at {e['last_t_s']:.1f} s | {lost} |")
         else:
-            lines.append(f"| {n} | no estimate | | | | |")
+            lines.append(f"| {n} | no estimate that is not lost | | | | | {lost} |")
     return "\n".join(lines)
 
 

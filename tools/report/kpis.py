@@ -45,17 +45,35 @@ def measurement_kpis(rows: list[Measurement], truth: Truth | None) -> dict[str, 
     return out
 
 
+def lost_kpis(est: Estimates, keep: np.ndarray) -> dict:
+    """How much of the kept span the solution was lost (fusion.solutions.lost_reasons), from
+    when, and why first."""
+    if est.lost is None:
+        return {}
+    have = keep & np.isfinite(est.x[:, 0])
+    lost = have & (est.lost != "")
+    out: dict = {"lost_fraction": float(lost.sum() / have.sum()) if have.any() else 0.0}
+    if lost.any():
+        k = int(np.flatnonzero(lost)[0])
+        out.update({"first_lost_t_s": float(est.t_s[k]), "first_lost_reason": str(est.lost[k])})
+    return out
+
+
 def estimated_kpis(est: Estimates) -> dict:
-    """A solution without truth: the range of D and D-dot it estimated, its median sigmas and its
-    last estimate, so a run says what it found even when nothing can score it."""
-    ok = np.isfinite(est.x[:, 0]) & np.isfinite(est.var[:, 0])
+    """A solution without truth: the range of D and D-dot it estimated where it was not lost, its
+    median sigmas, its last estimate and how much of the run after the warm-up it was lost, so a
+    run says what it found even when nothing can score it."""
+    have = np.isfinite(est.x[:, 0]) & np.isfinite(est.var[:, 0])
+    keep = est.t_s >= (est.t_s[0] if len(est.t_s) else 0.0) + WARMUP_S
+    lost = lost_kpis(est, keep)
+    ok = have & (est.lost == "") if est.lost is not None else have
     if not ok.any():
-        return {"estimates": 0}
+        return {"estimates": 0, **lost}
     x, sd = est.x[ok], np.sqrt(est.var[ok])
     return {"estimates": int(ok.sum()), "D_min_m": float(x[:, 0].min()), "D_max_m": float(x[:, 0].max()),
             "D_dot_abs_max_mps": float(np.abs(x[:, 1]).max()), "median_sigma_D_m": float(np.median(sd[:, 0])),
             "median_sigma_D_dot_mps": float(np.median(sd[:, 1])), "last_t_s": float(est.t_s[ok][-1]),
-            "last_D_m": float(x[-1, 0]), "last_sigma_D_m": float(sd[-1, 0])}
+            "last_D_m": float(x[-1, 0]), "last_sigma_D_m": float(sd[-1, 0]), **lost}
 
 
 def consistency(est: Estimates, truth: Truth, keep: np.ndarray) -> dict:
@@ -84,6 +102,7 @@ def solution_kpis(est: Estimates, truth: Truth, rows: list[Measurement], methods
         "filter_ms_per_cycle": est.filter_ms / cycles,
         "measurements": est.inputs,
         "filter_status": est.statuses,
+        **lost_kpis(est, keep),
     }
     if windows:  # the same figures over the samples inside the sensors' outages
         inside = np.zeros(len(est.t_s), bool)

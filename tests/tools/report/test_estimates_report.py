@@ -122,13 +122,14 @@ def test_the_report_says_it_has_no_truth(report):
 def test_the_solutions_table_gives_sources_range_and_sigmas(report):
     _, _, lines = report
     i = lines.index("## Solutions")
-    table = lines[i + 2 : lines.index("## Measurements") - 1]
+    assert lines[i + 2].startswith("Lost: the share of the estimates")
+    table = lines[i + 4 : lines.index("## Measurements") - 1]
     assert table[0] == ("| solution | D from | D-dot from | D range [m] | median sigma D [mm] | "
-                        "median sigma D-dot [mm/s] |")
+                        "median sigma D-dot [mm/s] | lost |")
     assert [cells(row) for row in table[2:]] == [
-        ["fused", "deck_lidar, deck_radar", "doppler_radar", "29.500 to 31.250", "2.00", "5.00"],
+        ["fused", "deck_lidar, deck_radar", "doppler_radar", "29.500 to 31.250", "2.00", "5.00", "-"],
         # no D-dot source: D-dot from D; the range and sigmas over its finite rows only
-        ["deck_lidar", "deck_lidar", "D", "31.000 to 31.000", "4.00", "10.00"],
+        ["deck_lidar", "deck_lidar", "D", "31.000 to 31.000", "4.00", "10.00", "-"],
         # doppler_radar estimated nothing (all NaN) and has no sources entry: no row
     ]
 
