@@ -70,22 +70,36 @@ class Estimates:
     filter_ms: float  # time spent in the filter (adds and estimates)
     inputs: int  # measurements offered
     statuses: dict[str, int]
-    lost: np.ndarray | None = None  # (T,) why each estimate is lost ("" where it is not): lost_reasons
+    lost: "Lost | None" = None  # which estimates are lost, and why: lost_estimates
 
 
-def lost_reasons(x: np.ndarray, var: np.ndarray, cfg: FusionConfig, max_D_m: float = np.inf) -> np.ndarray:
-    """Per estimate (rows of x, var: D, D-dot, D-ddot), why it is lost, or "": its D sigma or
-    D-dot sigma beyond the configured bound (no measurement has held it for a while), or a D no
-    sensor could measure (at or above the boom tip, beyond the sensors' range). Causal: each row
-    judged on its own state."""
+@dataclass
+class Lost:
+    """Which of a solution's estimates no measurement holds (per output row), and why."""
+
+    D: np.ndarray  # (T,) bool: the D (and D-ddot) is lost
+    D_dot: np.ndarray  # (T,) bool: the D-dot is lost
+    why: np.ndarray  # (T,) str: "" where neither is, else the reasons
+
+
+def lost_estimates(x: np.ndarray, var: np.ndarray, cfg: FusionConfig, max_D_m: float = np.inf) -> Lost:
+    """Per estimate (rows of x, var: D, D-dot, D-ddot): a D is lost when its sigma exceeds
+    cfg.lost_sigma_D_m (no measurement has held it for a while) or no sensor could measure it
+    (at or above the boom tip, beyond the sensors' range); a D-dot when its sigma exceeds
+    cfg.lost_sigma_D_dot_mps. Causal: each row judged on its own state. Rows without an
+    estimate are not lost (they are not written)."""
     sd = np.sqrt(np.maximum(var[:, :2], 0.0))
     D = x[:, 0]
+    have = np.isfinite(D)
+    sigma_D = have & (sd[:, 0] > cfg.lost_sigma_D_m)
+    range_D = have & ~sigma_D & ~((D > 0.0) & (D <= max_D_m))
+    sigma_V = have & (sd[:, 1] > cfg.lost_sigma_D_dot_mps)
     why = np.full(len(D), "", dtype=object)
-    why[sd[:, 1] > cfg.lost_sigma_D_dot_mps] = f"lost: D-dot sigma beyond {cfg.lost_sigma_D_dot_mps:g} m/s"
-    why[~((D > 0.0) & (D <= max_D_m))] = f"lost: D outside the sensors' 0 to {max_D_m:g} m"
-    why[sd[:, 0] > cfg.lost_sigma_D_m] = f"lost: D sigma beyond {cfg.lost_sigma_D_m:g} m"
-    why[~np.isfinite(D)] = ""  # no estimate at all: not written
-    return why
+    for mask, text in ((sigma_D, f"D sigma beyond {cfg.lost_sigma_D_m:g} m"),
+                       (range_D, f"D outside the sensors' 0 to {max_D_m:g} m"),
+                       (sigma_V, f"D-dot sigma beyond {cfg.lost_sigma_D_dot_mps:g} m/s")):
+        why[mask] = np.where(why[mask] == "", "lost: " + text, why[mask] + "; " + text)
+    return Lost(sigma_D | range_D, sigma_V, why)
 
 
 def with_floor(m: Measurement, cfg: FusionConfig) -> Measurement | None:
@@ -116,7 +130,7 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     """One solution over every method's measurements (`source` = method name), causally, on
     the output grid of integer ticks of 1 / output_rate_hz. `methods` overrides the
     solution's own sources (a fused solution falling back on the radar's deck). max_D_m: the
-    sensors' range, beyond which a D is lost (lost_reasons)."""
+    sensors' range, beyond which a D is lost (lost_estimates)."""
     methods = methods or SOLUTIONS[name]
     inputs = [m2 for m in measurements if m.source in methods for m2 in [with_floor(m, cfg)] if m2 is not None]
     inputs.sort(key=lambda m: (m.t_arrival_s, m.t_acq_s))
@@ -156,7 +170,7 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
             if cfg.wave_predictor and name != "doppler_radar":
                 waves.step(tick, t, t - filt.last_time_s, x[k], var[k])
     filter_ms = (time.perf_counter() - t0) * 1e3
-    return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses, lost_reasons(x, var, cfg, max_D_m))
+    return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses, lost_estimates(x, var, cfg, max_D_m))
 
 
 class _WaveBridge:

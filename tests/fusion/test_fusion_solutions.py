@@ -169,14 +169,18 @@ def test_the_wave_predictor_bridges_a_silence_of_every_sensor():
 def test_an_estimate_no_measurement_holds_is_lost_with_its_reason():
     import numpy as np
 
-    from boomtip.fusion.solutions import FusionConfig, lost_reasons
+    from boomtip.fusion.solutions import FusionConfig, lost_estimates
 
     cfg = FusionConfig()  # lost beyond 0.25 m of D sigma, 0.5 m/s of D-dot sigma
     x = np.array([[30.0, 0.1, 0.0], [30.0, 0.1, 0.0], [30.0, 0.1, 0.0], [-108.8, 0.0, 0.0], [130.0, 0.0, 0.0],
                   [np.nan, np.nan, np.nan]])
-    var = np.array([[1e-4, 1e-4, 1.0], [0.26**2, 1e-4, 1.0], [1e-4, 0.6**2, 1.0], [133.0**2, 1e-4, 1.0], [1e-4, 1e-4, 1.0],
+    var = np.array([[1e-4, 1e-4, 1.0], [0.26**2, 1e-4, 1.0], [1e-4, 0.6**2, 1.0], [133.0**2, 0.9**2, 1.0], [1e-4, 1e-4, 1.0],
                     [np.nan, np.nan, np.nan]])
-    why = lost_reasons(x, var, cfg, max_D_m=120.0).tolist()
-    assert why == ["", "lost: D sigma beyond 0.25 m", "lost: D-dot sigma beyond 0.5 m/s", "lost: D sigma beyond 0.25 m",
-                   "lost: D outside the sensors' 0 to 120 m", ""]
-    assert lost_reasons(x[:1], np.array([[0.25**2, 0.5**2, 1.0]]), cfg).tolist() == [""]  # at the bound: not lost
+    lost = lost_estimates(x, var, cfg, max_D_m=120.0)
+    assert lost.why.tolist() == ["", "lost: D sigma beyond 0.25 m", "lost: D-dot sigma beyond 0.5 m/s",
+                                 "lost: D sigma beyond 0.25 m; D-dot sigma beyond 0.5 m/s",
+                                 "lost: D outside the sensors' 0 to 120 m", ""]
+    assert lost.D.tolist() == [False, True, False, True, True, False]
+    assert lost.D_dot.tolist() == [False, False, True, True, False, False]
+    at_bound = lost_estimates(x[:1], np.array([[0.25**2, 0.5**2, 1.0]]), cfg)
+    assert at_bound.why.tolist() == [""] and not at_bound.D.any()  # at the bound: not lost

@@ -2,8 +2,8 @@
 solutions' estimates (fusion). Built from the installation and the processing settings.
 
 OUT/measurements.csv   t, method, quantity, value, time_ms, status, sigma
-OUT/estimates.csv      t, solution, D, D_dot, D_ddot, var_D, var_D_dot
-kpis.json              measurements.<method> and, with truth, solutions.<solution>
+OUT/estimates.csv      t, solution, D, D_dot, D_ddot, var_D, var_D_dot, status (ok, or why it is lost)
+kpis.json              measurements.<method> and, with truth, solutions.<solution>; without, estimated.<solution>
 OUT/report.md + plots  Table 5.4 layout beside document 000 (tools/report.py)
 """
 
@@ -130,7 +130,7 @@ class HeaveChain:
         if fused.get("lost_fraction"):  # the estimate a controller uses was not one at times: say so first
             kpis.setdefault("warnings", []).insert(0, (
                 f"fused: lost for {100 * fused['lost_fraction']:.1f} % of the run after its first {WARMUP_S:g} s, first at "
-                f"t = {fused['first_lost_t_s']:.2f} s ({fused['first_lost_reason']}); estimates.csv marks those rows"))
+                f"t = {fused['first_lost_t_s']:.2f} s ({fused['first_lost_reason']}); estimates.csv leaves their D empty and says why"))
         return kpis
 
     def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:
@@ -166,13 +166,20 @@ def write_measurements(path: Path, rows: list[Measurement]) -> None:
 
 
 def write_estimates(path: Path, estimates: dict[str, Estimates]) -> None:
-    """estimates.csv: every solution's estimates at the output rate; `status` is ok, or why the
-    estimate is lost (fusion.solutions.lost_reasons): a row to read, never a D to use."""
+    """estimates.csv: every solution's estimates at the output rate. A lost D or D-dot
+    (fusion.solutions.lost_estimates) is left empty and `status` says why: never a number to
+    use; `status` is ok otherwise. The variances stay: they show why."""
     buf = io.StringIO()
     buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot,status\n")
     for name, e in estimates.items():
         ok = np.isfinite(e.x[:, 0])
-        lost = e.lost[ok] if e.lost is not None else np.full(int(ok.sum()), "")
-        for t, x, v, why in zip(e.t_s[ok], e.x[ok], e.var[ok], lost):
-            buf.write(f"{t:.4f},{name},{x[0]:.6f},{x[1]:.6f},{x[2]:.6f},{v[0]:.6g},{v[1]:.6g},{why or 'ok'}\n")
+        n = int(ok.sum())
+        lost = e.lost
+        lost_D, lost_V = (lost.D[ok], lost.D_dot[ok]) if lost is not None else (np.zeros(n, bool), np.zeros(n, bool))
+        why = lost.why[ok] if lost is not None else np.full(n, "")
+        for t, x, v, no_D, no_V, w in zip(e.t_s[ok], e.x[ok], e.var[ok], lost_D, lost_V, why):
+            D = "" if no_D else f"{x[0]:.6f}"
+            V = "" if no_V else f"{x[1]:.6f}"
+            A = "" if no_D or no_V else f"{x[2]:.6f}"
+            buf.write(f"{t:.4f},{name},{D},{V},{A},{v[0]:.6g},{v[1]:.6g},{w or 'ok'}\n")
     atomic_write_bytes(path, buf.getvalue().encode())

@@ -65,7 +65,7 @@ def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates
              "| solution | D from | D-dot from | D range [m] | median sigma D [mm] | median sigma D-dot [mm/s] | lost |",
              "|---|---|---|---|---|---|---|"]
     for name, e in estimates.items():
-        ok = np.isfinite(e.x[:, 0]) & (e.lost == "" if e.lost is not None else True)
+        ok = np.isfinite(e.x[:, 0]) & (~e.lost.D if e.lost is not None else True)
         src = kpis.get("sources", {}).get(name, {})
         lost = (kpis.get("estimated") or {}).get(name, {}).get("lost_fraction")
         lost = "-" if lost is None else f"{100 * lost:.1f} %"

@@ -46,16 +46,17 @@ def measurement_kpis(rows: list[Measurement], truth: Truth | None) -> dict[str, 
 
 
 def lost_kpis(est: Estimates, keep: np.ndarray) -> dict:
-    """How much of the kept span the solution was lost (fusion.solutions.lost_reasons), from
-    when, and why first."""
+    """How much of the kept span the solution's D was lost (fusion.solutions.lost_estimates),
+    from when and why first, and how much its D-dot was."""
     if est.lost is None:
         return {}
     have = keep & np.isfinite(est.x[:, 0])
-    lost = have & (est.lost != "")
-    out: dict = {"lost_fraction": float(lost.sum() / have.sum()) if have.any() else 0.0}
+    lost = have & est.lost.D
+    out: dict = {"lost_fraction": float(lost.sum() / have.sum()) if have.any() else 0.0,
+                 "lost_D_dot_fraction": float((have & est.lost.D_dot).sum() / have.sum()) if have.any() else 0.0}
     if lost.any():
         k = int(np.flatnonzero(lost)[0])
-        out.update({"first_lost_t_s": float(est.t_s[k]), "first_lost_reason": str(est.lost[k])})
+        out.update({"first_lost_t_s": float(est.t_s[k]), "first_lost_reason": str(est.lost.why[k])})
     return out
 
 
@@ -66,7 +67,7 @@ def estimated_kpis(est: Estimates) -> dict:
     have = np.isfinite(est.x[:, 0]) & np.isfinite(est.var[:, 0])
     keep = est.t_s >= (est.t_s[0] if len(est.t_s) else 0.0) + WARMUP_S
     lost = lost_kpis(est, keep)
-    ok = have & (est.lost == "") if est.lost is not None else have
+    ok = have & ~est.lost.D if est.lost is not None else have
     if not ok.any():
         return {"estimates": 0, **lost}
     x, sd = est.x[ok], np.sqrt(est.var[ok])

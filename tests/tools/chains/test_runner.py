@@ -163,3 +163,25 @@ def test_a_sensor_the_installation_has_but_the_recording_lacks_is_said(tmp_path)
     assert "installation.radar.enabled is true, but sts-empty has no radar frame: nothing was measured with it" in kpis["warnings"]
     assert kpis["estimated"]["fused"]["estimates"] > 0 and "No truth to score against" in r.output
     assert "- mm" not in r.output
+
+
+def test_a_blackout_of_every_sensor_is_lost_not_a_number_to_use(tmp_path):
+    """LiDAR and radar both out for the last 12 s: the fused D is lost soon after the blackout
+    starts (its sigma beyond 0.25 m), estimates.csv leaves it empty with the reason, and the
+    first warning says so; before the blackout nothing is lost."""
+    out = tmp_path / "o"
+    r = runner.invoke(app, ["run", "-s", "sts-loaded", "--duration", "20", "--set", "world.lidar.outages_s=[[8,20]]",
+                            "--set", "world.radar.outages_s=[[8,20]]", "--set", "processing.feeder.enabled=false",
+                            "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    kpis = json.loads((out / "kpis.json").read_text())
+    assert kpis["warnings"][0].startswith("fused: lost for ")
+    fused = kpis["solutions"]["fused"]
+    assert 8.0 < fused["first_lost_t_s"] < 10.0 and fused["lost_fraction"] > 0.5
+    with open(out / "estimates.csv") as fh:
+        rows = [row for row in csv.DictReader(fh) if row["solution"] == "fused"]
+    before = [row for row in rows if 1.0 <= float(row["t"]) < 8.0]
+    assert all(row["status"] == "ok" and row["D"] for row in before)
+    late = [row for row in rows if float(row["t"]) >= 12.0]
+    assert late and all(row["D"] == "" and row["status"].startswith("lost: D sigma beyond 0.25 m") for row in late)
+    assert all(float(row["var_D"]) > 0.25**2 for row in late)
