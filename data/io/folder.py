@@ -23,6 +23,7 @@ from boomtip.data.io.recording import MRU_BOUNDS, MRU_STEPS, RecordingError, rea
 
 SUFFIXES = (".pcd", ".ply", ".bin")
 TIMES_FILES = ("times.txt", "timestamps.txt")
+MAX_SHARED_STAMPS = 5  # frames sharing the time of the frame before: a few are missing frames, more refuse the folder
 FRAME_NUMBER_DIGITS = 10  # an integer name this short is a frame number (as ns it would be under a second)
 _NUMBER = re.compile(r"^[-+]?\d+(\.\d*)?([eE][-+]?\d+)?$")
 
@@ -41,10 +42,11 @@ def times_from_names(files: list[Path]) -> np.ndarray:
         integers.append(stem.lstrip("+-").isdigit())
         out.append(int(stem) * 1e-9 if integers[-1] else float(stem))
     t = np.array(out, dtype=float)
-    # 000000.bin, 000001.bin, ...: frame numbers, not nanoseconds (a sensor frame takes ms); one
-    # such file alone is told by its name's length (boomtip's own names have 13 digits)
+    # 000000.bin, 000001.bin, ...: frame numbers, not nanoseconds (a sensor frame takes ms); so
+    # are names of fewer than 10 digits (boomtip's own nanoseconds have 13)
     counted = len(t) > 1 and np.max(np.diff(np.sort(t))) < 1e-6
-    if all(integers) and (counted or (len(t) == 1 and len(files[0].stem.lstrip("+-")) < FRAME_NUMBER_DIGITS)):
+    short = max(len(p.stem.lstrip("+-")) for p in files) < FRAME_NUMBER_DIGITS
+    if all(integers) and (counted or short):
         listed = ", ".join(p.name for p in files[:2]) + (", ..." if len(files) > 2 else "")
         raise RecordingError(f"{files[0].parent}: the file names count frames ({listed}), they are no times; "
                              f"give their times in a {TIMES_FILES[0]} (one time in seconds per file)")
@@ -117,6 +119,17 @@ class FolderSource(FrameSource):
                                t_start_s=float(self.t_s[0]))
         self.mru = attitude_stream(self.root, installation, float(self.t_s[0]), float(self.t_s[-1]), self.meta.notes, strict)
         self.truth = None
+        # a frame sharing the time of the one before has no time of its own: a missing frame; many
+        # such (a times.txt of zeros) are no recording's times at all
+        self.shared = np.concatenate([[False], np.diff(self.t_s) == 0])
+        shared = int(self.shared.sum())
+        if shared > MAX_SHARED_STAMPS:
+            raise RecordingError(f"{self.root}: {shared} of {len(self.files)} frames share their time stamp with the frame "
+                                 f"before (first {self.files[int(np.argmax(self.shared))].name}); give each frame its own "
+                                 f"time (file names or {TIMES_FILES[0]})")
+        if shared:
+            self.meta.notes.append(f"{self.root.name}: {shared} frame(s) share their time stamp with the frame before; "
+                                   "each is a missing frame")
 
     def _times_file(self, path: Path) -> np.ndarray:
         rows = [ln.strip() for ln in path.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
@@ -136,6 +149,10 @@ class FolderSource(FrameSource):
 
     def __iter__(self) -> Iterator[Frame]:
         for i, (path, t) in enumerate(zip(self.files, self.t_s)):
+            if self.shared[i]:
+                yield Frame(self.sensor, i, float(t), np.zeros((0, 3)), {}, path=str(path),
+                            error=f"{path}: shares its time stamp {t:.6f} s with {self.files[i - 1].name}")
+                continue
             try:
                 points, fields = read_cloud(path)
             except PcdError as exc:

@@ -91,9 +91,15 @@ def parse_topics(items: list[str] | None) -> dict[str, str]:
     topics: dict[str, str] = {}
     for item in items or []:
         role, sep, name = item.partition("=")
+        role, name = role.strip(), name.strip()
         if not sep or not role or not name:
             raise RecordingError(f"--topic {item!r}: expected ROLE=NAME, e.g. --topic lidar=/os_cloud_node/points")
-        topics[role.strip()] = name.strip()
+        if role in topics:
+            raise RecordingError(f"--topic {item!r}: the {role} is already --topic {role}={topics[role]}; give each role once")
+        other = next((r for r, n in topics.items() if n == name and name.lower() != "none"), None)
+        if other is not None:
+            raise RecordingError(f"--topic {item!r}: {name} is already the {other}; one topic fills one role")
+        topics[role] = name
     return topics
 
 

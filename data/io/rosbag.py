@@ -170,8 +170,8 @@ class RosBagSource(FrameSource):
                     roles[r] = named[r][0]
             left = [t for t in clouds if t not in roles.values()]
             free = [r for r in free if r not in roles]
-            if len(left) == 1 and free == ["lidar", "radar"] and not unused & {"lidar", "radar"}:
-                roles["lidar"] = left[0]  # one cloud topic whose name says nothing: a LiDAR
+            if len(left) == 1 and "lidar" in free and "lidar" not in unused:
+                roles["lidar"] = left[0]  # one cloud topic whose name says nothing (beside a named radar): a LiDAR
             elif len(left) > 1 and free == ["lidar", "radar"]:
                 raise RecordingError(f"{self.path}: cannot tell which PointCloud2 topic is the {' or '.join(free)}: "
                                      f"{', '.join(left)}; choose with --topic lidar=NAME --topic radar=NAME")

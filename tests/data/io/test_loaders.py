@@ -173,3 +173,45 @@ def test_a_selection_that_is_not_a_finite_part_is_refused(start, duration, every
 
     with pytest.raises(RecordingError, match="expected a finite start >= 0, a finite duration > 0 and every >= 1"):
         Selection(Source(), start, duration, every)
+
+
+def test_frames_sharing_a_time_stamp_are_missing_and_many_refuse_the_folder(tmp_path):
+    folder = tmp_path / "f"
+    folder.mkdir()
+    for k in range(12):
+        write_pcd(folder / f"{k:02d}.pcd", _ground(n=200, seed=k), {})
+    inst = tmp_path / "level.yaml"
+    inst.write_text("attitude: level\nradar: {enabled: false}\n")
+    times = [0.1 * k for k in range(12)]
+    times[5] = times[4]
+    (folder / "times.txt").write_text("\n".join(f"{t:.1f}" for t in times) + "\n")
+    src = open_source(folder, installation=load_installation(inst))
+    frames = list(src)
+    assert [f.error is None for f in frames].count(False) == 1 and "shares its time stamp 0.400000 s with 04.pcd" in frames[5].error
+    assert any("1 frame(s) share their time stamp" in n for n in src.meta.notes)
+    (folder / "times.txt").write_text("0\n" * 12)  # a times.txt of zeros
+    with pytest.raises(RecordingError, match="11 of 12 frames share their time stamp"):
+        open_source(folder, installation=load_installation(inst))
+
+
+def test_integer_names_shorter_than_ten_digits_count_frames(tmp_path):
+    folder = tmp_path / "f"
+    folder.mkdir()
+    for k in range(3):  # 100 ms apart as nanoseconds, but 9 digits: frame numbers of a sparse export
+        write_pcd(folder / f"{(k + 1) * 100_000_000}.pcd", _ground(n=200, seed=k), {})
+    inst = tmp_path / "level.yaml"
+    inst.write_text("attitude: level\nradar: {enabled: false}\n")
+    with pytest.raises(RecordingError, match="count frames"):
+        open_source(folder, installation=load_installation(inst))
+
+
+@pytest.mark.parametrize("items, message", [(["lidar=/a", "lidar=/b"], "the lidar is already --topic lidar=/a"),
+                                            (["lidar=/a", "radar=/a"], "/a is already the lidar"),
+                                            (["lidar"], "expected ROLE=NAME")])
+def test_a_topic_given_twice_or_for_two_roles_is_refused(items, message):
+    from boomtip.data.io.loaders import parse_topics
+
+    with pytest.raises(RecordingError, match=message):
+        parse_topics(items)
+    assert parse_topics(["mru=none", "feeder_mru=none", "lidar=/os/points"]) == {"mru": "none", "feeder_mru": "none",
+                                                                               "lidar": "/os/points"}

@@ -342,3 +342,10 @@ def test_clouds_come_in_stamp_order_and_a_late_or_repeated_one_is_a_missing_fram
         ("lidar", 0.3, False), ("lidar", 0.9, True), ("radar", 0.35, False), ("lidar", 1.5, True)]
     assert "repeats the stamp 0.300000 s of the previous lidar frame" in out[5].error
     assert "stamped 0.550 s before a frame already given" in out[7].error and len(out[7].points_sensor) == 0
+
+
+def test_an_unnamed_cloud_beside_a_named_radar_is_the_lidar(tmp_path, inst):
+    _foreign_bag(tmp_path / "bag", {"/os/points": "lidar", "/ti_mmwave/radar_scan_pcl": "radar"})
+    src = open_source(tmp_path / "bag", installation=inst)
+    assert src.role_topic["lidar"] == "/os/points" and src.role_topic["radar"] == "/ti_mmwave/radar_scan_pcl"
+    assert {f.sensor for f in src} == {"lidar", "radar"}
