@@ -1,6 +1,7 @@
 """Which samples of a logged stream (MRU, encoders) are bad, and why: a value that is not a
 number or lies beyond physical bounds, a time that does not follow the log's own order, an
-angle step no vessel makes (a glitch).
+angle step no vessel makes (a glitch), angles frozen for a second in a log that moves (a
+stuck sensor).
 
 Bad references must not condemn good samples: a glitch in the first row, a stamp far in the
 future, a glitch held for many samples. So times are judged by the log's longest increasing run
@@ -26,6 +27,7 @@ __all__ = ["bad_samples", "drop_bad_samples", "STEP_FLOOR_RAD", "STEP_NOISE_SIGM
 # than its noise, or one without noise).
 STEP_NOISE_SIGMAS = 8.0
 STEP_FLOOR_RAD = 0.005
+STUCK_MIN_S = 1.0  # every angle bit-identical this long, in a log that otherwise moves: a frozen sensor
 MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
 
 
@@ -57,9 +59,32 @@ def bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: d
         ok = in_order
     step_cols = [(names.index(n), rate) for n, rate in steps.items() if n in names]
     if len(ok) > 1 and step_cols:
+        for k, reason in _stuck(table[ok], t[ok], [j for j, _ in step_cols], names):
+            why[ok[k]] = reason
+        ok = np.array([k for k in ok if why[k] is None], dtype=int)
+    if len(ok) > 1 and step_cols:
         for k, reason in _glitches(table[ok], t[ok], step_cols, names):
             why[ok[k]] = reason
     return why
+
+
+def _stuck(table: np.ndarray, t: np.ndarray, cols: list[int], names: list[str]) -> list[tuple[int, str]]:
+    """(row, why) of the samples of a frozen sensor: every angle column bit-identical to the
+    sample before for STUCK_MIN_S or longer, in a log whose angles otherwise move (a log that
+    never moves, a level rig's, is what it is). The run's first sample is kept."""
+    same = np.all(np.diff(table[:, cols], axis=0) == 0.0, axis=1)
+    if not same.any() or same.all():
+        return []
+    edges = np.diff(np.concatenate([[0], same.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # rows [s+1, e] repeat row s
+    out: list[tuple[int, str]] = []
+    for s, e in zip(starts, ends):
+        held_s = float(t[e] - t[s])
+        if held_s >= STUCK_MIN_S:
+            reason = (f"columns {', '.join(repr(names[j]) for j in cols)} unchanged for {held_s:.3g} s from "
+                      f"t = {float(t[s]):.3f} s (a frozen sensor: expected its noise at least)")
+            out.extend((k, reason) for k in range(s + 1, e + 1))
+    return out
 
 
 def drop_bad_samples(table: np.ndarray, names: list[str], where: str, unit: str, label: Callable[[int], str],

@@ -145,3 +145,26 @@ def test_a_stamp_far_in_the_future_takes_only_itself(tmp_path):
     assert len(cols["t"]) == len(t) - 1 and 1e9 not in cols["t"]
     assert "dropped 1 of 400 samples (lines 52): first time 1000000000.0 is after the samples that follow it" in notes[0]
     assert "np.float64" not in notes[0]
+
+
+def test_a_frozen_sensor_is_dropped_after_its_first_sample_and_a_still_log_is_not(tmp_path):
+    t = np.arange(0, 10, 1 / RATE_HZ)
+    roll = 0.02 * np.sin(t) + np.random.default_rng(5).normal(0.0, 1e-4, len(t))
+    path = tmp_path / "mru.csv"
+    frozen = roll.copy()
+    frozen[600:1000] = frozen[600]  # 2 s stuck; yaw is constant in _mru_csv, pitch is frozen below
+    _mru_csv(path, t, frozen)
+    lines = path.read_text().splitlines()
+    head = lines[0].split(",")
+    ip = head.index("pitch")
+    ref = lines[601].split(",")[ip]
+    for k in range(601, 1001):
+        v = lines[k].split(",")
+        v[ip] = ref
+        lines[k] = ",".join(v)
+    path.write_text("\n".join(lines) + "\n")
+    cols, notes = _read(path)
+    assert len(cols["t"]) == len(t) - 399 and "frozen sensor" in notes[0] and "unchanged for 2 s from t = 3.000 s" in notes[0]
+    still = tmp_path / "still.csv"
+    _mru_csv(still, t, np.zeros_like(t))  # roll never moves, pitch does: not every angle is frozen
+    assert _read(still)[1] == []
