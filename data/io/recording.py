@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 import math
 from pathlib import Path
 from typing import Callable, Iterator
@@ -85,6 +86,18 @@ def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
     buf = StringIO()
     np.savetxt(buf, table, delimiter=",", header=",".join(names), comments="", fmt="%.10g")
     atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def screened_log(log: MruLog, where: str, notes: list[str] | None = None) -> MruLog:
+    """An attitude log from any source (a simulation, a bag, a file already read) screened as
+    read_csv screens a file's: glitches, frozen stretches, times out of order dropped and
+    counted in `notes`; the same log when nothing is bad."""
+    table = np.column_stack([log.t_s, log.rpy_rad, log.rpy_rate_radps])
+    good = drop_bad_samples(table, list(MRU_COLUMNS), where, "sample", lambda k: f"at t = {table[k, 0]:.3f} s",
+                            False, notes, "t", MRU_BOUNDS, MRU_STEPS)
+    if len(good) == len(table):
+        return log
+    return replace(log, t_s=good[:, 0], rpy_rad=good[:, 1:4], rpy_rate_radps=good[:, 4:7])
 
 
 def read_csv(path: Path, expected: tuple[str, ...], time_column: str = "t", bounds: dict[str, float] | None = None,

@@ -349,7 +349,9 @@ class Simulation(FrameSource):
         rng = self._rng("mru", 0)
         rpy = st.rpy_rad + np.deg2rad(mm.mru_bias_deg) + np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(st.rpy_rad.shape)
         rate = st.rpy_rate_radps + np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(st.rpy_rad.shape)
-        keep = ~in_windows(t, self.scenario.world.mru.outages_s)
+        real = self.scenario.world.mru
+        rpy, rate = mru_faults(t, rpy, rate, real.glitches_s, np.deg2rad(real.glitch_rpy_deg), real.frozen_s)
+        keep = ~in_windows(t, real.outages_s)
         return MruLog(t[keep], rpy[keep], rate[keep], max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
 
     def _feeder_mru_log(self) -> MruLog:
@@ -381,3 +383,16 @@ class Simulation(FrameSource):
             for i, ang in enumerate(("roll", "pitch", "yaw")):
                 cols[f"{name}_{ang}"] = st.rpy_rad[:, i]
         return Truth({k: cols[k] for k in TRUTH_COLUMNS})
+
+
+def mru_faults(t: np.ndarray, rpy: np.ndarray, rate: np.ndarray, glitches_s, glitch_rpy_rad: np.ndarray,
+               frozen_s) -> tuple[np.ndarray, np.ndarray]:
+    """The MRU's samples with its faults: inside a glitch window the glitch's attitude (rates
+    as they were); inside a frozen window the last sample before it, bit for bit."""
+    rpy, rate = rpy.copy(), rate.copy()
+    rpy[in_windows(t, glitches_s)] = glitch_rpy_rad
+    for a, b in frozen_s:
+        inside = np.flatnonzero((t >= a) & (t < b))
+        if len(inside) and inside[0] > 0:
+            rpy[inside], rate[inside] = rpy[inside[0] - 1], rate[inside[0] - 1]
+    return rpy, rate

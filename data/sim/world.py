@@ -101,10 +101,14 @@ class _Outages(StrictModel):
     @field_validator("outages_s")
     @classmethod
     def _windows(cls, v: Windows) -> Windows:
-        for a, b in v:
-            if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
-                raise ValueError(f"each window is [start, end] seconds with 0 <= start < end, got {[a, b]}")
-        return v
+        return check_windows(v)
+
+
+def check_windows(v: Windows) -> Windows:
+    for a, b in v:
+        if not (math.isfinite(a) and math.isfinite(b) and 0 <= a < b):
+            raise ValueError(f"each window is [start, end] seconds with 0 <= start < end, got {[a, b]}")
+    return v
 
 
 class FeederMru(_Outages):
@@ -159,7 +163,20 @@ class RadarBehaviour(_Outages):
 
 
 class MruBehaviour(_Outages):
-    """How the MRU really behaves beyond its spec sheet (bias and lag: `mismatch`)."""
+    """How the MRU really behaves beyond its spec sheet (bias and lag: `mismatch`), and its
+    faults: glitches (a wild attitude for a few samples, within the sensor's range) and
+    freezes (the last sample repeated)."""
+
+    glitches_s: Windows = Field(default_factory=list, description="[start, end] windows in which the MRU reports "
+                                "glitch_rpy_deg instead of the attitude")
+    glitch_rpy_deg: tuple[float, float, float] = Field((89.9, -89.9, 0.0), description="what a glitch reports")
+    frozen_s: Windows = Field(default_factory=list, description="[start, end] windows in which the MRU repeats its "
+                              "last sample (a stuck sensor)")
+
+    @field_validator("glitches_s", "frozen_s")
+    @classmethod
+    def _fault_windows(cls, v: Windows) -> Windows:
+        return check_windows(v)
 
 
 class LidarBehaviour(_Outages):

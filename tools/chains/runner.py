@@ -17,8 +17,8 @@ from pydantic import ValidationError
 
 from boomtip.data.frames import FrameSource
 from boomtip.data.io.output_folder import output_folder
-from boomtip.data.io.recording import RecordingError, write_json
-from boomtip.data.keys import format_validation, leaf_keys
+from boomtip.data.io.recording import RecordingError, screened_log, write_json
+from boomtip.data.keys import format_validation, leaf_keys, settings_dump
 from boomtip.tools.chains.chain import Chain, NullVisualiser
 from boomtip.tools.chains.heave import HeaveChain
 from boomtip.tools.chains.hook import HookChain
@@ -26,8 +26,9 @@ from boomtip.tools.chains.provenance import outage_windows, run_labels
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.chains.ship import ShipChain
 from boomtip.tools.config.processing import Processing
-from boomtip.data.keys import settings_dump
 from boomtip.tools.config.settings import boomtip_commit, boomtip_version
+
+MIN_SCREENED_SAMPLES = 2  # an attitude: level log (two level samples) has nothing to screen
 
 
 @dataclass
@@ -72,6 +73,16 @@ def run(source: FrameSource, out: Path, force: bool = False, processing: Process
     return result
 
 
+def screen_attitude(source: FrameSource) -> None:
+    """The source's attitude logs screened for what no vessel does (glitches, a frozen sensor,
+    times out of order) whatever the source: a file's were screened as it was read, a
+    simulation's or a bag's are here; what is dropped is counted in the source's notes."""
+    for name in ("mru", "feeder_mru"):
+        log = getattr(source, name, None)
+        if log is not None and len(log.t_s) > MIN_SCREENED_SAMPLES:
+            setattr(source, name, screened_log(log, f"{source.meta.name}: {name}", source.meta.notes))
+
+
 def run_record(command: dict | None, recording: Path | None) -> dict:
     """What settings.json says of how the run was made: the command and the recording's path and size."""
     out: dict = {"command": command}
@@ -100,6 +111,7 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
              resources: RunResources | None = None, record: dict | None = None) -> RunResult:
     resources = resources or RunResources()
     resources.start()
+    screen_attitude(source)
     processing = processing_for(source, processing)
     chain = build_chain(source, processing, resources)
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()

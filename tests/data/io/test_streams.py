@@ -168,3 +168,20 @@ def test_a_frozen_sensor_is_dropped_after_its_first_sample_and_a_still_log_is_no
     still = tmp_path / "still.csv"
     _mru_csv(still, t, np.zeros_like(t))  # roll never moves, pitch does: not every angle is frozen
     assert _read(still)[1] == []
+
+
+def test_a_simulated_mrus_glitch_and_freeze_are_screened_as_a_files_are():
+    """The world's MRU faults (world.mru.glitches_s, frozen_s) reach processing through the
+    same screen as a file's log: the runner screens every source's attitude."""
+    from boomtip.data.sim.simulator import Simulation
+    from boomtip.tools.chains.runner import screen_attitude
+    from boomtip.tools.config.scenario import load_scenario
+
+    sim = Simulation(load_scenario("sts-empty", ["duration_s=8", "world.mru.glitches_s=[[2,2.05]]",
+                                                 "world.mru.frozen_s=[[4,5.5]]"]))
+    n = len(sim.mru.t_s)
+    assert np.all(np.abs(sim.mru.rpy_rad[(sim.mru.t_s >= 2) & (sim.mru.t_s < 2.05), 0] - np.radians(89.9)) < 1e-12)
+    screen_attitude(sim)
+    assert n - len(sim.mru.t_s) == 10 + 300  # the glitch's 10 samples; the freeze repeats the sample before it 300 times
+    assert len(sim.meta.notes) == 1 and "dropped 310 of" in sim.meta.notes[0]
+    assert not np.any((sim.mru.t_s >= 2) & (sim.mru.t_s < 2.05))
