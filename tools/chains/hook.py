@@ -217,14 +217,19 @@ class HookChain:
             for name, run in result.runs.items():
                 hook[name] = outputs.estimator_kpis(run, result.stores[name], truth)
             seg.update(outputs.segmentation_kpis(rows, truth))
+        else:  # what each estimator made of the hook's path, nothing to score it against
+            hook["estimated"] = {name: outputs.estimated_path(result.stores[name]) for name in result.runs}
         hook["segmentation"] = seg
         hook["rope"] = outputs.rope_kpis(rows, truth)
         warnings = list(self.source_notes) + list(self.warnings)
         return {"hook": hook, **({"warnings": warnings} if warnings else {})}
 
     def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
-        if not result.runs or truth is None:  # the CSVs and kpis.json say what was estimated
+        if not result.runs:  # the CSVs and kpis.json say what was measured
             return []
+        if truth is None:
+            outputs.write_hook_estimates_report(out, kpis)
+            return ["hook_report.md"]
         self.resources.release()  # what the outputs freed, before the plots' peak
         outputs.write_hook_report(out, kpis, kpis.get("program"), result.runs, result.stores, truth, result.rows)
         return ["hook_report.md", "plots"]

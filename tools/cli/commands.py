@@ -118,14 +118,23 @@ def _print_kpis(kpis: dict) -> None:
     if "hook" in kpis:
         h = kpis["hook"]
         seg = h["segmentation"]
+        scored = (f"precision {seg['precision']:.4f}, recall {seg['recall']:.4f}, " if "precision" in seg else "")
         print(f"hook segmentation: model fit in {100 * seg['found_fraction']:.1f} % and sparse fix in "
-              f"{100 * seg.get('sparse_fraction', 0.0):.1f} % of {seg['frames']} frames, "
-              f"precision {seg.get('precision', float('nan')):.4f}, recall {seg.get('recall', float('nan')):.4f}, "
-              f"{seg['apt_ms']:.1f} ms/frame")
+              f"{100 * seg.get('sparse_fraction', 0.0):.1f} % of {seg['frames']} frames, {scored}{seg['apt_ms']:.1f} ms/frame")
         if "rope" in h:
             from boomtip.tools.report.hook import rope_summary
 
             print(rope_summary(h["rope"]))
+        if "estimated" in h:  # no truth: the path each estimator made of the hook
+            print("No truth to score against; the hook's path as estimated (world frame):")
+            print(f"{'estimator':14s} {'x range [m]':>18s} {'y range [m]':>18s} {'z range [m]':>18s} {'top speed':>10s} "
+                  f"{'sigma rel. tip x/y/z [cm]':>26s}")
+            for name, e in h["estimated"].items():
+                if e.get("samples"):
+                    rng = [f"{a:.2f} to {b:.2f}" for a, b in zip(e["min_m"], e["max_m"])]
+                    sig = "/".join(f"{100 * x:.2f}" for x in e["median_sigma_rel_m"])
+                    print(f"{name:14s} {rng[0]:>18s} {rng[1]:>18s} {rng[2]:>18s} {e['top_speed_mps']:8.2f}m/s {sig:>26s}")
+            return
         print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}"
               f" {'rel. tip pos [cm]':>20s}")
         for name, k in h.items():

@@ -82,6 +82,27 @@ def estimator_kpis(run: HookFilterRun, store: EstimateStore, truth: Truth) -> di
     }
 
 
+SIGMA_EVERY = 10  # the median sigma of a path from every 10th sample (a 700 s run's is 14,000 of them)
+
+
+def estimated_path(store: EstimateStore) -> dict:
+    """Without truth, the hook's path as the estimator had it: its extent per axis (world
+    frame), its top speed, the median sigma of its position relative to the tip and its last
+    position, read from the stored samples a chunk at a time."""
+    if store.n == 0:
+        return {"samples": 0}
+    lo, hi, top = np.full(3, np.inf), np.full(3, -np.inf), 0.0
+    sigmas, last = [], None
+    for c in store.chunks():
+        lo, hi = np.minimum(lo, c.p_hook.min(axis=0)), np.maximum(hi, c.p_hook.max(axis=0))
+        top = max(top, float(np.linalg.norm(c.v_hook, axis=1).max()))
+        sigmas.append(np.sqrt(np.diagonal(c.cov_p, axis1=1, axis2=2))[::SIGMA_EVERY])
+        last = (float(c.t[-1]), c.p_hook[-1])
+    r = lambda v: [round(float(x), 4) for x in v]  # noqa: E731
+    return {"samples": store.n, "min_m": r(lo), "max_m": r(hi), "top_speed_mps": round(top, 4),
+            "median_sigma_rel_m": r(np.median(np.concatenate(sigmas), axis=0)), "last_t_s": last[0], "last_m": r(last[1])}
+
+
 def segmentation_kpis(rows: FrameRows, truth: Truth) -> dict:
     """Precision and recall of the block's points over the frames with the hook in view, and
     the fixes' reference-point RMSE (model fits and sparse fixes apart)."""
@@ -167,6 +188,30 @@ def rope_summary(rope: dict) -> str:
                  f"{' / '.join(f'{100 * v:.1f}' for v in rope['rmse_at_hook_m'])} cm x/y/z at the hook, "
                  f"precision {rope['precision']:.4f}")
     return text + "."
+
+
+def write_hook_estimates_report(out: Path, kpis: dict) -> None:
+    """hook_report.md of a recording without truth: what was found and estimated, not how well."""
+    hook = kpis["hook"]
+    seg = hook["segmentation"]
+    lines = [f"# boomtip hook report: {kpis['scenario']} ({kpis['duration_s']:g} s, no truth)", "",
+             *[f"**Warning:** {w}" for w in kpis.get("warnings", [])], "",
+             "No truth came with this recording: this report says what was estimated, not how well.", "",
+             f"Hook found by the block model in {100 * seg['found_fraction']:.1f} % and by the sparse fix in "
+             f"{100 * seg.get('sparse_fraction', 0.0):.1f} % of {seg['frames']} frames, {seg['apt_ms']:.1f} ms per frame.",
+             "", rope_summary(hook["rope"]) if "rope" in hook else "", "",
+             "## The hook's path as estimated (world frame)", "",
+             "| estimator | x range [m] | y range [m] | z range [m] | top speed [m/s] | median sigma relative to the tip x/y/z [cm] | last position [m] |",
+             "|---|---|---|---|---|---|---|"]
+    for name, e in hook.get("estimated", {}).items():
+        if not e.get("samples"):
+            lines.append(f"| {name} | no estimate | | | | | |")
+            continue
+        rng = [f"{a:.2f} to {b:.2f}" for a, b in zip(e["min_m"], e["max_m"])]
+        sig = " / ".join(f"{100 * x:.2f}" for x in e["median_sigma_rel_m"])
+        last = ", ".join(f"{x:.2f}" for x in e["last_m"])
+        lines.append(f"| {name} | {' | '.join(rng)} | {e['top_speed_mps']:.2f} | {sig} | {last} at {e['last_t_s']:.1f} s |")
+    atomic_write_bytes(out / "hook_report.md", ("\n".join(lines) + "\n").encode())
 
 
 def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str, HookFilterRun],

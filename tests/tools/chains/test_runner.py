@@ -185,3 +185,15 @@ def test_a_blackout_of_every_sensor_is_lost_not_a_number_to_use(tmp_path):
     late = [row for row in rows if float(row["t"]) >= 12.0]
     assert late and all(row["D"] == "" and row["status"].startswith("lost: D sigma beyond 0.25 m") for row in late)
     assert all(float(row["var_D"]) > 0.25**2 for row in late)
+
+
+def test_a_hook_recording_without_truth_says_the_path_it_estimated(tmp_path):
+    rec = tmp_path / "rec"
+    assert runner.invoke(app, ["simulate", "-s", "hook-2", "--duration", "6", "--out", str(rec)]).exit_code == 0
+    (rec / "truth.csv").unlink()
+    r = runner.invoke(app, ["process", str(rec), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert "the hook's path as estimated" in r.output and "RMSE" not in r.output and "nan" not in r.output
+    path = json.loads((tmp_path / "o" / "kpis.json").read_text())["hook"]["estimated"]["ekf_flexible"]
+    assert path["samples"] > 0 and all(a < b for a, b in zip(path["min_m"], path["max_m"]))
+    assert "| ekf_flexible |" in (tmp_path / "o" / "hook_report.md").read_text()

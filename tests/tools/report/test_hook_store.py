@@ -217,3 +217,16 @@ def test_a_disk_table_reads_back_its_rows_by_slices(monkeypatch):
     with pytest.raises(TypeError):
         disk[::2]
     disk.close()
+
+
+def test_without_truth_the_path_is_read_from_the_store_as_from_the_whole_series(runs):
+    full, _, store = runs
+    _, _, p, v = world_hook_from_states(CraneParams(), full.x)
+    path = hook_outputs.estimated_path(store)
+    assert path["samples"] == len(full.t) and path["last_t_s"] == full.t[-1]
+    assert path["min_m"] == [round(float(x), 4) for x in p.min(axis=0)] and path["max_m"] == [round(float(x), 4) for x in p.max(axis=0)]
+    assert path["top_speed_mps"] == round(float(np.linalg.norm(v, axis=1).max()), 4)
+    sig = np.sqrt(np.diagonal(full.cov_p, axis1=1, axis2=2))
+    # every 10th sample of each read chunk (89 here): close to the whole series' median
+    np.testing.assert_allclose(path["median_sigma_rel_m"], np.median(sig, axis=0), rtol=0.05)
+    assert hook_outputs.estimated_path(EstimateStore(CraneParams())) == {"samples": 0}
