@@ -41,15 +41,20 @@ def method_table(rows: list[Measurement]) -> list[str]:
     return lines
 
 
+def _clock(origin_s: float) -> str:
+    """A source clock's value as people read it: UTC for an epoch clock, else seconds."""
+    if origin_s > EPOCH_LIKE_S:
+        return datetime.fromtimestamp(origin_s, timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+    return f"{origin_s:.6f} s on the source's clock"
+
+
 def time_base(kpis: dict) -> list[str]:
     """The report's line on what t = 0 is, for a recording on a clock of its own."""
     origin = kpis.get("t_origin_s")
     if not origin:
         return []
-    if origin > EPOCH_LIKE_S:
-        when = datetime.fromtimestamp(origin, timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-        return [f"Times count from the recording's first stamp: t = 0 s is {when} ({origin:.6f} s since the epoch).", ""]
-    return [f"Times count from the recording's first stamp: t = 0 s is {origin:.6f} s on the source's clock.", ""]
+    epoch = f" ({origin:.6f} s since the epoch)" if origin > EPOCH_LIKE_S else ""
+    return [f"Times count from the recording's first stamp: t = 0 s is {_clock(origin)}{epoch}.", ""]
 
 
 def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates], rows: list[Measurement],
@@ -87,13 +92,13 @@ def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates
     else:
         gaps = stream_gaps(mru.t_s, float(np.median(np.diff(mru.t_s))) if len(mru.t_s) > 1 else 1.0)
         lines.append(f"- MRU: {len(mru.t_s)} samples, {len(gaps)} gaps" + "".join(f"; {a:.2f}-{b:.2f} s" for a, b in gaps[:10]))
-    plot = _plot(out, estimates)
+    plot = _plot(out, estimates, kpis.get("t_origin_s"))
     lines += ["", f"![estimates]({plot.name})", ""]
     atomic_write_bytes(out / "report.md", "\n".join(lines).encode())
     return ["report.md", plot.name]
 
 
-def _plot(out: Path, estimates: dict[str, Estimates]) -> Path:
+def _plot(out: Path, estimates: dict[str, Estimates], t_origin_s: float | None = None) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -111,7 +116,7 @@ def _plot(out: Path, estimates: dict[str, Estimates]) -> Path:
                 ax[qi].fill_between(e.t_s, e.x[:, qi] - s, e.x[:, qi] + s, color=c, alpha=0.2, label="fused +-3 sigma")
         ax[qi].set_ylabel(label)
         legend(ax[qi], fontsize=8, ncol=4)
-    ax[1].set_xlabel("t [s]")
+    ax[1].set_xlabel("t [s]" + (f" from {_clock(t_origin_s)}" if t_origin_s else ""))
     ax[0].set_title("Estimates (no truth)")
     fig.tight_layout()
     path = out / "estimates.png"
