@@ -12,7 +12,8 @@ from typing import Iterator
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeRemainingColumn
+from rich.text import Text
 
 from boomtip.data.io.output_folder import InterruptedAfterCommit
 from boomtip.data.io.pcd import PcdError
@@ -75,9 +76,17 @@ def progress_bar(total: int, label: str) -> Iterator:
     if not sys.stderr.isatty():
         yield progress_lines(total, label, lambda text: console.print(text, highlight=False))
         return
-    with Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console) as prog:
+    with Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), RateColumn(), TimeRemainingColumn(),
+                  console=console) as prog:
         task = prog.add_task(label, total=total)
         yield lambda n=1: prog.advance(task, n)
+
+
+class RateColumn(ProgressColumn):
+    """Items (frames, tasks) per second, once there is a rate to show."""
+
+    def render(self, task) -> Text:
+        return Text(f"{task.speed:.1f}/s" if task.speed else "")
 
 
 def progress_lines(total: int, label: str, say, every_s: float = PROGRESS_LINE_S, clock=time.monotonic):
