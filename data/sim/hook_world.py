@@ -125,6 +125,12 @@ class TrackFiles:
         self._files[name].write(rows.tobytes())
         self._rows[name] += len(rows)
 
+    def replace(self, name: str, rows: np.ndarray) -> None:
+        """The track's rows, instead of what it held (a new file; the old one is closed)."""
+        if name in self._files:
+            self._files.pop(name).close()
+        self.append(name, rows)
+
     def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Rows start..stop-1 of a track."""
         fh, shape = self._files[name], self._row_shape[name]
@@ -254,11 +260,9 @@ class HookSimulation(Simulation):
 
     @mru.setter
     def mru(self, log: MruLog) -> None:
-        # once, at set-up: the files append, so a second log would follow the first
-        if hasattr(self, "_mru_max_gap_s"):
-            raise AttributeError("a hook simulation's MRU log is made once, at set-up")
+        # at set-up, and again when processing screens it (before any worker reads the files)
         for k, v in (("t", log.t_s), ("rpy", log.rpy_rad), ("rate", log.rpy_rate_radps)):
-            self._log_files().append(f"mru_{k}", v)
+            self._log_files().replace(f"mru_{k}", v)
         self._mru_max_gap_s = log.max_gap_s
 
     @property

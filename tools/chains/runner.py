@@ -80,7 +80,9 @@ def screen_attitude(source: FrameSource) -> None:
     for name in ("mru", "feeder_mru"):
         log = getattr(source, name, None)
         if log is not None and len(log.t_s) > MIN_SCREENED_SAMPLES:
-            setattr(source, name, screened_log(log, f"{source.meta.name}: {name}", source.meta.notes))
+            screened = screened_log(log, f"{source.meta.name}: {name}", source.meta.notes)
+            if screened is not log:  # a clean log stays the object it was (a hook simulation's lives on disk)
+                setattr(source, name, screened)
 
 
 def run_record(command: dict | None, recording: Path | None) -> dict:
