@@ -110,6 +110,8 @@ def solution_kpis(est: Estimates, truth: Truth, rows: list[Measurement], methods
         for a, b in windows:
             inside |= (est.t_s >= a) & (est.t_s < b)
         out["outage"] = consistency(est, truth, keep & inside)
+    if est.lost is not None and (keep & est.lost.D).any():  # what a controller that heeds "lost" was given
+        out["not_lost"] = consistency(est, truth, keep & ~est.lost.D)
     return out
 
 
