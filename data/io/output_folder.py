@@ -30,8 +30,10 @@ __all__ = ["OutputError", "InterruptedAfterCommit", "check_output_folder", "outp
 
 # what output_folder leaves beside OUT while it runs: `.OUT.partial-PID` (the results being
 # written, holding STAGING_MARKER) and, for the instant of the swap, `.OUT.old-PID` (the former OUT)
-STAGING = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old)-(?P<pid>\d{1,10})$")
+STAGING = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|old|swap)-(?P<pid>\d{1,10})$")
 STAGING_MARKER = ".boomtip-staging"
+SWAP_JOURNAL = "boomtip swap\n"  # what `.OUT.swap-PID` holds while `.OUT.old-PID` is the former OUT
+TRASH = re.compile(r"^\.boomtip-trash-\d{1,10}-\d{1,10}$")  # dead runs' folders, removed without a lock
 
 
 class OutputError(RecordingError):
@@ -109,9 +111,10 @@ def _acquire(out: Path) -> int | None:
 
 def _release(out: Path, fd: int) -> None:
     """Remove the lock file while still holding the lock (so nobody takes a file about to go),
-    then let go of it."""
+    then let go of it. Windows cannot remove an open file: there the lock file stays."""
     try:
-        _lock_path(out).unlink(missing_ok=True)
+        if os.name != "nt":
+            _lock_path(out).unlink(missing_ok=True)
     finally:
         os.close(fd)
 
@@ -145,43 +148,88 @@ def locked_output(out: Path, inputs: tuple[Path | None, ...] = ()) -> Iterator[P
 # --- what dead runs left ----------------------------------------------------------------------
 
 def _recover(out: Path, inputs: tuple[Path | None, ...] = ()) -> list[Path]:
-    """With OUT's lock held, every `.OUT.partial-N` / `.OUT.old-N` is a dead run's: an `old` whose
-    OUT is missing is the former OUT of a swap cut short and is put back; the rest is removed."""
+    """With OUT's lock held, what a dead run left beside OUT: a swap cut short (its journal
+    `.OUT.swap-N` beside `.OUT.old-N`) gets the former OUT back if OUT is missing; a staging
+    folder (its marker inside) and a finished swap's former OUT are moved to trash (removed
+    after the lock is let go, so no run waits on a long delete). Nothing without boomtip's
+    marker or journal is touched, and never an input. Returns the trash."""
     keep = set(_resolved(inputs))
-    removed = []
-    for p in sorted(out.parent.iterdir()):
+    found: dict[str, dict[str, Path]] = {}
+    for p in out.parent.iterdir():
         m = STAGING.match(p.name)
-        if not m or m["name"] != out.name or p.is_symlink() or p.resolve() in keep:
-            continue
-        if m["kind"] == "old" and not out.exists() and not out.is_symlink():
-            p.rename(out)
-        elif m["kind"] == "old" and not p.is_dir():
-            p.unlink(missing_ok=True)
-            removed.append(p)
-        elif m["kind"] == "old" or (p / STAGING_MARKER).is_file():
-            shutil.rmtree(p, ignore_errors=True)
-            removed.append(p)
+        if m and m["name"] == out.name and not p.is_symlink() and p.resolve() not in keep:
+            found.setdefault(m["pid"], {})[m["kind"]] = p
+    trash = []
+    for pid, parts in found.items():
+        journal, old, partial = parts.get("swap"), parts.get("old"), parts.get("partial")
+        if journal is not None and not _is_journal(journal):
+            journal = old = None  # a user's file of that name: not boomtip's swap
+        if old is not None and journal is not None:
+            if not out.exists() and not out.is_symlink():
+                old.rename(out)
+            else:
+                trash.append(_to_trash(old, mark=True))
+        if partial is not None and partial.is_dir() and (partial / STAGING_MARKER).is_file():
+            trash.append(_to_trash(partial))
+        if journal is not None:
+            journal.unlink(missing_ok=True)
+    return [t for t in trash if t is not None]
+
+
+def _is_journal(p: Path) -> bool:
+    try:
+        return p.is_file() and p.read_text() == SWAP_JOURNAL
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _to_trash(p: Path, mark: bool = False) -> Path | None:
+    """Rename a dead run's folder (or file) to a trash name in the same folder."""
+    if mark and p.is_dir():
+        (p / STAGING_MARKER).touch()
+    for n in range(1000):
+        target = p.parent / f".boomtip-trash-{os.getpid()}-{n}"
+        if not target.exists():
+            try:
+                p.rename(target)
+            except OSError:
+                return None
+            return target
+    return None
+
+
+def _empty_trash(parent: Path) -> list[Path]:
+    removed = []
+    for p in parent.iterdir():
+        if TRASH.match(p.name) and not p.is_symlink():
+            if p.is_dir() and (p / STAGING_MARKER).is_file():
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+            elif p.is_file():
+                p.unlink(missing_ok=True)
+                removed.append(p)
     return removed
 
 
 def clear_dead_staging(parent: Path, inputs: tuple[Path | None, ...] = ()) -> list[Path]:
     """What dead runs left in `parent` beside any output folder whose lock nobody holds (a held
-    lock means that run is alive and its folders are its own); never an input. Returns what was
-    removed."""
-    removed: list[Path] = []
+    lock means that run is alive and its folders are its own); never an input. Each lock is
+    held only for renames; the deletes come after. Returns what was removed."""
     if not parent.is_dir():
-        return removed
+        return []
     names = {m["name"] for p in parent.iterdir() if (m := STAGING.match(p.name))}
     for name in sorted(names):
         out = parent / name
+        if out.resolve() in set(_resolved(inputs)):
+            continue
         fd = _acquire(out)
         if fd is None:
             continue
         try:
-            removed += _recover(out, inputs)
+            _recover(out, inputs)
         finally:
             _release(out, fd)
-    return removed
+    return _empty_trash(parent)
 
 
 # --- the run ----------------------------------------------------------------------------------
@@ -207,35 +255,66 @@ def output_folder(out: Path, force: bool, inputs: tuple[Path | None, ...] = ()) 
                 shutil.rmtree(staging, ignore_errors=True)
 
 
+COMMITTED: list[Path] = []  # the output folders this process has put in place (what an interrupt leaves)
+
+
 def _commit(staging: Path, out: Path) -> None:
     """Swap the finished staging folder in for OUT with Ctrl-C and SIGTERM held back (they take
-    effect right after): OUT is the old results or the new, never neither. Should the second
-    rename fail, the old OUT is put back."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    blocked = hasattr(signal, "pthread_sigmask")
-    if blocked:
-        signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
+    effect right after, as InterruptedAfterCommit): OUT is the old results or the new, never
+    neither. A journal beside OUT marks the swap, so a run killed in it gets the former OUT
+    back (_recover); should the second rename fail, the old OUT is put back at once."""
+    with _signals_held() as held:
         if not out.exists() and not out.is_symlink():
             staging.rename(out)
             (out / STAGING_MARKER).unlink()
-            return
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        out.rename(old)
-        try:
-            staging.rename(out)
-        except BaseException:
-            old.rename(out)
-            raise
-        (out / STAGING_MARKER).unlink()
-        # the new results are in place; the old ones go (what cannot be removed is cleared next run)
-        if old.is_dir() and not old.is_symlink():
-            shutil.rmtree(old, ignore_errors=True)
         else:
-            old.unlink(missing_ok=True)
-    finally:
-        if blocked:
+            pid = os.getpid()
+            old, journal = out.parent / f".{out.name}.old-{pid}", out.parent / f".{out.name}.swap-{pid}"
+            _write_synced(journal, SWAP_JOURNAL)
+            out.rename(old)
             try:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
-            except KeyboardInterrupt as exc:  # held back during the swap, delivered now
-                raise InterruptedAfterCommit(str(exc)) from None
+                staging.rename(out)
+            except BaseException:
+                old.rename(out)
+                journal.unlink(missing_ok=True)
+                raise
+            (out / STAGING_MARKER).unlink()
+            trash = _to_trash(old, mark=True)  # the new results are in place; the old ones go
+            journal.unlink(missing_ok=True)
+            if trash is not None:
+                shutil.rmtree(trash, ignore_errors=True) if trash.is_dir() else trash.unlink(missing_ok=True)
+        COMMITTED.append(out)
+    if held:
+        raise InterruptedAfterCommit(f"signal {held[0]}")
+
+
+def _write_synced(path: Path, text: str) -> None:
+    fd = os.open(path, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
+    try:
+        os.write(fd, text.encode())
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextmanager
+def _signals_held() -> Iterator[list[int]]:
+    """Ctrl-C and SIGTERM recorded instead of acted on for the block (yields the list they are
+    recorded in). Python runs signal handlers in the main thread only, whichever thread the
+    operating system gave the signal to, so swapping the handlers holds them all; outside the
+    main thread nothing can be swapped and none is held."""
+    import threading
+
+    held: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield held
+        return
+    wanted = [sig for sig in (getattr(signal, "SIGINT", None), getattr(signal, "SIGTERM", None)) if sig is not None]
+    before = {sig: signal.getsignal(sig) for sig in wanted}
+    for sig in wanted:
+        signal.signal(sig, lambda signum, frame: held.append(signum))
+    try:
+        yield held
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)

@@ -17,8 +17,9 @@ from boomtip.tools.cli.bench import bench_app
 from boomtip.data.io.output_folder import locked_output
 from boomtip.data.keys import settings_dump
 from boomtip.tools.config.settings import processing_settings
-from boomtip.tools.cli.common import (INTERRUPTED_STUDY, ScenarioOpt, SetOpt, console, progress_bar, resolve_scenario,
-                                       scenario_inputs, terminate_like_interrupt, user_errors)
+from boomtip.tools.cli.common import (INTERRUPTED_STUDY, INTERRUPTED_STUDY_UNSTARTED, ScenarioOpt, SetOpt, console,
+                                       progress_bar, resolve_scenario, scenario_inputs, terminate_like_interrupt,
+                                       user_errors)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Point-cloud perception for offshore cranes.")
 app.add_typer(bench_app, name="bench")
@@ -315,7 +316,10 @@ def _study(tasks, out: Path, grid_keys: list[str], labels: dict, kpis: list[str]
     check_executor(executor)
     study = {"scenario": scenario_dump, "grid": grid_keys, "tasks": [[t.id, list(t.overrides), t.duration_s, t.recording]
                                                                      for t in tasks]}
-    with locked_output(out, inputs) as out, user_errors(INTERRUPTED_STUDY):  # the study writes OUT in place (--resume)
+    def interrupted() -> str:  # the study writes OUT in place: --resume goes on once it has begun
+        return INTERRUPTED_STUDY if (Path(out) / "study.json").is_file() else INTERRUPTED_STUDY_UNSTARTED
+
+    with locked_output(out, inputs) as out, user_errors(interrupted):
         done = prepare_study_dir(out, force, resume, json.loads(json.dumps(study)), inputs)
         with progress_bar(len(tasks), "tasks") as advance, make_executor(executor, workers, scheduler) as pool:
             rows = run_study(tasks, out, grid_keys, pool, done, advance)

@@ -7,7 +7,7 @@ import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import typer
 from rich.console import Console
@@ -15,7 +15,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeRemainingColumn
 from rich.text import Text
 
-from boomtip.data.io.output_folder import InterruptedAfterCommit
+from boomtip.data.io.output_folder import COMMITTED, InterruptedAfterCommit
 from boomtip.data.io.pcd import PcdError
 from boomtip.data.io.recording import RecordingError
 from boomtip.tools.config.scenario import ScenarioError, load_scenario
@@ -29,24 +29,27 @@ SetOpt = typer.Option(None, "--set", help="Override a scenario key: dotted.key=v
 
 INTERRUPTED_RUN = "no output was replaced and no input was touched; the run's partial results were removed"
 INTERRUPTED_STUDY = "no input was touched; the finished runs are in runs.csv: --resume does the rest"
+INTERRUPTED_STUDY_UNSTARTED = "no input was touched; the study had not started (nothing to --resume)"
 
 
 @contextmanager
-def user_errors(interrupted: str = INTERRUPTED_RUN) -> Iterator[None]:
+def user_errors(interrupted: str | Callable[[], str] = INTERRUPTED_RUN) -> Iterator[None]:
     """Turn expected user-input errors into one clear message and exit code 2; an interrupt
-    into one line saying what `interrupted` leaves behind, and exit code 130."""
+    into one line saying what it leaves behind (`interrupted`, or a function that says it),
+    and exit code 130."""
+    COMMITTED.clear()  # this command's output folders only
     try:
         yield
     except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
         console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)  # a key's [a, b] is not markup
         raise typer.Exit(2) from None
-    except InterruptedAfterCommit as exc:
-        console.print(f"[bold yellow]stopped ({escape(str(exc) or 'interrupt')}):[/] after the results were in place; "
-                      "the output folder is complete", highlight=False)
-        raise typer.Exit(130) from None
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (terminate_like_interrupt)
         why = str(exc) or "interrupt"
-        console.print(f"[bold yellow]stopped ({escape(why)}):[/] {interrupted}", highlight=False)
+        if isinstance(exc, InterruptedAfterCommit) or COMMITTED:  # the results were already in place
+            left = f"after the results were written to {', '.join(map(str, COMMITTED))}: they are complete"
+        else:
+            left = interrupted() if callable(interrupted) else interrupted
+        console.print(f"[bold yellow]stopped ({escape(why)}):[/] {escape(left)}", highlight=False)
         raise typer.Exit(130) from None
     except OSError as exc:  # a read-only or full disk: say so; the staging folder is already gone
         where = f" {exc.filename}" if exc.filename else ""

@@ -73,6 +73,7 @@ def prepare_study_dir(out: Path, force: bool, resume: bool, study: dict, inputs:
             return [r for r in read_rows(out / "runs.csv") if r.get("status") == "ok"]
         if not force:
             raise RecordingError(f"{out} is not empty; pass --resume to finish its study or --force to replace it")
+        (out / "study.json").unlink(missing_ok=True)  # first: a folder half deleted is no study to resume
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "study.json", study)

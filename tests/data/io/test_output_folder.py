@@ -100,18 +100,43 @@ def _staging(path, marker=True):
     return path
 
 
+def _journal(parent, name, pid):
+    (parent / f".{name}.swap-{pid}").write_text("boomtip swap\n")
+
+
 def test_what_dead_runs_left_is_cleared_and_nothing_else(tmp_path):
     dead = _staging(tmp_path / ".rec.partial-12345")
     old = _staging(tmp_path / ".rec.old-12345", marker=False)
-    (tmp_path / "rec").mkdir()  # rec exists: its old copy is a leftover
+    _journal(tmp_path, "rec", 12345)
+    (tmp_path / "rec").mkdir()  # rec exists: its old copy is a finished swap's leftover
     foreign = _staging(tmp_path / ".notes.partial-7", marker=False)  # a user's folder of that name: no marker
     huge = _staging(tmp_path / (".x.partial-" + "9" * 30))  # not a PID
     keep = _staging(tmp_path / "rec.partial-1")  # not a staging folder's name
     with output_folder(tmp_path / "out", force=False):
         pass
-    assert not dead.exists() and not old.exists()
+    assert not dead.exists() and not old.exists() and not (tmp_path / ".rec.swap-12345").exists()
     assert foreign.is_dir() and huge.is_dir() and keep.is_dir()
+    assert not list(tmp_path.glob(".boomtip-trash-*"))
     assert clear_dead_staging(tmp_path / "missing") == []
+
+
+def test_a_users_dot_old_files_are_never_taken_for_a_swap(tmp_path):
+    """`.NAME.old-DIGITS` without boomtip's journal beside it is a user's backup: never renamed
+    nor deleted, with or without NAME, and whatever --out is."""
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "todo.txt").write_text("x")
+    backup = _staging(tmp_path / ".notes.old-20240101", marker=False)
+    profile = tmp_path / ".profile.old-2"
+    profile.write_text("bak")
+    fake_journal = tmp_path / ".profile.swap-2"
+    fake_journal.write_text("mine")
+    with output_folder(tmp_path / "results", force=False):
+        pass
+    with pytest.raises(OutputError, match="not empty"):
+        with output_folder(tmp_path / "notes", force=False):
+            pass
+    assert backup.is_dir() and profile.read_text() == "bak" and fake_journal.read_text() == "mine"
+    assert not (tmp_path / "profile").exists()
 
 
 def test_a_staging_folder_named_as_an_input_is_never_removed(tmp_path):
@@ -121,11 +146,37 @@ def test_a_staging_folder_named_as_an_input_is_never_removed(tmp_path):
 
 def test_a_swap_cut_short_gets_the_former_out_back(tmp_path):
     old = _staging(tmp_path / ".out.old-4242", marker=False)  # killed between the two renames
+    _journal(tmp_path, "out", 4242)
     partial = _staging(tmp_path / ".out.partial-4242")
     with pytest.raises(OutputError, match="not empty"):
         with output_folder(tmp_path / "out", force=False):
             pass
     assert (tmp_path / "out" / "frame.pcd").is_file() and not old.exists() and not partial.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_ctrl_c_in_the_swap_takes_effect_after_it_with_the_results_in_place(tmp_path, monkeypatch):
+    import signal as sig
+
+    from boomtip.data.io.output_folder import InterruptedAfterCommit
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "a").write_text("first")
+    real = pathlib.Path.rename
+
+    def interrupted_rename(self, target):  # Ctrl-C lands between the two renames
+        if ".partial-" in self.name:
+            os.kill(os.getpid(), sig.SIGINT)
+        return real(self, target)
+
+    monkeypatch.setattr(pathlib.Path, "rename", interrupted_rename)
+    with pytest.raises(InterruptedAfterCommit):
+        with output_folder(out, force=True) as staging:
+            (staging / "a").write_text("second")
+    monkeypatch.undo()
+    assert (out / "a").read_text() == "second" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert sig.getsignal(sig.SIGINT) is sig.default_int_handler
 
 
 def test_a_live_runs_staging_beside_another_out_is_kept(tmp_path):
