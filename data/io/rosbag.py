@@ -365,32 +365,34 @@ class RosBagSource(FrameSource):
 
 
 def in_stamp_order(frames: Iterator[Frame], window_s: float = REORDER_WINDOW_S) -> Iterator[Frame]:
-    """Frames in time-stamp order: a bag holds messages in the order they were received, and two
-    publishers (or a network) deliver some late. Each frame waits until a frame `window_s` newer
-    has arrived; one that arrives later than that, or repeats the stamp of its sensor's previous
-    frame, becomes a missing frame with that reason (a filter cannot go back in time)."""
-    heap: list[tuple[float, int, Frame]] = []
-    last_out = -math.inf
-    last_of: dict[str, float] = {}
+    """Each sensor's frames in time-stamp order: a bag holds messages in the order they were
+    received, and a publisher (or a network) delivers some late. A frame waits until a frame of
+    its sensor `window_s` newer has arrived; one of its sensor arriving later than that, or
+    repeating its sensor's previous stamp, becomes a missing frame with that reason (a filter
+    cannot go back in time). Sensors are not reordered against each other: one that lags the
+    other as a whole (its latency) keeps every frame, and the fusion places it in time."""
+    heaps: dict[str, list[tuple[float, int, Frame]]] = {}
+    last_out: dict[str, float] = {}
     for order, frame in enumerate(frames):
-        if frame.t_s < last_out:
-            yield frame if frame.error else _missing(frame, f"stamped {last_out - frame.t_s:.3f} s before a frame "
-                                                            f"already given (it arrived more than {window_s:g} s late)")
+        heap, last = heaps.setdefault(frame.sensor, []), last_out.get(frame.sensor, -math.inf)
+        if frame.t_s < last:
+            yield frame if frame.error else _missing(frame, f"stamped {last - frame.t_s:.3f} s before a {frame.sensor} "
+                                                            f"frame already given (it arrived more than {window_s:g} s late)")
             continue
         heapq.heappush(heap, (frame.t_s, order, frame))
         while heap and heap[0][0] <= frame.t_s - window_s:
-            last_out = yield from _emit(heapq.heappop(heap)[2], last_of, last_out)
-    while heap:
-        last_out = yield from _emit(heapq.heappop(heap)[2], last_of, last_out)
+            yield from _emit(heapq.heappop(heap)[2], last_out)
+    rest = sorted(item for heap in heaps.values() for item in heap)
+    for _, _, frame in rest:
+        yield from _emit(frame, last_out)
 
 
-def _emit(frame: Frame, last_of: dict[str, float], last_out: float):
-    if frame.error is None and last_of.get(frame.sensor) == frame.t_s:
+def _emit(frame: Frame, last_out: dict[str, float]) -> Iterator[Frame]:
+    if frame.error is None and last_out.get(frame.sensor) == frame.t_s:
         yield _missing(frame, f"repeats the stamp {frame.t_s:.6f} s of the previous {frame.sensor} frame")
-    else:
-        last_of[frame.sensor] = frame.t_s
-        yield frame
-    return max(last_out, frame.t_s)
+        return
+    last_out[frame.sensor] = max(last_out.get(frame.sensor, -math.inf), frame.t_s)
+    yield frame
 
 
 def _missing(frame: Frame, why: str) -> Frame:

@@ -27,7 +27,9 @@ __all__ = ["bad_samples", "drop_bad_samples", "STEP_FLOOR_RAD", "STEP_NOISE_SIGM
 # than its noise, or one without noise).
 STEP_NOISE_SIGMAS = 8.0
 STEP_FLOOR_RAD = 0.005
-STUCK_MIN_S = 1.0  # every angle bit-identical this long, in a log that otherwise moves: a frozen sensor
+STUCK_MIN_S = 1.0  # every value bit-identical this long, in a log that otherwise changes: a frozen sensor
+STILL_LOG_SHARE = 0.5  # a log repeating more than half its samples is still or coarse, not frozen
+MAX_GLITCH_S = 1.0  # a stretch longer than this is kept even when it does not continue its neighbours
 MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
 
 
@@ -50,16 +52,17 @@ def bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: d
         kept = np.zeros(len(table), dtype=bool)
         kept[in_order] = True
         for k in ok[~kept[ok]]:
-            before = in_order[in_order < k]
-            if len(before) and t[k] <= t[before[-1]]:
-                why[k] = (f"time {float(t[k])!r} is not after the previous sample's {float(t[before[-1]])!r}; "
+            j = int(np.searchsorted(in_order, k)) - 1  # the last kept sample before k
+            if j >= 0 and t[k] <= t[in_order[j]]:
+                why[k] = (f"time {float(t[k])!r} is not after the previous sample's {float(t[in_order[j]])!r}; "
                           "expected strictly increasing times")
             else:
                 why[k] = f"time {float(t[k])!r} is after the samples that follow it; expected strictly increasing times"
         ok = in_order
     step_cols = [(names.index(n), rate) for n, rate in steps.items() if n in names]
     if len(ok) > 1 and step_cols:
-        for k, reason in _stuck(table[ok], t[ok], [j for j, _ in step_cols], names):
+        values = [j for j in range(len(names)) if names[j] != time_column]
+        for k, reason in _stuck(table[ok], t[ok], values, names):
             why[ok[k]] = reason
         ok = np.array([k for k in ok if why[k] is None], dtype=int)
     if len(ok) > 1 and step_cols:
@@ -69,11 +72,13 @@ def bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: d
 
 
 def _stuck(table: np.ndarray, t: np.ndarray, cols: list[int], names: list[str]) -> list[tuple[int, str]]:
-    """(row, why) of the samples of a frozen sensor: every angle column bit-identical to the
-    sample before for STUCK_MIN_S or longer, in a log whose angles otherwise move (a log that
-    never moves, a level rig's, is what it is). The run's first sample is kept."""
+    """(row, why) of the samples of a frozen sensor: every value (angles and rates) bit-identical
+    to the sample before for STUCK_MIN_S or longer, in a log whose values otherwise change from
+    sample to sample. A log that mostly repeats itself (a level rig's, a vessel at a quay read
+    in coarse steps) is what it is: no sample of it is called frozen. The run's first sample is
+    kept."""
     same = np.all(np.diff(table[:, cols], axis=0) == 0.0, axis=1)
-    if not same.any() or same.all():
+    if not same.any() or np.mean(same) > STILL_LOG_SHARE:
         return []
     edges = np.diff(np.concatenate([[0], same.astype(np.int8), [0]]))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # rows [s+1, e] repeat row s
@@ -161,7 +166,9 @@ def _excess(a: np.ndarray, b: np.ndarray, dt: float | np.ndarray, cols: np.ndarr
 
 def _glitches(table: np.ndarray, t: np.ndarray, step_cols: list[tuple[int, float]],
               names: list[str]) -> list[tuple[int, str]]:
-    """(row, why) of the rows in stretches that do not continue the log's longest good stretch."""
+    """(row, why) of the rows in stretches, none longer than MAX_GLITCH_S, that do not continue
+    the log's longest good stretch (a step between two long stretches is a fact of the log, say a
+    sensor's restart: neither side is dropped)."""
     cols = np.array([j for j, _ in step_cols])
     rates = np.array([r for _, r in step_cols])
     tol = _tolerances(table, step_cols)
@@ -176,7 +183,7 @@ def _glitches(table: np.ndarray, t: np.ndarray, step_cols: list[tuple[int, float
     def judge(ref: int, s: int, e: int, first: int) -> bool:
         """Does the stretch [s, e) continue from row ref (its nearest row being `first`)?"""
         exc = _excess(table[ref], table[first], abs(t[first] - t[ref]), cols, rates, tol)
-        if np.all(exc <= 0):
+        if np.all(exc <= 0) or t[e - 1] - t[s] > MAX_GLITCH_S:  # a long stretch is the log, whatever its step
             return True
         c = int(np.argmax(exc))
         step = float(abs(_wrapped(table[first, cols[c]] - table[ref, cols[c]])))

@@ -64,12 +64,10 @@ def estimated_tables(kpis: dict) -> str:
               "last D [m] (3 sigma) | lost |", "|---|---|---|---|---|---|---|"]
     for n, e in kpis.get("estimated", {}).items():
         lost = f"{100 * e['lost_fraction']:.1f} %" if "lost_fraction" in e else "-"
-        if e.get("estimates"):
-            lines.append(f"| {n} | {e['D_min_m']:.3f} to {e['D_max_m']:.3f} | {e['D_dot_abs_max_mps']:.3f} | "
-                         f"{1e3 * e['median_sigma_D_m']:.2f} | {1e3 * e['median_sigma_D_dot_mps']:.2f} | "
-                         f"{e['last_D_m']:.3f} ({3 * e['last_sigma_D_m']:.3f}) at {e['last_t_s']:.1f} s | {lost} |")
-        else:
-            lines.append(f"| {n} | no estimate that is not lost | | | | | {lost} |")
+        D = (f"{e['D_min_m']:.3f} to {e['D_max_m']:.3f}", f"{1e3 * e['median_sigma_D_m']:.2f}",
+             f"{e['last_D_m']:.3f} ({3 * e['last_sigma_D_m']:.3f}) at {e['last_t_s']:.1f} s") if "D_min_m" in e else ("lost", "-", "-")
+        V = (f"{e['D_dot_abs_max_mps']:.3f}", f"{1e3 * e['median_sigma_D_dot_mps']:.2f}") if "D_dot_abs_max_mps" in e else ("lost", "-")
+        lines.append(f"| {n} | {D[0]} | {V[0]} | {D[1]} | {V[1]} | {D[2]} | {lost} |")
     return "\n".join(lines)
 
 

@@ -61,20 +61,24 @@ def lost_kpis(est: Estimates, keep: np.ndarray) -> dict:
 
 
 def estimated_kpis(est: Estimates) -> dict:
-    """A solution without truth: the range of D and D-dot it estimated where it was not lost, its
-    median sigmas, its last estimate and how much of the run after the warm-up it was lost, so a
-    run says what it found even when nothing can score it."""
+    """A solution without truth: the range of D where its D was not lost and of D-dot where its
+    D-dot was not (a Doppler-only solution's D-dot stands without its D), the median sigmas, the
+    last D, and how much of the run after the warm-up it was lost, so a run says what it found
+    even when nothing can score it."""
     have = np.isfinite(est.x[:, 0]) & np.isfinite(est.var[:, 0])
     keep = est.t_s >= (est.t_s[0] if len(est.t_s) else 0.0) + WARMUP_S
     lost = lost_kpis(est, keep)
-    ok = have & ~est.lost.D if est.lost is not None else have
-    if not ok.any():
-        return {"estimates": 0, **lost}
-    x, sd = est.x[ok], np.sqrt(est.var[ok])
-    return {"estimates": int(ok.sum()), "D_min_m": float(x[:, 0].min()), "D_max_m": float(x[:, 0].max()),
-            "D_dot_abs_max_mps": float(np.abs(x[:, 1]).max()), "median_sigma_D_m": float(np.median(sd[:, 0])),
-            "median_sigma_D_dot_mps": float(np.median(sd[:, 1])), "last_t_s": float(est.t_s[ok][-1]),
-            "last_D_m": float(x[-1, 0]), "last_sigma_D_m": float(sd[-1, 0]), **lost}
+    ok_D = have & ~est.lost.D if est.lost is not None else have
+    ok_V = have & ~est.lost.D_dot if est.lost is not None else have
+    out: dict = {"estimates": int((ok_D | ok_V).sum())}
+    if ok_D.any():
+        D, sd = est.x[ok_D, 0], np.sqrt(est.var[ok_D, 0])
+        out.update({"D_min_m": float(D.min()), "D_max_m": float(D.max()), "median_sigma_D_m": float(np.median(sd)),
+                    "last_t_s": float(est.t_s[ok_D][-1]), "last_D_m": float(D[-1]), "last_sigma_D_m": float(sd[-1])})
+    if ok_V.any():
+        out.update({"D_dot_abs_max_mps": float(np.abs(est.x[ok_V, 1]).max()),
+                    "median_sigma_D_dot_mps": float(np.median(np.sqrt(est.var[ok_V, 1])))})
+    return {**out, **lost}
 
 
 def consistency(est: Estimates, truth: Truth, keep: np.ndarray) -> dict:

@@ -152,22 +152,33 @@ def test_a_frozen_sensor_is_dropped_after_its_first_sample_and_a_still_log_is_no
     roll = 0.02 * np.sin(t) + np.random.default_rng(5).normal(0.0, 1e-4, len(t))
     path = tmp_path / "mru.csv"
     frozen = roll.copy()
-    frozen[600:1000] = frozen[600]  # 2 s stuck; yaw is constant in _mru_csv, pitch is frozen below
     _mru_csv(path, t, frozen)
     lines = path.read_text().splitlines()
-    head = lines[0].split(",")
-    ip = head.index("pitch")
-    ref = lines[601].split(",")[ip]
-    for k in range(601, 1001):
-        v = lines[k].split(",")
-        v[ip] = ref
-        lines[k] = ",".join(v)
+    for k in range(602, 1001):  # 2 s stuck: the sensor repeats its whole sample of t = 3.000 s (line 602)
+        lines[k] = ",".join(lines[k].split(",")[:1] + lines[601].split(",")[1:])
     path.write_text("\n".join(lines) + "\n")
     cols, notes = _read(path)
     assert len(cols["t"]) == len(t) - 399 and "frozen sensor" in notes[0] and "unchanged for 2 s from t = 3.000 s" in notes[0]
     still = tmp_path / "still.csv"
-    _mru_csv(still, t, np.zeros_like(t))  # roll never moves, pitch does: not every angle is frozen
+    _mru_csv(still, t, np.zeros_like(t))  # roll never moves, pitch does: not every value is frozen
     assert _read(still)[1] == []
+    level = tmp_path / "level.csv"  # a level rig's log of zeros with one flicker: still, not frozen
+    lines = [",".join(MRU_COLUMNS)] + [f"{k / RATE_HZ!r},0.0,0.0,0.0,0.0,0.0,0.0" for k in range(2000)]
+    lines[1001] = "5.0,0.0001,0.0,0.0,0.0,0.0,0.0"
+    level.write_text("\n".join(lines) + "\n")
+    assert _read(level)[1] == []
+
+
+def test_a_step_between_two_long_stretches_drops_neither(tmp_path):
+    """A sensor restarting with another offset: both sides are the log (the filters see the
+    step); only a stretch shorter than a second that does not continue its neighbours is a glitch."""
+    t = np.arange(0, 10, 1 / RATE_HZ)
+    roll = 0.02 * np.sin(t)
+    roll[700:] += 0.3
+    path = tmp_path / "mru.csv"
+    _mru_csv(path, t, roll)
+    cols, notes = _read(path)
+    assert notes == [] and len(cols["t"]) == len(t)
 
 
 def test_a_simulated_mrus_glitch_and_freeze_are_screened_as_a_files_are():

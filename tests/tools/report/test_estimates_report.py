@@ -210,3 +210,18 @@ def test_the_feeders_motion_without_truth_is_its_spread_and_sigma():
     line = estimated_motion_line(e)
     assert "r/p/y 2.00 / 0.00 / 0.00 deg" in line and "median sigma x/y/z 10 / 10 / 10 mm" in line
     assert estimated_motion_line({"samples": 0}) is None
+
+
+def test_a_doppler_only_solution_keeps_its_d_dot_when_its_d_is_lost():
+    from boomtip.fusion.solutions import FusionConfig, lost_estimates
+    from boomtip.tools.report.kpis import estimated_kpis
+
+    e = estimates()["fused"]
+    var = e.var.copy()
+    var[:, 0] = 2.0**2  # D from the start only: sigma 2 m
+    x = e.x.copy()
+    x[:, 1] = np.linspace(-0.5, 0.8, len(x))
+    doppler = Estimates("doppler_radar", e.t_s, x, var, 1.0, 10, {}, lost_estimates(x, var, FusionConfig()))
+    k = estimated_kpis(doppler)
+    assert k["lost_fraction"] == 1.0 and "D_min_m" not in k
+    assert k["D_dot_abs_max_mps"] == pytest.approx(0.8) and k["median_sigma_D_dot_mps"] == pytest.approx(0.005)
