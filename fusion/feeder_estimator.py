@@ -109,6 +109,16 @@ class FeederEstimate:
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the map frame
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
     online: CausalEstimates | None = None
+    nis: dict | None = None  # per update kind: NIS per degree of freedom and updates (nis_summary)
+
+
+NIS_TOO_LARGE = 3.0  # innovations this much beyond their predicted covariance: the filter is overconfident
+
+
+def nis_summary(nis: dict[str, list[float]]) -> dict[str, dict]:
+    """Per update kind, the mean normalised innovation squared per degree of freedom (1 for an
+    honest covariance; well below for measurement noises stated with margin) and the updates."""
+    return {kind: {"per_dof": round(s / dof, 4), "updates": int(n)} for kind, (s, dof, n) in nis.items() if dof > 0}
 
 
 class RadarOffset:
@@ -395,9 +405,13 @@ class FeederEstimator:
         pose, rates, var = estimates_in_feeder_frame(out.x, out.P, self.tips, self.pivots, final, *sigmas)
         t = np.asarray(out.t_s)
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
+        nis = nis_summary(out.nis)
+        notes += [f"feeder: the {kind} updates' innovations are {v['per_dof']:.1f} times what the filter's covariance "
+                  "predicts (NIS per degree of freedom, 1 when consistent): its sigmas are too small here"
+                  for kind, v in nis.items() if v["per_dof"] > NIS_TOO_LARGE]
         return FeederEstimate(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), final.tilt, final.line,
                               out.counts, notes, final.T_map_feeder, self._feeder_mru_summary(),
-                              causal_estimates(out, self.tips, self.pivots, d, keep, *sigmas))
+                              causal_estimates(out, self.tips, self.pivots, d, keep, *sigmas), nis)
 
     def _frame_data(self, lines: list[tuple[float, int]], hull_yaws: list[float]) -> FrameData:
         """The deck normals, the own hull's and the feeder's edges, each with the time it was known."""

@@ -83,6 +83,9 @@ class FeederEstimates:
     x: list[np.ndarray] = field(default_factory=list)
     P: list[np.ndarray] = field(default_factory=list)
     counts: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> accepted / gated / re-acquired / bad
+    # kind -> [sum of normalised innovations squared, sum of their degrees of freedom, updates]:
+    # a consistency check that needs no truth (NIS per dof is 1 where the covariance is honest)
+    nis: dict[str, list[float]] = field(default_factory=dict)
 
 
 class FeederFilter:
@@ -175,6 +178,9 @@ class FeederFilter:
             counts["bad"] += 1
             return False
         d2 = float(y @ Sinv @ y)
+        if np.isfinite(d2):
+            acc = self.out.nis.setdefault(kind, [0.0, 0.0, 0.0])
+            acc[0], acc[1], acc[2] = acc[0] + d2, acc[1] + len(z), acc[2] + 1
         if d2 > chi2_ppf(self.cfg.gate_probability, len(z)):
             self.rejections[kind] = self.rejections.get(kind, 0) + 1
             if self.rejections[kind] <= self.cfg.max_rejections:

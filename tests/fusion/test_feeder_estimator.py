@@ -444,3 +444,21 @@ def test_finish_keeps_one_row_per_time():
     assert res.t_s.tolist() == [19.0, 19.1, 19.2] and res.pose.shape == (3, 6) and res.var.shape == (3, 12)
     assert res.t_definition_s == 19.0 and np.all(np.isfinite(res.pose))
     assert any("under 30 s of deck planes" in n for n in res.notes)
+
+
+def test_the_innovations_are_summed_per_kind_and_an_overconfident_kind_is_said():
+    from boomtip.fusion.feeder_estimator import NIS_TOO_LARGE, nis_summary
+
+    from boomtip.fusion.feeder_filter import FeederFilter
+
+    assert nis_summary({"registration": [30.0, 60.0, 20.0], "doppler": [0.0, 0.0, 0.0]}) == {
+        "registration": {"per_dof": 0.5, "updates": 20}}
+    f = FeederFilter()
+    f.start(0.0, np.zeros(6), np.eye(6) * 1e-4, np.zeros(3))
+    H = np.zeros((1, len(f.x)))
+    H[0, 2] = 1.0  # z alone
+    S = float((H @ f.P @ H.T)[0, 0]) + 1e-4
+    y = 2.0 * np.sqrt(S)  # an innovation of 2 sigma: NIS 4
+    assert f._update("probe", np.array([y]), np.zeros(1), H, np.array([[1e-4]]))
+    assert f.out.nis["probe"] == pytest.approx([4.0, 1.0, 1.0])
+    assert nis_summary(f.out.nis)["probe"]["per_dof"] > NIS_TOO_LARGE  # such a kind is said in the notes
