@@ -30,11 +30,13 @@ from boomtip.data.frames import AttitudeNoise, LevellingAttitude, MruLog
 from boomtip.data.installation import Installation
 from boomtip.data.poses import inverse, pose_matrix
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_angle_sigma, complementary_attitude
+from boomtip.fusion.consistency import nis_summary, overconfident_notes
 from boomtip.fusion.feeder_filter import FeederFilter, FeederFilterConfig
 from boomtip.fusion.feeder_frame import CausalEstimates, FrameData, causal_estimates, estimates_in_feeder_frame, frame_at, levelling_at
 from boomtip.fusion.level_calibration import Tilt
 from boomtip.fusion.models.relative_motion import attitude_pose_cov, condition_on, deck_plane, yaw_only
 from boomtip.fusion.mru_bridge import MruBridge, MruGapConfig
+from boomtip.fusion.radar_offset import RadarOffset, RadarOffsetConfig
 
 __all__ = ["FeederEstimatorConfig", "FeederEstimator", "FeederEstimate", "DeckMeasurement", "RadarOffsetConfig"]
 
@@ -63,21 +65,6 @@ class FeederEstimatorConfig(BaseModel):
     radar_deck_after_s: float = Field(0.5, gt=0, description="the radar's deck plane is used once the LiDAR has had none this long")
     mru_gap: MruGapConfig = MruGapConfig()
     calibration_min_s: float = Field(30.0, gt=0, description="deck planes needed before the levelling calibration applies")
-
-
-@dataclass(frozen=True)
-class RadarOffsetConfig:
-    """How the radar's registration is used (from perception's RadarRegistrationConfig): its
-    offset from the LiDAR's learnt from every `learn_every`-th radar frame while the LiDAR
-    registers, over at most `offset_frames`; with the LiDAR out for `after_s`, an update once the
-    offset has `min_offset_frames`, only along directions known better than `max_sigma_m`."""
-
-    enabled: bool
-    after_s: float
-    learn_every: int
-    offset_frames: int
-    min_offset_frames: int
-    max_sigma_m: float
 
 
 @dataclass(frozen=True)
@@ -110,40 +97,6 @@ class FeederEstimate:
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
     online: CausalEstimates | None = None
     nis: dict | None = None  # per update kind: NIS per degree of freedom and updates (nis_summary)
-
-
-NIS_TOO_LARGE = 3.0  # innovations this much beyond their predicted covariance: the filter is overconfident
-
-
-def nis_summary(nis: dict[str, list[float]]) -> dict[str, dict]:
-    """Per update kind, the mean normalised innovation squared per degree of freedom (1 for an
-    honest covariance; well below for measurement noises stated with margin) and the updates."""
-    return {kind: {"per_dof": round(s / dof, 4), "updates": int(n)} for kind, (s, dof, n) in nis.items() if dof > 0}
-
-
-class RadarOffset:
-    """The radar registration's offset from the LiDAR's (x, y, yaw), learnt while both see the
-    feeder: the radar's mount error (0.05 deg is 2 cm at 25 m) and its noise's bias along
-    the model's edges. A running mean over at most `frames` samples, with its spread."""
-
-    def __init__(self, frames: int) -> None:
-        self.frames = frames
-        self.n = 0
-        self.mean = np.zeros(3)
-        self.mean_square = np.zeros(3)
-
-    def add(self, radar_x_y_yaw: np.ndarray, lidar_x_y_yaw: np.ndarray) -> None:
-        d = np.asarray(radar_x_y_yaw, dtype=float) - lidar_x_y_yaw
-        d[2] = (d[2] + math.pi) % (2.0 * math.pi) - math.pi
-        self.n += 1
-        a = 1.0 / min(self.n, self.frames)
-        self.mean += a * (d - self.mean)
-        self.mean_square += a * (d * d - self.mean_square)
-
-    def covariance(self) -> np.ndarray:
-        """Of the mean: the samples' spread over their (capped) count."""
-        spread = np.maximum(self.mean_square - self.mean * self.mean, 0.0)
-        return np.diag(spread / max(min(self.n, self.frames), 1))
 
 
 class FeederEstimator:
@@ -406,9 +359,7 @@ class FeederEstimator:
         t = np.asarray(out.t_s)
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
         nis = nis_summary(out.nis)
-        notes += [f"feeder: the {kind} updates' innovations are {v['per_dof']:.1f} times what the filter's covariance "
-                  "predicts (NIS per degree of freedom, 1 when consistent): its sigmas are too small here"
-                  for kind, v in nis.items() if v["per_dof"] > NIS_TOO_LARGE]
+        notes += overconfident_notes(nis, "feeder")
         return FeederEstimate(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), final.tilt, final.line,
                               out.counts, notes, final.T_map_feeder, self._feeder_mru_summary(),
                               causal_estimates(out, self.tips, self.pivots, d, keep, *sigmas), nis)

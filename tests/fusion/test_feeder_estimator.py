@@ -447,7 +447,7 @@ def test_finish_keeps_one_row_per_time():
 
 
 def test_the_innovations_are_summed_per_kind_and_an_overconfident_kind_is_said():
-    from boomtip.fusion.feeder_estimator import NIS_TOO_LARGE, nis_summary
+    from boomtip.fusion.consistency import NIS_TOO_LARGE, nis_summary, overconfident_notes
 
     from boomtip.fusion.feeder_filter import FeederFilter
 
@@ -461,4 +461,7 @@ def test_the_innovations_are_summed_per_kind_and_an_overconfident_kind_is_said()
     y = 2.0 * np.sqrt(S)  # an innovation of 2 sigma: NIS 4
     assert f._update("probe", np.array([y]), np.zeros(1), H, np.array([[1e-4]]))
     assert f.out.nis["probe"] == pytest.approx([4.0, 1.0, 1.0])
-    assert nis_summary(f.out.nis)["probe"]["per_dof"] > NIS_TOO_LARGE  # such a kind is said in the notes
+    assert nis_summary(f.out.nis)["probe"]["per_dof"] > NIS_TOO_LARGE
+    assert overconfident_notes(nis_summary(f.out.nis), "feeder") == [
+        "feeder: the probe updates' innovations are 4.0 times what the filter's covariance predicts (NIS per degree "
+        "of freedom, 1 when consistent): its sigmas are too small here"]

@@ -7,7 +7,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from boomtip.fusion.feeder_estimator import RadarOffset
+from boomtip.fusion.radar_offset import RadarOffset
 from boomtip.perception.feeder_radar import RadarRegistrationConfig, detection_covariance, register_radar
 from boomtip.perception.geometry import rpy_matrix
 from boomtip.perception.point_to_plane import Surface

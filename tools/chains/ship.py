@@ -18,7 +18,8 @@ import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.data.poses import inverse, pose_vector
-from boomtip.fusion.feeder_estimator import DeckMeasurement, FeederEstimator, RadarOffsetConfig
+from boomtip.fusion.feeder_estimator import DeckMeasurement, FeederEstimator
+from boomtip.fusion.radar_offset import RadarOffsetConfig
 from boomtip.perception.feeder import FeederPerception, LidarObservation, RadarObservation
 from boomtip.perception.feeder_pipeline import FeederPipeline
 from boomtip.perception.pipeline import FrameResult
