@@ -231,6 +231,9 @@ class Mismatch(StrictModel):
     )
     wind_mps: tuple[float, float] = Field((0.0, 0.0), description="steady wind on block and load, world x, y")
     encoder_bias_deg: EncoderBias = EncoderBias()
+    lidar_noise_scale: float = Field(1.0, ge=0, le=100, description="true LiDAR range noise = stated x this")
+    radar_noise_scale: float = Field(1.0, ge=0, le=100, description="true radar range, angle and range-rate noise = "
+                                     "stated x this")
 
     @model_validator(mode="after")
     def _angles_and_wind_finite(self) -> "Mismatch":
@@ -275,11 +278,17 @@ class Radar(RadarSpec):
 
 
 def true_lidar(spec: LidarSpec, world: World) -> Lidar:
-    return Lidar.model_validate({**spec.model_dump(), **world.lidar.model_dump()})
+    """The LiDAR as it really is: its spec, the world's behaviour, its noise as the world scales it."""
+    real = Lidar.model_validate({**spec.model_dump(), **world.lidar.model_dump()})
+    # a copy, not validated: a scaled noise may lie beyond what a spec sheet may state
+    return real.model_copy(update={"range_noise_m": spec.range_noise_m * world.mismatch.lidar_noise_scale})
 
 
 def true_radar(spec: RadarSpec, world: World) -> Radar:
-    return Radar.model_validate(spec.model_dump())
+    """The radar as it really is: its spec with every noise as the world scales it."""
+    k = world.mismatch.radar_noise_scale
+    noises = ("range_noise_m", "azimuth_noise_deg", "elevation_noise_deg", "range_rate_noise_mps")
+    return Radar.model_validate(spec.model_dump()).model_copy(update={n: getattr(spec, n) * k for n in noises})
 
 
 def in_windows(t_s: np.ndarray, windows: Windows) -> np.ndarray:

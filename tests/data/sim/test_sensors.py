@@ -829,3 +829,15 @@ def test_frame_rng_is_default_rng_of_seed_sensor_index(seed):
         assert rng.bit_generator.state == ref.bit_generator.state
         assert np.array_equal(rng.random(9, dtype=np.float32), ref.random(9, dtype=np.float32))
         assert np.array_equal(rng.standard_normal(3), ref.standard_normal(3))
+
+
+def test_the_worlds_noise_scale_makes_the_true_noise_a_multiple_of_the_stated():
+    from boomtip.data.sim.world import true_lidar, true_radar
+    from boomtip.tools.config.scenario import load_scenario
+
+    s = load_scenario("sts-loaded", ["world.mismatch.lidar_noise_scale=2.5", "world.mismatch.radar_noise_scale=3"])
+    lidar, radar = true_lidar(s.installation.lidar, s.world), true_radar(s.installation.radar, s.world)
+    assert lidar.range_noise_m == 2.5 * s.installation.lidar.range_noise_m > 0
+    for n in ("range_noise_m", "azimuth_noise_deg", "elevation_noise_deg", "range_rate_noise_mps"):
+        assert getattr(radar, n) == 3 * getattr(s.installation.radar, n)
+    assert s.installation.lidar.range_noise_m == load_scenario("sts-loaded").installation.lidar.range_noise_m  # stated: unchanged
