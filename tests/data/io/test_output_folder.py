@@ -160,21 +160,10 @@ def test_ctrl_c_in_the_swap_takes_effect_after_it_with_the_results_in_place(tmp_
 
     from boomtip.data.io.output_folder import InterruptedAfterCommit
 
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "a").write_text("first")
-    real = pathlib.Path.rename
+    def interrupt():  # Ctrl-C lands between the two renames
+        os.kill(os.getpid(), sig.SIGINT)
 
-    def interrupted_rename(self, target):  # Ctrl-C lands between the two renames
-        if ".partial-" in self.name:
-            os.kill(os.getpid(), sig.SIGINT)
-        return real(self, target)
-
-    monkeypatch.setattr(pathlib.Path, "rename", interrupted_rename)
-    with pytest.raises(InterruptedAfterCommit):
-        with output_folder(out, force=True) as staging:
-            (staging / "a").write_text("second")
-    monkeypatch.undo()
+    out = _swap_with(tmp_path, monkeypatch, interrupt, InterruptedAfterCommit)
     assert (out / "a").read_text() == "second" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
     assert sig.getsignal(sig.SIGINT) is sig.default_int_handler
 
@@ -191,22 +180,32 @@ def test_a_live_runs_staging_beside_another_out_is_kept(tmp_path):
 
 
 def test_a_failed_swap_puts_the_former_out_back(tmp_path, monkeypatch):
+    def disk_full():
+        raise OSError(28, "No space left on device")
+
+    out = _swap_with(tmp_path, monkeypatch, disk_full, OSError)
+    assert (out / "a").read_text() == "first" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def _swap_with(tmp_path, monkeypatch, before_staging_moves, raises):
+    """Replace OUT (holding a = first) by a run writing a = second, calling `before_staging_moves`
+    just before the staging folder is renamed into place; the run raises `raises`."""
     out = tmp_path / "out"
     out.mkdir()
     (out / "a").write_text("first")
     real = pathlib.Path.rename
 
-    def failing(self, target):
+    def rename(self, target):
         if ".partial-" in self.name:
-            raise OSError(28, "No space left on device")
+            before_staging_moves()
         return real(self, target)
 
-    monkeypatch.setattr(pathlib.Path, "rename", failing)
-    with pytest.raises(OSError):
+    monkeypatch.setattr(pathlib.Path, "rename", rename)
+    with pytest.raises(raises):
         with output_folder(out, force=True) as staging:
             (staging / "a").write_text("second")
     monkeypatch.undo()
-    assert (out / "a").read_text() == "first" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    return out
 
 
 REAL = pathlib.Path(__file__).resolve().parents[1] / "real" / "ouster"
