@@ -239,12 +239,14 @@ class RosBagSource(FrameSource):
         return self._mru(rows, topic)
 
     def _screened(self, table: np.ndarray, names: list[str], topic: str, bounds: dict[str, float],
-                  steps: dict[str, float] | None = None, why: list[str | None] | None = None) -> np.ndarray:
+                  steps: dict[str, float] | None = None, why: dict[int, str] | None = None) -> np.ndarray:
         """A stream's good rows in time order: messages out of order are sorted (a bag interleaves
         publishers), a repeated stamp, a bad value or a glitch is dropped and counted (refused
         with --strict); see data/io/samples.py."""
         order = np.argsort(table[:, 0], kind="stable")
-        why = [why[k] for k in order] if why is not None else None
+        position = np.empty_like(order)
+        position[order] = np.arange(len(order))  # a message's row once sorted
+        why = {int(position[k]): w for k, w in (why or {}).items()}
         return drop_bad_samples(table[order], names, f"{self.path}: {topic}", "message",
                                 lambda k: f"stamped {table[order[k], 0]:.3f} s", self.strict,
                                 self._stream_notes, "t", bounds, steps, why)
@@ -258,10 +260,9 @@ class RosBagSource(FrameSource):
             return None
         norm = np.linalg.norm(quat, axis=1)
         unit = np.isfinite(norm) & (np.abs(norm - 1.0) < QUATERNION_NORM_TOLERANCE)
-        why: list[str | None] = [None] * len(a)
-        for k in np.flatnonzero(no_orientation | ~unit):
-            why[k] = ("no orientation (REP 145)" if no_orientation[k] else
-                      f"orientation quaternion of norm {float(norm[k])!r} (expected 1)")
+        why = {int(k): "no orientation (REP 145)" if no_orientation[k] else
+               f"orientation quaternion of norm {float(norm[k])!r} (expected 1)"
+               for k in np.flatnonzero(no_orientation | ~unit)}
         quat = np.where(unit[:, None], quat / np.where(unit, norm, 1.0)[:, None], [0.0, 0.0, 0.0, 1.0])
         rpy, rates = mru_from_imu(quat, a[:, 5:8])
         table = np.column_stack([a[:, 0], rpy, rates])

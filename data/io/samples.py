@@ -34,24 +34,24 @@ MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute devia
 
 
 def bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: dict[str, float],
-                steps: dict[str, float]) -> list[str | None]:
-    """Per row of `table` (columns `names`), why it is a bad sample; None for a good one.
+                steps: dict[str, float]) -> dict[int, str]:
+    """The bad rows of `table` (columns `names`) and why each is bad; good rows are absent.
     bounds: column -> largest magnitude; steps: angle column -> largest rate (per second)."""
-    why: list[str | None] = [None] * len(table)
+    why: dict[int, str] = {}
     values = np.nan_to_num(table)
     for j, n in enumerate(names):
-        for k in np.flatnonzero(~np.isfinite(table[:, j]) | (np.abs(values[:, j]) > bounds.get(n, np.inf))):
-            if why[k] is None:
+        for k in np.flatnonzero(~np.isfinite(table[:, j]) | (np.abs(values[:, j]) > bounds.get(n, np.inf))).tolist():
+            if k not in why:
                 v = float(table[k, j])
                 limit = f"expected |{n}| <= {bounds[n]:g}" if np.isfinite(v) and n in bounds else "expected a finite number"
                 why[k] = f"column '{n}' is {v!r} ({limit})"
     t = table[:, names.index(time_column)]
-    ok = np.array([k for k in range(len(table)) if why[k] is None], dtype=int)
+    ok = _rows_not_in(len(table), why)
     if len(ok) > 1 and np.any(np.diff(t[ok]) <= 0):
         in_order = ok[_longest_increasing(t[ok])]
         kept = np.zeros(len(table), dtype=bool)
         kept[in_order] = True
-        for k in ok[~kept[ok]]:
+        for k in ok[~kept[ok]].tolist():
             j = int(np.searchsorted(in_order, k)) - 1  # the last kept sample before k
             if j >= 0 and t[k] <= t[in_order[j]]:
                 why[k] = (f"time {float(t[k])!r} is not after the previous sample's {float(t[in_order[j]])!r}; "
@@ -63,12 +63,18 @@ def bad_samples(table: np.ndarray, names: list[str], time_column: str, bounds: d
     if len(ok) > 1 and step_cols:
         values = [j for j in range(len(names)) if names[j] != time_column]
         for k, reason in _stuck(table[ok], t[ok], values, names):
-            why[ok[k]] = reason
-        ok = np.array([k for k in ok if why[k] is None], dtype=int)
+            why[int(ok[k])] = reason
+        ok = _rows_not_in(len(table), why)
     if len(ok) > 1 and step_cols:
         for k, reason in _glitches(table[ok], t[ok], step_cols, names):
-            why[ok[k]] = reason
+            why[int(ok[k])] = reason
     return why
+
+
+def _rows_not_in(n: int, why: dict[int, str]) -> np.ndarray:
+    good = np.ones(n, dtype=bool)
+    good[list(why)] = False
+    return np.flatnonzero(good)
 
 
 def _stuck(table: np.ndarray, t: np.ndarray, cols: list[int], names: list[str]) -> list[tuple[int, str]]:
@@ -95,17 +101,15 @@ def _stuck(table: np.ndarray, t: np.ndarray, cols: list[int], names: list[str]) 
 def drop_bad_samples(table: np.ndarray, names: list[str], where: str, unit: str, label: Callable[[int], str],
                      strict: bool, notes: list[str] | None, time_column: str = "t",
                      bounds: dict[str, float] | None = None, steps: dict[str, float] | None = None,
-                     why: list[str | None] | None = None) -> np.ndarray:
+                     why: dict[int, str] | None = None) -> np.ndarray:
     """The good rows of a stream's `table`. A bad row (bad_samples, or a reason already in `why`)
     refuses the stream when `strict`, else is dropped and counted in `notes` with the `label`s
     of the first five (`unit` "line", label "12"; "message", "4 (t = ...)"); a stream of mostly bad rows is refused:
     that is no log. `where` names the stream (a file, a bag's topic) in every message."""
-    found = bad_samples(table, names, time_column, bounds or {}, steps or {})
-    why = [given or w for given, w in zip(why or [None] * len(table), found)]
-    bad = np.array([w is not None for w in why], dtype=bool)
-    if not bad.any():
+    why = {**bad_samples(table, names, time_column, bounds or {}, steps or {}), **(why or {})}
+    if not why:
         return table
-    rows = np.flatnonzero(bad)
+    rows = np.array(sorted(why))
     first = int(rows[0])
     if strict:
         raise RecordingError(f"{where}: {unit} {label(first)}: {why[first]}")
@@ -116,7 +120,7 @@ def drop_bad_samples(table: np.ndarray, names: list[str], where: str, unit: str,
         shown = ", ".join(label(int(k)) for k in rows[:5])
         notes.append(f"{where}: dropped {len(rows)} of {len(table)} samples ({unit}s {shown}{', ...' if len(rows) > 5 else ''}): "
                      f"first {why[first]}")
-    return table[~bad]
+    return np.delete(table, rows, axis=0)
 
 
 def _longest_increasing(t: np.ndarray) -> np.ndarray:
