@@ -30,7 +30,7 @@ from boomtip.data.frames import AttitudeNoise, LevellingAttitude, MruLog
 from boomtip.data.installation import Installation
 from boomtip.data.poses import inverse, pose_matrix
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_angle_sigma, complementary_attitude
-from boomtip.fusion.consistency import nis_summary, overconfident_notes
+from boomtip.fusion.consistency import consistency_block, flagged_notes
 from boomtip.fusion.feeder_filter import FeederFilter, FeederFilterConfig
 from boomtip.fusion.feeder_frame import CausalEstimates, FrameData, causal_estimates, estimates_in_feeder_frame, frame_at, levelling_at
 from boomtip.fusion.level_calibration import Tilt
@@ -96,7 +96,7 @@ class FeederEstimate:
     T_map_feeder: np.ndarray | None = None  # the feeder frame in the map frame
     feeder_mru: dict | None = None  # the feeder MRU's offsets as estimated, when there is one
     online: CausalEstimates | None = None
-    nis: dict | None = None  # per update kind: NIS per degree of freedom and updates (nis_summary)
+    consistency: dict | None = None  # per update kind: its innovations' consistency (fusion.consistency)
 
 
 class FeederEstimator:
@@ -358,11 +358,11 @@ class FeederEstimator:
         pose, rates, var = estimates_in_feeder_frame(out.x, out.P, self.tips, self.pivots, final, *sigmas)
         t = np.asarray(out.t_s)
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
-        nis = nis_summary(out.nis)
-        notes += overconfident_notes(nis, "feeder")
+        consistency = consistency_block(out.innovations)
+        notes += flagged_notes(consistency, "feeder")
         return FeederEstimate(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), final.tilt, final.line,
                               out.counts, notes, final.T_map_feeder, self._feeder_mru_summary(),
-                              causal_estimates(out, self.tips, self.pivots, d, keep, *sigmas), nis)
+                              causal_estimates(out, self.tips, self.pivots, d, keep, *sigmas), consistency)
 
     def _frame_data(self, lines: list[tuple[float, int]], hull_yaws: list[float]) -> FrameData:
         """The deck normals, the own hull's and the feeder's edges, each with the time it was known."""

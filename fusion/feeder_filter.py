@@ -15,6 +15,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from boomtip.fusion.consistency import Innovations
+from boomtip.fusion.noise_matching import NoiseMatch, matched_ratio
 from boomtip.fusion.models.relative_motion import (
     ACC,
     BODY_TILT,
@@ -63,6 +65,13 @@ class FeederFilterConfig(BaseModel):
     registration_floor: tuple[float, float] = Field((0.015, 0.025), description="1-sigma a registration is never better than: m (x, y), "
                                                     "deg (yaw); registrations to the merged model are off by up to about this "
                                                     "much, whatever their information says")
+    error_correlation_s: float = Field(0.1, ge=0, description="a kind of measurement's errors are taken as independent only "
+                                       "this far apart (the levelling's attitude, the deck's waves and the registration's "
+                                       "map are shared by frames closer in time): a kind arriving faster carries its "
+                                       "covariance times this over its interval, so its information per second stays "
+                                       "what independent frames at this spacing would give (0: every frame independent)")
+    noise_memory_s: float = Field(5.0, ge=0, description="a kind noisier than its stated covariance has it widened to "
+                                  "match its recent innovations over about this long (fusion.noise_matching; 0: as stated)")
     init_sigma_rate: tuple[float, float] = Field((0.5, 2.0), description="first-frame 1-sigma of the rates: m/s, deg/s")
     # A feeder MRU (when the source has one): its offsets from the map frame.
     heading_offset_walk_degps: float = Field(0.005, ge=0, description="random walk of the heading offset between the ships' "
@@ -83,9 +92,8 @@ class FeederEstimates:
     x: list[np.ndarray] = field(default_factory=list)
     P: list[np.ndarray] = field(default_factory=list)
     counts: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> accepted / gated / re-acquired / bad
-    # kind -> [sum of normalised innovations squared, sum of their degrees of freedom, updates]:
-    # a consistency check that needs no truth (NIS per dof is 1 where the covariance is honest)
-    nis: dict[str, list[float]] = field(default_factory=dict)
+    # every update's normalised innovation squared per kind: a consistency check that needs no truth
+    innovations: Innovations = field(default_factory=Innovations)
 
 
 class FeederFilter:
@@ -101,6 +109,8 @@ class FeederFilter:
         self.P: np.ndarray | None = None
         self.t_s = float("nan")
         self.rejections: dict[str, int] = {}
+        self.last_update_s: dict[str, float] = {}  # kind -> the time of its last update
+        self.noise_match: dict[str, NoiseMatch] = {}  # kind -> how much noisier than stated it is
         self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self.out = FeederEstimates()
 
@@ -165,23 +175,42 @@ class FeederFilter:
     def _counts(self, kind: str) -> dict[str, int]:
         return self.out.counts.setdefault(kind, {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
 
-    def _update(self, kind: str, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray) -> bool:
+    def shared_error_factor(self, kind: str) -> float:
+        """How much of a kind's error this update shares with its last one: its interval's
+        shortfall from the errors' correlation time (1 when at least that far apart)."""
+        last = self.last_update_s.get(kind)
+        dt = self.t_s - last if last is not None else math.inf
+        return max(1.0, self.cfg.error_correlation_s / dt) if dt > 0 else 1.0
+
+    def _update(self, kind: str, z: np.ndarray, h: np.ndarray, H: np.ndarray, R: np.ndarray,
+                independent: bool = False, matched: bool = True) -> bool:
+        """One gated update; `independent`: this kind's errors do not carry from sample to
+        sample (a data sheet's white noise), else its covariance grows by shared_error_factor;
+        `matched`: its covariance is widened to its innovations (noise_matching)."""
         counts = self._counts(kind)
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(R))):
             counts["bad"] += 1
             return False
+        if not independent:
+            R = R * self.shared_error_factor(kind)
+        self.last_update_s[kind] = self.t_s
         y = z - h
-        S = H @ self.P @ H.T + R
-        try:
+        HPHt = H @ self.P @ H.T
+        match = self.noise_match.get(kind, NoiseMatch())
+        try:  # the monitor's NIS is against the covariance as stated; the update uses it widened
+            self.out.innovations.add(kind, self.t_s, float(y @ np.linalg.solve(HPHt + R, y)), len(z), match.scale)
+            gate = chi2_ppf(self.cfg.gate_probability, len(z))
+            if matched and self.cfg.noise_memory_s > 0:
+                ratio = matched_ratio(y, R, HPHt, gate, match.scale)
+                self.noise_match[kind] = match.after(self.t_s, ratio, self.cfg.noise_memory_s)
+            R = R * match.scale
+            S = HPHt + R
             Sinv = np.linalg.inv(S)
         except np.linalg.LinAlgError:
             counts["bad"] += 1
             return False
         d2 = float(y @ Sinv @ y)
-        if np.isfinite(d2):
-            acc = self.out.nis.setdefault(kind, [0.0, 0.0, 0.0])
-            acc[0], acc[1], acc[2] = acc[0] + d2, acc[1] + len(z), acc[2] + 1
-        if d2 > chi2_ppf(self.cfg.gate_probability, len(z)):
+        if d2 > gate:
             self.rejections[kind] = self.rejections.get(kind, 0) + 1
             if self.rejections[kind] <= self.cfg.max_rejections:
                 counts["gated"] += 1
@@ -236,7 +265,9 @@ class FeederFilter:
         fx, fyaw = self.cfg.registration_floor
         floor = np.diag([fx * fx, fx * fx, (fyaw * DEG) ** 2]) + (extra_cov if extra_cov is not None else 0.0)
         R = np.diag(var) + A @ floor @ A.T
-        return self._update(kind, A @ z_full, A @ h_full, A @ S, R)
+        # Not matched: a registration's error is its map's and its floor's, not a sensor's white
+        # noise, and its innovations carry the state's own error (a drifting pose would widen it).
+        return self._update(kind, A @ z_full, A @ h_full, A @ S, R, matched=False)
 
     def update_point_velocity(self, velocity_level: np.ndarray, cov: np.ndarray, xi_level: np.ndarray) -> bool:
         """The velocity relative to the tip of the feeder's point at xi (radar Doppler); the
@@ -284,7 +315,7 @@ class FeederFilter:
         z[:3] = h[:3] + (z[:3] - h[:3] + math.pi) % (2 * math.pi) - math.pi
         H = numeric_jacobian(feeder_mru_measurement, self.x, np.r_[3:12, OFFSETS])
         R = np.diag([sa * sa] * 3 + [sr * sr] * 3)
-        return self._update("feeder_mru", z, h, H, R)
+        return self._update("feeder_mru", z, h, H, R, independent=True)
 
     def offsets(self) -> tuple[np.ndarray, np.ndarray]:
         """The feeder MRU's offsets (heading offset, body yaw, body tilt about x, y; rad) and their 1-sigmas."""

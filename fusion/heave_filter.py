@@ -30,6 +30,8 @@ from filterpy.kalman import KalmanFilter
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from scipy.stats import chi2
 
+from boomtip.fusion.noise_matching import NoiseMatch, matched_ratio
+
 Quantity = Literal["D", "D_dot"]
 Status = Literal["accepted", "gated", "too_old", "reinitialised", "invalid"]
 
@@ -54,6 +56,9 @@ class HeaveFilterConfig(BaseModel):
         (1.0, 1.0, 1.0), description="1-sigma of [D, D_dot, D_ddot] for unmeasured components"
     )
     max_consecutive_rejections: int = Field(10, ge=0)
+    noise_memory_s: float = Field(5.0, ge=0.0, description="a source noisier than its sigma says has its variance "
+                                  "widened by covariance matching over about this much of its recent innovations "
+                                  "(fusion.noise_matching; 0: sigmas as given)")
     # D's sigma while D has never been measured and no initial_D was given (Doppler-only runs).
     unknown_D_sigma_m: float = Field(100.0, gt=0.0)
 
@@ -168,6 +173,7 @@ class _Checkpoint:
     P: np.ndarray  # (3, 3)
     known: tuple[bool, bool]  # D, D_dot measured at least once
     rejected: tuple[tuple, tuple]  # recent consecutive gated (t, value, sigma) of D, D_dot
+    noise: tuple[tuple[str, NoiseMatch], ...] = ()  # per source: how much noisier than stated it is
 
 
 @dataclass(slots=True)
@@ -176,6 +182,8 @@ class _Entry:
     m: Measurement
     status: Status
     after: _Checkpoint
+    nis: float = math.nan  # the normalised innovation squared it met (NaN: it set its component)
+    noise_scale: float = 1.0  # the factor its stated variance was widened by (noise_matching)
 
 
 def _consistent(rejected: tuple, m: "Measurement") -> bool:
@@ -225,6 +233,8 @@ class HeaveFilter:
         # (measurement, status) for everything add() did not accept, as decided on arrival.
         # A later replay may revise a buffered measurement's gating; add() reports the first call.
         self.rejected: list[tuple[Measurement, Status]] = []
+        # (t_acq, source, NIS) of measurements that can no longer be replayed: final
+        self._settled_nis: list[tuple[float, str, float, float]] = []
 
     # ---- public API -------------------------------------------------------------------------
 
@@ -258,7 +268,7 @@ class HeaveFilter:
         # Roll back to the checkpoint just before the new measurement and replay forward.
         cp = self._entries[pos - 1].after if pos > 0 else self._base
         for entry in self._entries[pos:]:
-            entry.status, entry.after = self._step(cp, entry.m)
+            entry.status, entry.after, entry.nis, entry.noise_scale = self._step(cp, entry.m)
             cp = entry.after
         status = self._entries[pos].status
         self._prune()
@@ -285,6 +295,12 @@ class HeaveFilter:
         if dt_s <= 0.0:
             return cp.x[:, 0].copy(), cp.P.copy()
         return predict_state(cp.x, cp.P, dt_s, self.config.jerk_psd)
+
+    def innovations(self) -> list[tuple[float, str, float, float]]:
+        """(t_acq, source, NIS, noise scale) of every measurement that met the filter's prediction, in
+        acquisition order (a gated one too: its innovation is evidence all the same)."""
+        live = [(e.m.t_acq_s, e.m.source, e.nis, e.noise_scale) for e in self._entries if e.nis == e.nis]
+        return self._settled_nis + live
 
     @property
     def last_time_s(self) -> float:
@@ -319,19 +335,23 @@ class HeaveFilter:
         while n < len(self._entries) and self._entries[n].after.t_s < horizon_s:
             n += 1
         if n:
+            self._settled_nis.extend((e.m.t_acq_s, e.m.source, e.nis, e.noise_scale) for e in self._entries[:n]
+                                     if e.nis == e.nis)
             self._base = self._entries[n - 1].after
             del self._entries[:n]
             del self._keys[:n]
 
-    def _step(self, prev: _Checkpoint | None, m: Measurement) -> tuple[Status, _Checkpoint]:
-        """Predict ``prev`` to m.t_acq_s and apply m; pure apart from the scratch filterpy object."""
+    def _step(self, prev: _Checkpoint | None, m: Measurement) -> tuple[Status, _Checkpoint, float, float]:
+        """Predict ``prev`` to m.t_acq_s and apply m; pure apart from the scratch filterpy object.
+        Also returns the normalised innovation squared m met (NaN when it set its component) and
+        the factor its variance was widened by."""
         kf = self._kf
         if prev is None:  # first measurement ever: start from the prior at its time
             kf.x, kf.P = self._x0, self._P0
-            known, rejected = [False, False], [(), ()]
+            known, rejected, noise = [False, False], [(), ()], {}
         else:
             kf.x, kf.P = prev.x, prev.P
-            known, rejected = list(prev.known), list(prev.rejected)
+            known, rejected, noise = list(prev.known), list(prev.rejected), dict(prev.noise)
             dt_s = m.t_acq_s - prev.t_s
             if dt_s > 0.0:
                 kf.F = transition_matrix(dt_s)
@@ -340,7 +360,10 @@ class HeaveFilter:
                 kf.P = _sym(kf.P)
 
         i = _INDEX[m.quantity]
-        var = m.sigma * m.sigma
+        stated_var = m.sigma * m.sigma
+        match = noise.get(m.source, NoiseMatch())
+        var = stated_var * match.scale
+        nis = math.nan
         if not known[i]:
             status = "accepted"  # the first measurement of a quantity sets that component
             self._set_component(i, m.value, var)
@@ -348,8 +371,12 @@ class HeaveFilter:
             rejected[i] = ()
         else:
             y = m.value - kf.x[i, 0]
-            nis = y * y / (kf.P[i, i] + var)
-            if nis <= self.gate:
+            nis = y * y / (kf.P[i, i] + stated_var)  # the monitor's: against the noise as stated
+            if self.config.noise_memory_s > 0:
+                ratio = matched_ratio(np.array([y]), np.array([[stated_var]]), kf.P[i:i + 1, i:i + 1], self.gate,
+                                       match.scale)
+                noise[m.source] = match.after(m.t_acq_s, ratio, self.config.noise_memory_s)
+            if y * y / (kf.P[i, i] + var) <= self.gate:
                 # (1,1) arrays: a column z, as filterpy needs with H, and R not scalar (skips eye()).
                 kf.update(np.array([[m.value]]), R=np.array([[var]]), H=_H[m.quantity])  # Joseph
                 kf.P = _sym(kf.P)
@@ -366,7 +393,7 @@ class HeaveFilter:
                 keep = self.config.max_consecutive_rejections
                 rejected[i] = (rejected[i] + ((m.t_acq_s, m.value, m.sigma),))[-keep:] if keep else ()
         return status, _Checkpoint(m.t_acq_s, kf.x, kf.P, (known[0], known[1]),
-                                   (rejected[0], rejected[1]))
+                                   (rejected[0], rejected[1]), tuple(noise.items())), float(nis), match.scale
 
     def _set_component(self, i: int, value: float, var: float) -> None:
         """Replace component i by a measurement: old correlations with it no longer hold."""

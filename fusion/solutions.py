@@ -17,6 +17,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from boomtip.fusion.consistency import Innovations, consistent_rows
 from boomtip.fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement
 from boomtip.fusion.tuning import default_jerk_psd, relative_heave_jerk_psd
 from boomtip.fusion.wave_predictor import fit_ar, forecast
@@ -59,6 +60,8 @@ class FusionConfig(BaseModel):
         "as a D to use (a crane cannot land a load on a deck known to within a quarter metre)",
     )
     lost_sigma_D_dot_mps: float = Field(0.5, gt=0, description="likewise for D-dot")
+    noise_memory_s: float = Field(5.0, ge=0, description="a method noisier than its stated sigma has its variance widened "
+                                  "to match its recent innovations over about this long (0: the stated sigmas)")
 
 
 @dataclass
@@ -71,6 +74,8 @@ class Estimates:
     inputs: int  # measurements offered
     statuses: dict[str, int]
     lost: "Lost | None" = None  # which estimates are lost, and why: lost_estimates
+    innovations: Innovations | None = None  # every update's NIS per stream (fusion.consistency)
+    consistent: np.ndarray | None = None  # (T,) bool: no stream's trailing NIS beyond its bound
 
 
 @dataclass
@@ -121,7 +126,8 @@ def jerk_psd(cfg: FusionConfig, sea_state: tuple[float, float] | None = None) ->
 
 
 def filter_config(cfg: FusionConfig, q: float) -> HeaveFilterConfig:
-    return HeaveFilterConfig(jerk_psd=q, gate_chi2_probability=cfg.gate_chi2_probability, max_delay_s=cfg.max_delay_s)
+    return HeaveFilterConfig(jerk_psd=q, gate_chi2_probability=cfg.gate_chi2_probability, max_delay_s=cfg.max_delay_s,
+                             noise_memory_s=cfg.noise_memory_s)
 
 
 def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, duration_s: float,
@@ -169,8 +175,13 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
             var[k, 0] += sys_var_D
             if cfg.wave_predictor and name != "doppler_radar":
                 waves.step(tick, t, t - filt.last_time_s, x[k], var[k])
+    innovations = Innovations()
+    for t_acq, source, nis, scale in filt.innovations():
+        if source in methods:  # not the wave bridge's hand-over
+            innovations.add(source, t_acq, nis, 1, scale)
     filter_ms = (time.perf_counter() - t0) * 1e3
-    return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses, lost_estimates(x, var, cfg, max_D_m))
+    return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses, lost_estimates(x, var, cfg, max_D_m),
+                     innovations, consistent_rows(t_out, innovations))
 
 
 class _WaveBridge:

@@ -446,13 +446,11 @@ def test_finish_keeps_one_row_per_time():
     assert any("under 30 s of deck planes" in n for n in res.notes)
 
 
-def test_the_innovations_are_summed_per_kind_and_an_overconfident_kind_is_said():
-    from boomtip.fusion.consistency import NIS_TOO_LARGE, nis_summary, overconfident_notes
+def test_each_update_s_innovation_is_kept_per_kind_and_an_overconfident_kind_is_said():
+    from boomtip.fusion.consistency import consistency_block, flagged_notes
 
     from boomtip.fusion.feeder_filter import FeederFilter
 
-    assert nis_summary({"registration": [30.0, 60.0, 20.0], "doppler": [0.0, 0.0, 0.0]}) == {
-        "registration": {"per_dof": 0.5, "updates": 20}}
     f = FeederFilter()
     f.start(0.0, np.zeros(6), np.eye(6) * 1e-4, np.zeros(3))
     H = np.zeros((1, len(f.x)))
@@ -460,8 +458,13 @@ def test_the_innovations_are_summed_per_kind_and_an_overconfident_kind_is_said()
     S = float((H @ f.P @ H.T)[0, 0]) + 1e-4
     y = 2.0 * np.sqrt(S)  # an innovation of 2 sigma: NIS 4
     assert f._update("probe", np.array([y]), np.zeros(1), H, np.array([[1e-4]]))
-    assert f.out.nis["probe"] == pytest.approx([4.0, 1.0, 1.0])
-    assert nis_summary(f.out.nis)["probe"]["per_dof"] > NIS_TOO_LARGE
-    assert overconfident_notes(nis_summary(f.out.nis), "feeder") == [
-        "feeder: the probe updates' innovations are 4.0 times what the filter's covariance predicts (NIS per degree "
-        "of freedom, 1 when consistent): its sigmas are too small here"]
+    assert f.out.innovations.rows["probe"] == [(0.0, pytest.approx(4.0), 1, 1.0)]
+    for k in range(1, 60):  # a second of innovations at 4 sigma: far beyond what the covariance says
+        f.predict(k / 60, np.zeros(3), 0.0)
+        H2 = H.copy()
+        f._update("probe", np.array([4.0 * np.sqrt(float((H2 @ f.P @ H2.T)[0, 0]) + 1e-4)]), np.zeros(1), H2,
+                  np.array([[1e-4]]))
+    block = consistency_block(f.out.innovations)
+    assert block["probe"]["flagged"] and block["probe"]["nis_per_dof"] > 10
+    assert flagged_notes(block, "feeder")[0].startswith("feeder: the probe updates' innovations are ")
+

@@ -374,3 +374,35 @@ def test_a_spin_far_from_the_state_is_gated_and_its_yaw_never_moves():
     yaw0 = f.x[5]
     assert f.update_deck_spin("deck_spin_lidar", deck_plane(truth), deck_plane_rate(truth, np.zeros(3)), cov)
     assert f.x[5] == yaw0 and f.x[11] == 0.0
+
+
+def test_frames_closer_than_the_errors_correlation_share_their_information():
+    """At 200 Hz a kind's frames share their errors (levelling, deck, map): each carries its
+    covariance times the correlation time over its interval, so the information per second is
+    what 10 Hz of independent frames gives; at 10 Hz nothing changes; a data sheet's white
+    noise (the feeder MRU) is never scaled."""
+    f = FeederFilter(FeederFilterConfig(error_correlation_s=0.1))
+    f.start(0.0, np.zeros(6), np.eye(6) * 1e-4, np.zeros(3))
+    assert f.shared_error_factor("deck_lidar") == 1.0  # the first one
+    f.last_update_s["deck_lidar"] = -0.005
+    assert f.shared_error_factor("deck_lidar") == pytest.approx(20.0)
+    f.last_update_s["deck_lidar"] = -0.1
+    assert f.shared_error_factor("deck_lidar") == pytest.approx(1.0)
+    off = FeederFilter(FeederFilterConfig(error_correlation_s=0.0))
+    off.start(0.0, np.zeros(6), np.eye(6) * 1e-4, np.zeros(3))
+    off.last_update_s["deck_lidar"] = -0.005
+    assert off.shared_error_factor("deck_lidar") == 1.0
+
+    def sigma_z_after(rate_hz: float, tau_s: float = 0.1) -> float:
+        g = FeederFilter(FeederFilterConfig(error_correlation_s=tau_s, noise_memory_s=0.0))
+        g.start(0.0, np.zeros(6), np.eye(6) * 1e-2, np.zeros(3))
+        H = np.zeros((1, len(g.x)))
+        H[0, 2] = 1.0
+        for k in range(1, int(rate_hz) + 1):  # one second of z measurements of 1 cm
+            g.predict(k / rate_hz, np.zeros(3), 0.0)
+            g._update("probe", np.zeros(1), np.zeros(1), H, np.array([[1e-4]]))
+        return float(np.sqrt(g.P[2, 2]))
+
+    at_10 = sigma_z_after(10.0)
+    assert at_10 <= sigma_z_after(200.0) <= 1.5 * at_10  # 20x the frames: no more certainty than 10 Hz gives
+    assert sigma_z_after(200.0, tau_s=0.0) < 0.6 * at_10  # taken as independent, they would claim much more

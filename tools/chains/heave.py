@@ -20,6 +20,7 @@ from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.tools.config.processing import Processing
 from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
+from boomtip.fusion.consistency import consistency_block, flagged_notes
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
 from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
 from boomtip.tools.chains.chain import ChainError
@@ -115,7 +116,11 @@ class HeaveChain:
         if truth is not None and not {"D", "D_dot"} <= set(truth.columns):
             warnings.append("the truth has no D and D_dot columns (a hook recording?): nothing scored")
             truth = None
-        kpis: dict = {"measurements": measurement_kpis(result.rows, truth), "sources": result.sources}
+        kpis: dict = {"measurements": measurement_kpis(result.rows, truth), "sources": result.sources,
+                      "consistency": {n: consistency_block(e.innovations) for n, e in result.estimates.items()
+                                      if e.innovations is not None}}
+        for name, block in kpis["consistency"].items():
+            warnings += flagged_notes(block, name)
         if warnings:
             kpis["warnings"] = warnings
         if truth is not None:
@@ -170,16 +175,17 @@ def write_estimates(path: Path, estimates: dict[str, Estimates]) -> None:
     (fusion.solutions.lost_estimates) is left empty and `status` says why: never a number to
     use; `status` is ok otherwise. The variances stay: they show why."""
     buf = io.StringIO()
-    buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot,status\n")
+    buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot,status,consistent\n")
     for name, e in estimates.items():
         ok = np.isfinite(e.x[:, 0])
         n = int(ok.sum())
         lost = e.lost
         lost_D, lost_V = (lost.D[ok], lost.D_dot[ok]) if lost is not None else (np.zeros(n, bool), np.zeros(n, bool))
         why = lost.why[ok] if lost is not None else np.full(n, "")
-        for t, x, v, no_D, no_V, w in zip(e.t_s[ok], e.x[ok], e.var[ok], lost_D, lost_V, why):
+        consistent = e.consistent[ok] if e.consistent is not None else np.ones(n, bool)
+        for t, x, v, no_D, no_V, w, c in zip(e.t_s[ok], e.x[ok], e.var[ok], lost_D, lost_V, why, consistent):
             D = "" if no_D else f"{x[0]:.6f}"
             V = "" if no_V else f"{x[1]:.6f}"
             A = "" if no_D or no_V else f"{x[2]:.6f}"
-            buf.write(f"{t:.4f},{name},{D},{V},{A},{v[0]:.6g},{v[1]:.6g},{w or 'ok'}\n")
+            buf.write(f"{t:.4f},{name},{D},{V},{A},{v[0]:.6g},{v[1]:.6g},{w or 'ok'},{int(c)}\n")
     atomic_write_bytes(path, buf.getvalue().encode())

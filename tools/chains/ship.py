@@ -138,6 +138,8 @@ class ShipChain:
         heave_D = (fused.t_s, fused.x[:, 0]) if fused is not None else None
         kpis["feeder"] = feeder_outputs.feeder_kpis(feeder, truth, self.p_tip_crane_m, windows, heave_D,
                                                     outage_windows(self.source, ("mru",)))
+        if feeder.consistency:
+            kpis.setdefault("consistency", {})["feeder"] = feeder.consistency
         return kpis
 
     def report(self, out: Path, kpis: dict, result: ShipResult, truth: Truth | None) -> list[str]:

@@ -107,8 +107,6 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
                                    "worker_s": round(m.worker_s, 3), "wait_s": round(m.wait_s, 3), "status": m.status}
                                   for m in res.merges],
                  "updates": res.counts, "missing": len(res.missing)}
-    if res.nis:
-        out["nis_per_dof"] = res.nis
     if res.tilt is not None:
         out["levelling_tilt_deg"] = {"about_x": round(math.degrees(res.tilt.rx_rad), 5), "about_y": round(math.degrees(res.tilt.ry_rad), 5),
                                      "sigma": round(math.degrees(res.tilt.sigma_rad), 5), "span_s": round(res.tilt.span_s, 2),

@@ -197,3 +197,28 @@ def test_a_hook_recording_without_truth_says_the_path_it_estimated(tmp_path):
     path = json.loads((tmp_path / "o" / "kpis.json").read_text())["hook"]["estimated"]["ekf_flexible"]
     assert path["samples"] > 0 and all(a < b for a, b in zip(path["min_m"], path["max_m"]))
     assert "| ekf_flexible |" in (tmp_path / "o" / "hook_report.md").read_text()
+
+
+def test_a_radar_noisier_than_stated_is_flagged_and_the_fused_estimate_holds(tmp_path):
+    """The world's radar 5x noisier than the installation says: without truth, the consistency
+    block flags the radar's streams (and not the LiDAR's deck), its rows are marked not
+    consistent, the filters widen the radar's noise, and the fused D stays within 3 mm."""
+    out = {}
+    for scale in (1, 5):
+        out[scale] = tmp_path / f"r{scale}"
+        r = runner.invoke(app, ["run", "-s", "sts-loaded", "--duration", "20", "--set",
+                                f"world.mismatch.radar_noise_scale={scale}", "--out", str(out[scale])])
+        assert r.exit_code == 0, r.output
+    calm, loud = (json.loads((out[s] / "kpis.json").read_text()) for s in (1, 5))
+    assert not any(v["flagged"] for block in calm["consistency"].values() for v in block.values())
+    c = loud["consistency"]
+    assert c["deck_radar"]["deck_radar"]["flagged"] and c["doppler_radar"]["doppler_radar"]["flagged"]
+    assert c["feeder"]["doppler"]["flagged"] and c["feeder"]["doppler"]["noise_scale_last"] > 4.0
+    assert not c["deck_lidar"]["deck_lidar"]["flagged"]
+    assert c["fused"]["doppler_radar_rot"]["noise_scale_max"] > 10.0
+    assert any(w.startswith("deck_radar: the deck_radar updates' innovations are ") for w in loud["warnings"])
+    assert loud["solutions"]["fused"]["mae_D_m"] < 0.003 and loud["solutions"]["fused"]["within_3sigma_D"] > 0.97
+    with open(out[5] / "estimates.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    flags = {s: {row["consistent"] for row in rows if row["solution"] == s} for s in ("deck_lidar", "doppler_radar")}
+    assert flags["deck_lidar"] == {"1"} and "0" in flags["doppler_radar"]
