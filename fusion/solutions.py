@@ -10,6 +10,7 @@ neither perception's types nor the world.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, replace
 from typing import Literal
@@ -60,6 +61,8 @@ class FusionConfig(BaseModel):
         "as a D to use (a crane cannot land a load on a deck known to within a quarter metre)",
     )
     lost_sigma_D_dot_mps: float = Field(0.5, gt=0, description="likewise for D-dot")
+    error_correlation_s: float = Field(0.05, ge=0, description="a method's frames closer than this share their "
+                                       "errors: each one's variance grows by this over its interval (0: independent)")
     noise_memory_s: float = Field(5.0, ge=0, description="a method noisier than its stated sigma has its variance widened "
                                   "to match its recent innovations over about this long (0: the stated sigmas)")
 
@@ -116,6 +119,21 @@ def with_floor(m: Measurement, cfg: FusionConfig) -> Measurement | None:
     return replace(m, sigma=float(np.hypot(m.sigma, floor)))
 
 
+def shared_errors(measurements: list[Measurement], correlation_s: float) -> list[Measurement]:
+    """Each measurement's sigma widened by sqrt(correlation_s / its interval from the last of
+    its source) where that interval is shorter: frames that close share their errors (the
+    levelling's attitude, the deck's waves), so a faster sensor does not claim more certainty
+    per second than independent frames at correlation_s give."""
+    if correlation_s <= 0:
+        return measurements
+    out, last = [], {}
+    for m in sorted(measurements, key=lambda m: m.t_acq_s):
+        dt = m.t_acq_s - last.get((m.source, m.quantity), -math.inf)
+        last[(m.source, m.quantity)] = m.t_acq_s
+        out.append(replace(m, sigma=m.sigma * math.sqrt(correlation_s / dt)) if 0 < dt < correlation_s else m)
+    return out
+
+
 def jerk_psd(cfg: FusionConfig, sea_state: tuple[float, float] | None = None) -> float:
     """q from the configuration, else from a forecast (hs_m, tp_s), else the working limit."""
     if cfg.jerk_psd is not None:
@@ -138,7 +156,8 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     solution's own sources (a fused solution falling back on the radar's deck). max_D_m: the
     sensors' range, beyond which a D is lost (lost_estimates)."""
     methods = methods or SOLUTIONS[name]
-    inputs = [m2 for m in measurements if m.source in methods for m2 in [with_floor(m, cfg)] if m2 is not None]
+    inputs = shared_errors([m2 for m in measurements if m.source in methods for m2 in [with_floor(m, cfg)] if m2 is not None],
+                           cfg.error_correlation_s)
     inputs.sort(key=lambda m: (m.t_arrival_s, m.t_acq_s))
     initial_D = None
     if name == "doppler_radar":

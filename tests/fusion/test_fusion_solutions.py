@@ -184,3 +184,19 @@ def test_an_estimate_no_measurement_holds_is_lost_with_its_reason():
     assert lost.D_dot.tolist() == [False, False, True, True, False, False]
     at_bound = lost_estimates(x[:1], np.array([[0.25**2, 0.5**2, 1.0]]), cfg)
     assert at_bound.why.tolist() == [""] and not at_bound.D.any()  # at the bound: not lost
+
+
+def test_frames_closer_than_the_correlation_time_are_widened_per_source():
+    from boomtip.fusion.heave_filter import Measurement
+    from boomtip.fusion.solutions import shared_errors
+
+    t = np.arange(0, 0.05, 0.005)  # a 200 Hz source
+    fast = [Measurement(x, x, "D", 40.0, 0.002, "deck_lidar") for x in t]
+    slow = [Measurement(x, x, "D", 40.0, 0.002, "deck_radar") for x in (0.0, 0.05, 0.1)]  # 20 Hz: untouched
+    got = shared_errors(fast + slow, 0.05)
+    sig = {m.source: [] for m in got}
+    for m in got:
+        sig[m.source].append(m.sigma)
+    assert sig["deck_lidar"][0] == 0.002 and sig["deck_lidar"][1:] == pytest.approx([0.002 * np.sqrt(10)] * 9)
+    assert sig["deck_radar"] == pytest.approx([0.002] * 3)
+    assert shared_errors(fast, 0.0) is fast

@@ -15,6 +15,7 @@ from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import SENSOR_OF, Measurement
 from boomtip.tools.report.heave import COLORS
+from boomtip.tools.report.kpis import consistency_table
 from boomtip.tools.report.plots import legend
 
 EPOCH_LIKE_S = 1e8  # a clock beyond this (1973) counts seconds since the epoch; below, a sensor's own
@@ -81,7 +82,7 @@ def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates
             continue
         lines.append(head + f"{np.min(e.x[ok, 0]):.3f} to {np.max(e.x[ok, 0]):.3f} | {1e3 * np.sqrt(np.median(e.var[ok, 0])):.2f} | "
                      f"{1e3 * np.sqrt(np.median(e.var[ok, 1])):.2f} | {lost} |")
-    lines += ["", "## Measurements", "", *method_table(rows), "", "## Gaps in the streams", ""]
+    lines += ["", *consistency_table(kpis), "## Measurements", "", *method_table(rows), "", "## Gaps in the streams", ""]
     streams = {s: np.array(sorted({r.t_s for r in rows if SENSOR_OF[r.method] == s})) for s in ("lidar", "radar")}
     for s, t in streams.items():
         if len(t):

@@ -10,7 +10,7 @@ from boomtip.data.frames import Truth
 from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import Measurement
-from boomtip.tools.report.kpis import WARMUP_S
+from boomtip.tools.report.kpis import WARMUP_S, consistency_table
 from boomtip.tools.report.plots import legend
 
 # Document 000, Table 5.4 (after its Kalman filter) and its truth amplitudes (section 5.1.2).
@@ -103,6 +103,7 @@ def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: 
         "",
         measurement_table(kpis),
         "",
+        *consistency_table(kpis),
         "## Plots",
         "",
         *[f"![{p.stem}]({p.name})" for p in plots],

@@ -123,3 +123,26 @@ def truth_amplitudes(truth: Truth) -> dict[str, float]:
     """Maximum amplitude of the truth about its mean (document 000's % reference)."""
     D, V = truth.columns["D"], truth.columns["D_dot"]
     return {"D_m": float(np.max(np.abs(D - D.mean()))), "D_dot_mps": float(np.max(np.abs(V - V.mean())))}
+
+
+def consistency_table(kpis: dict) -> list[str]:
+    """report.md's consistency section: per solution and stream, what its innovations say of
+    its covariance (kpis' `consistency`), with no truth needed."""
+    blocks = kpis.get("consistency") or {}
+    if not blocks:
+        return []
+    lines = ["## Consistency (no truth needed)", "",
+             "Each stream's normalised innovations squared (NIS): 1 per degree of freedom when the filter's covariance and "
+             "the installation's stated noise are honest. **flagged**: the run's or a 10 s window's NIS beyond its "
+             "chi-square 99.9 % bound (the sigmas are too small there); *underconfident*: below it (the sigmas are larger "
+             "than the errors, which is safe). Widened: the largest factor the filter put on the stream's stated variance "
+             "to match its innovations. estimates.csv's `consistent` column is the same test on the trailing 10 s.", "",
+             "| solution | stream | updates | NIS per dof | beyond 99 % | widened | verdict |", "|---|---|---|---|---|---|---|"]
+    for solution, block in blocks.items():
+        for stream, v in block.items():
+            if not v.get("updates"):
+                continue
+            verdict = "**flagged**" if v["flagged"] else "*underconfident*" if v.get("underconfident") else "consistent"
+            lines.append(f"| {solution} | {stream} | {v['updates']} | {v['nis_per_dof']:.2f} | {100 * v['beyond_99']:.1f} % | "
+                         f"{v.get('noise_scale_max', 1.0):.1f}x | {verdict} |")
+    return lines + [""]
