@@ -71,6 +71,9 @@ class LidarSpec(StrictModel):
     enabled: bool = True
     pattern: Literal["grid", "spinning"] = "grid"
     rate_hz: float = Field(10.0, gt=0, le=1000)
+    clock_sigma_s: float = Field(0.001, ge=0, le=1, description="1-sigma of its time stamps against the MRU's clock (the "
+                                 "sync method's: NTP about 1 ms, PTP about 1 us): a D read at the wrong instant is off by "
+                                 "D-dot times the offset, an error no averaging removes")
     latency_s: float = Field(0.0, ge=0, le=10)
     # grid pattern (document 000 Table 5.3)
     fov_h_deg: float = Field(120.0, gt=0, le=360)
@@ -105,6 +108,9 @@ class LidarSpec(StrictModel):
 class RadarSpec(StrictModel):
     enabled: bool = True
     rate_hz: float = Field(20.0, gt=0, le=1000)
+    clock_sigma_s: float = Field(0.001, ge=0, le=1, description="1-sigma of its time stamps against the MRU's clock (the "
+                                 "sync method's: NTP about 1 ms, PTP about 1 us): a D read at the wrong instant is off by "
+                                 "D-dot times the offset, an error no averaging removes")
     latency_s: float = Field(0.0, ge=0, le=10)
     fov_az_deg: float = Field(60.0, gt=0, le=360)
     fov_el_deg: float = Field(12.0, gt=0, le=180)
@@ -120,6 +126,9 @@ class RadarSpec(StrictModel):
     false_alarms_per_scan: float = Field(0.0, ge=0)
     max_abs_range_rate_mps: float = Field(10.0, gt=0, description="largest range rate the radar reports")
     range_rate_resolution_mps: float = Field(0.0, ge=0, le=10, description="Doppler bin width (data sheet), 0 = not quantised")
+    unambiguous_range_rate_mps: float = Field(0.0, ge=0, le=100, description="the radar's unambiguous range rate (data "
+                                              "sheet): it reports a rate beyond it wrapped into [-v, v), as FMCW radars do; "
+                                              "0 = never wraps")
     velocity_field: str = Field("", description="recorded clouds: the field holding the radial velocity ('' = guess: "
                                 "range_rate, doppler, radial_velocity, velocity, v_r)")
     velocity_sign: Literal[1, -1] = Field(1, description="recorded clouds: +1 if that field grows with the range "

@@ -156,6 +156,7 @@ class Measurement:
     sigma: float  # 1-sigma noise, same unit as value
     source: str
     sigma_systematic: float = 0.0  # 1-sigma of a bias no averaging removes (reported, not filtered)
+    sigma_clock_s: float = 0.0  # 1-sigma of its time stamp's offset: a bias of the rate times it (reported)
 
     def __post_init__(self) -> None:
         if self.quantity not in _INDEX:

@@ -175,6 +175,7 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     statuses: dict[str, int] = {}
     waves = _WaveBridge(cfg)
     sys_var_D = 0.0  # the latest accepted D's systematic variance: a bias the filter cannot see
+    clock_s = {"D": 0.0, "D_dot": 0.0}  # the latest accepted D's and D-dot's time-stamp sigma: the same kind of bias
     j = 0
     t0 = time.perf_counter()
     for k, (tick, t) in enumerate(zip(ticks, t_out)):
@@ -184,14 +185,17 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
                 filt.add(seed)
             st = filt.add(inputs[j])
             statuses[st] = statuses.get(st, 0) + 1
-            if st in ("accepted", "reinitialised") and inputs[j].quantity == "D":
-                sys_var_D = inputs[j].sigma_systematic ** 2
+            if st in ("accepted", "reinitialised"):
+                clock_s[inputs[j].quantity] = inputs[j].sigma_clock_s
+                if inputs[j].quantity == "D":
+                    sys_var_D = inputs[j].sigma_systematic ** 2
             j += 1
         if np.isfinite(filt.last_time_s) and t * cfg.output_rate_hz >= filt.last_time_s * cfg.output_rate_hz - 1e-6:
             xk, Pk = filt.estimate(max(t, filt.last_time_s))
             x[k] = xk
             var[k] = np.diag(Pk)
-            var[k, 0] += sys_var_D
+            var[k, 0] += sys_var_D + (xk[1] * clock_s["D"]) ** 2  # a D read at the wrong instant: off by D-dot dt
+            var[k, 1] += (xk[2] * clock_s["D_dot"]) ** 2
             if cfg.wave_predictor and name != "doppler_radar":
                 waves.step(tick, t, t - filt.last_time_s, x[k], var[k])
     innovations = Innovations()

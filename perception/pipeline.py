@@ -24,6 +24,7 @@ from boomtip.data.frames import Frame, MruLog
 from boomtip.data.installation import Installation
 from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck, status_ok
 from boomtip.perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
+from boomtip.perception.doppler_alias import alias_prior_level, unwrap_range_rates
 from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
@@ -159,6 +160,7 @@ class HeavePipeline:
 
     def __init__(self, installation: Installation, mru: MruLog, cfg: PipelineConfig | None = None, seed: int = 0) -> None:
         self.installation, self.mru = installation, mru
+        self.unambiguous_mps = installation.radar.unambiguous_range_rate_mps  # 0: the radar's rates never wrap
         self.cfg = cfg or PipelineConfig()
         self.seed = seed
         T_crane_boomtip, T_boomtip_sensor = installation.T_crane_boomtip(), installation.T_boomtip_sensor()
@@ -171,6 +173,8 @@ class HeavePipeline:
         self.normals = {"lidar": NormalRate(self.cfg.normal_window_s), "radar": NormalRate(self.cfg.normal_window_s)}
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
+        self.last_doppler_level: tuple[float, np.ndarray] | None = None  # (t, u_level): the next scan's alias prior
+        self.recent_decks = {"lidar": [], "radar": []}  # sensor -> its last two decks (t, D): the alias prior's D-dot
         self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
         self.bias_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
         if "inlier_threshold_mps" not in self.cfg.doppler.model_fields_set:
@@ -288,10 +292,19 @@ class HeavePipeline:
             out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_radar, rng, times, "radar_deck")
             inputs = doppler_inputs(frame, cfg.doppler_preprocess)
             if inputs is not None and len(inputs[0]) >= 3:
-                out.doppler = doppler_velocity(inputs[0], inputs[1], cfg.doppler, rng, None)
+                rates = inputs[1]
+                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias())
+                if self.unambiguous_mps > 0 and u_prior is not None:
+                    R_rows = level_rotation_rows(rpy_rad, self._R_crane_sensor_rows[frame.sensor])
+                    rates = unwrap_range_rates(inputs[0], rates, self.unambiguous_mps, mat3T_vec(R_rows, u_prior))
+                if self.unambiguous_mps <= 0 or u_prior is not None:
+                    out.doppler = doppler_velocity(inputs[0], rates, cfg.doppler, rng, None)
         if deck.ok:
             last_deck[frame.sensor] = (frame.t_s, deck.D_m)
         return out
+
+    def _decks_for_alias(self) -> list[list[tuple[float, float]]]:
+        return [self.recent_decks["lidar"], self.recent_decks["radar"]]
 
     def frame_rng(self, frame: Frame) -> np.random.Generator:
         """The frame's random draws (RANSAC), from the run's seed, the sensor and the frame's index."""
@@ -309,6 +322,7 @@ class HeavePipeline:
             return (np.nan, np.nan, deck.status)
         self.normals[sensor].add(t_s, R_ls @ deck.plane_sensor[:3])
         self.last_deck[sensor] = (t_s, deck.D_m)
+        self.recent_decks[sensor] = [*self.recent_decks[sensor][-1:], (t_s, deck.D_m)]
         sigma = math.hypot(deck.sigma_m, attitude_sigma_D(deck.D_m, deck.plane_sensor, wire, self.mru_sigma_rad))
         return (deck.D_m, sigma, deck.status)
 
@@ -319,6 +333,12 @@ class HeavePipeline:
             if inputs is None:
                 return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
             pts, range_rate_mps = inputs
+            if self.unambiguous_mps > 0:  # the radar's wrapped rates back on the prior's branch
+                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias())
+                if u_prior is None:
+                    return {m: (np.nan, np.nan, "Doppler alias unknown: no recent velocity or deck distances yet")
+                            for m in wanted if m.startswith("doppler")}
+                range_rate_mps = unwrap_range_rates(pts, range_rate_mps, self.unambiguous_mps, mat3T_vec(R_rows, u_prior))
         with times.stage("doppler.fit"):
             prior = self.last_doppler[1] if self.last_doppler and frame.t_s - self.last_doppler[0] <= 0.2 else None
             fit = doppler_velocity(pts, range_rate_mps, self.cfg.doppler, rng, prior) if len(pts) >= 3 else None
@@ -327,6 +347,7 @@ class HeavePipeline:
                 cov = fit.covariance.tolist()  # sensor axes: each method takes the variance it needs
         out.doppler = fit
         self.last_doppler = (frame.t_s, fit.velocity_sensor) if fit is not None else None
+        self.last_doppler_level = (frame.t_s, np.array(u_level)) if fit is not None else self.last_doppler_level
         if fit is None:
             return {m: (np.nan, np.nan, f"no Doppler velocity ({len(pts)} detections or degenerate beams)") for m in wanted if m.startswith("doppler")}
         if "doppler_radar" in wanted:

@@ -297,6 +297,9 @@ def radar_measure(
         rng_m = np.concatenate([rng_m, rng.uniform(cfg.min_range_m, cfg.max_range_m, n_fa)])
         rr = np.concatenate([rr, rng.uniform(-cfg.max_abs_range_rate_mps, cfg.max_abs_range_rate_mps, n_fa)])
         label = np.concatenate([label, np.full(n_fa, int(Label.NONE), dtype=np.int32)])
+    if cfg.unambiguous_range_rate_mps > 0:  # an FMCW radar's Doppler ambiguity: rates wrap into [-v, v)
+        v = cfg.unambiguous_range_rate_mps
+        rr = np.mod(rr + v, 2.0 * v) - v
     points = spherical_dirs(az, el) * rng_m[:, None]
     fields = {
         "range": rng_m.astype(np.float32),

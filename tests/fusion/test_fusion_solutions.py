@@ -200,3 +200,19 @@ def test_frames_closer_than_the_correlation_time_are_widened_per_source():
     assert sig["deck_lidar"][0] == 0.002 and sig["deck_lidar"][1:] == pytest.approx([0.002 * np.sqrt(10)] * 9)
     assert sig["deck_radar"] == pytest.approx([0.002] * 3)
     assert shared_errors(fast, 0.0) is fast
+
+
+def test_a_sensor_clock_s_offset_widens_d_by_d_dot_times_its_sigma():
+    """A D stamped 1 ms off is off by D-dot x 1 ms: the estimate's variance carries it (a bias
+    no averaging removes) where the deck moves fast, and not where it is still."""
+    from boomtip.fusion.heave_filter import Measurement
+
+    t = np.arange(0, 10, 0.1)
+    D = 40.0 + 2.0 * np.sin(2 * np.pi * t / 10)
+    meas = lambda clock: [Measurement(x, x, "D", d, 0.001, "deck_lidar", 0.0, clock) for x, d in zip(t, D)]
+    cfg = FusionConfig(wave_predictor=False)
+    plain, timed = (run_solution("deck_lidar", meas(c), cfg, 10.0) for c in (0.0, 0.01))
+    added = timed.var[:, 0] - plain.var[:, 0]
+    np.testing.assert_allclose(added[50:], (timed.x[50:, 1] * 0.01) ** 2, rtol=1e-6)
+    fast, still = np.argmax(np.abs(timed.x[50:, 1])) + 50, np.argmin(np.abs(timed.x[50:, 1])) + 50
+    assert added[fast] > 1e-4 and added[still] < 1e-6

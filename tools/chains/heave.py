@@ -48,10 +48,11 @@ def solution_sources(name: str, have: set[str]) -> tuple[str, ...]:
     return SOLUTIONS[name]
 
 
-def to_fusion(row: Measurement, latency_s: dict[str, float]) -> FusionMeasurement:
+def to_fusion(row: Measurement, latency_s: dict[str, float], clock_sigma_s: dict[str, float] | None = None) -> FusionMeasurement:
     """A perception row as fusion's plain measurement, arriving after its sensor's latency."""
-    return FusionMeasurement(row.t_s, row.t_s + latency_s[SENSOR_OF[row.method]], row.quantity, row.value,
-                             row.sigma, row.method, row.sigma_systematic)
+    sensor = SENSOR_OF[row.method]
+    return FusionMeasurement(row.t_s, row.t_s + latency_s[sensor], row.quantity, row.value,
+                             row.sigma, row.method, row.sigma_systematic, (clock_sigma_s or {}).get(sensor, 0.0))
 
 
 class HeaveChain:
@@ -66,6 +67,7 @@ class HeaveChain:
         self.fusion = processing.fusion
         self.sea_state = (processing.sea_state.hs_m, processing.sea_state.tp_s) if processing.sea_state else None
         self.latency_s = {"lidar": inst.lidar.latency_s, "radar": inst.radar.latency_s}
+        self.clock_sigma_s = {"lidar": inst.lidar.clock_sigma_s, "radar": inst.radar.clock_sigma_s}
         self.max_D_m = max(getattr(inst, s).max_range_m for s in inst.sensors())  # a D beyond is lost
         self.rows: list[Measurement] = []
         self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
@@ -84,7 +86,7 @@ class HeaveChain:
     def finish(self) -> HeaveResult:
         t_start_s = self.t_start_s
         duration = max((r.t_s for r in self.rows), default=0.0) if self.duration_s <= 0 else self.duration_s
-        meas = [to_fusion(r, self.latency_s) for r in self.rows if r.ok]
+        meas = [to_fusion(r, self.latency_s, self.clock_sigma_s) for r in self.rows if r.ok]
         have = {m.source for m in meas}
         ran = {r.method for r in self.rows}
         estimates, sources, warnings = {}, {}, list(self.notes) + list(self.source_notes)

@@ -841,3 +841,16 @@ def test_the_worlds_noise_scale_makes_the_true_noise_a_multiple_of_the_stated():
     for n in ("range_noise_m", "azimuth_noise_deg", "elevation_noise_deg", "range_rate_noise_mps"):
         assert getattr(radar, n) == 3 * getattr(s.installation.radar, n)
     assert s.installation.lidar.range_noise_m == load_scenario("sts-loaded").installation.lidar.range_noise_m  # stated: unchanged
+
+
+def test_an_fmcw_radar_reports_range_rates_wrapped_into_its_unambiguous_band(bodies_empty):
+    """installation.radar.unambiguous_range_rate_mps: the world reports every range rate in
+    [-v, v), the true one plus a multiple of 2 v; without it the same frame is unwrapped."""
+    heave = ALL_ZERO + sine("feeder", "heave", 3.0, 0, 10.0)  # 1.9 m/s at t = 0: beyond 1.25 m/s
+    plain = make_sim(bodies_empty, *heave).radar_frame(5, 0.25)
+    wrapped = make_sim(bodies_empty, *heave, "radar.unambiguous_range_rate_mps=1.25").radar_frame(5, 0.25)
+    true, got = plain.fields["range_rate"].astype(float), wrapped.fields["range_rate"].astype(float)
+    assert np.max(np.abs(true)) > 1.5 and np.all((got >= -1.25) & (got < 1.25))
+    k = (true - got) / 2.5
+    np.testing.assert_allclose(k, np.round(k), atol=1e-5)
+    assert np.any(np.round(k) != 0)

@@ -222,3 +222,22 @@ def test_a_radar_noisier_than_stated_is_flagged_and_the_fused_estimate_holds(tmp
         rows = list(csv.DictReader(fh))
     flags = {s: {row["consistent"] for row in rows if row["solution"] == s} for s in ("deck_lidar", "doppler_radar")}
     assert flags["deck_lidar"] == {"1"} and "0" in flags["doppler_radar"]
+
+
+def test_a_radar_whose_rates_wrap_gives_the_same_d_dot_as_one_that_does_not(tmp_path):
+    """A 2.5 m feeder heave (D-dot up to 1.6 m/s) seen by a radar whose range rates wrap at
+    +-1.25 m/s: the fused D-dot is as good as with a radar that never wraps, and no wrap is a
+    jump in it; the first scan, with no prior yet, gives no velocity rather than a guess."""
+    k = {}
+    for v in (0.0, 1.25):
+        out = tmp_path / f"v{v}"
+        r = runner.invoke(app, ["run", "-s", "sts-loaded", "--duration", "20", "--set", "world.feeder.motion.heave.amplitude=2.5",
+                                "--set", "world.crane.motion.heave.amplitude=0", "--set", f"radar.unambiguous_range_rate_mps={v}",
+                                "--set", "processing.feeder.enabled=false", "--out", str(out)])
+        assert r.exit_code == 0, r.output
+        k[v] = json.loads((out / "kpis.json").read_text())["solutions"]["fused"]
+    assert k[0.0]["max_D_dot_mps"] < 0.05 and k[1.25]["max_D_dot_mps"] < 0.05  # no 2.5 m/s jump
+    assert k[1.25]["mae_D_dot_mps"] < 0.008 and k[1.25]["mae_D_dot_mps"] == pytest.approx(k[0.0]["mae_D_dot_mps"], rel=0.05)
+    rows = _rows(tmp_path / "v1.25" / "measurements.csv")
+    unknown = [x for x in rows if x["status"].startswith("Doppler alias unknown")]
+    assert 0 < len(unknown) <= 4 and all(float(x["t"]) < 0.2 for x in unknown)
