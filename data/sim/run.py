@@ -9,6 +9,7 @@ import math
 from pydantic import Field, field_validator, model_validator
 
 from boomtip.data.installation import Installation, StrictModel
+from boomtip.data.sim.randomize import randomized_world
 from boomtip.data.sim.world import World
 
 __all__ = ["SimulatedRun"]
@@ -44,6 +45,16 @@ class SimulatedRun(StrictModel):
             raise ValueError("world.hook.enabled needs installation.lidar.enabled")
         if self.world.hook.enabled and self.installation.radar.enabled:
             raise ValueError("the hook scene simulates no radar: set installation.radar.enabled: false")
+        return self
+
+    @model_validator(mode="after")
+    def _draw_the_world(self) -> "SimulatedRun":
+        """A randomized world's mismatch drawn once, here, so every consumer of the run (the
+        scene, the simulator, the truth) sees the same world. Drawing again gives the same
+        draws (the seed's), so re-validating a run changes nothing."""
+        world = randomized_world(self.world, self.installation, self.seed)
+        if world is not self.world:
+            object.__setattr__(self, "world", world)  # not an assignment: that would validate this model again
         return self
 
     def processing_settings(self) -> dict:

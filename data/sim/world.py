@@ -252,6 +252,16 @@ DEFAULT_MISMATCH = Mismatch(
 )
 
 
+class Randomize(StrictModel):
+    """Draw `mismatch` from documented distributions (data.sim.randomize) instead of taking it
+    as written: a study over seeds is then a study over worlds."""
+
+    enabled: bool = False
+    seed: int | None = Field(None, ge=0, le=2**31 - 1, description="the draws' seed (null: the run's seed)")
+    scale: float = Field(1.0, ge=0, le=3, description="every distribution's width times this (0: the nominal world, "
+                         "no mismatch)")
+
+
 class World(StrictModel):
     truth_rate_hz: float = Field(200.0, gt=0, le=10000)
     crane: CraneVessel = CraneVessel()
@@ -262,6 +272,7 @@ class World(StrictModel):
     mru: MruBehaviour = MruBehaviour()
     hook: HookScene = HookScene()
     mismatch: Mismatch = DEFAULT_MISMATCH
+    randomize: Randomize = Randomize()
 
 
 # ---------------------------------------------------------------------------------------

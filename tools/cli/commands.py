@@ -340,7 +340,8 @@ def sweep(
     scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
     grid: Optional[list[str]] = typer.Option(None, "--grid", help="KEY=V1,V2,... (repeatable: the product of the grids)."),
     preset: Optional[list[str]] = typer.Option(None, "--preset", help="A named axis of document 000's study: "
-                                               "delay, mru_noise, mru_bias, rate, density, fov, false_reflectors, clock_offset."),
+                                               "delay, mru_noise, mru_bias, rate, density, fov, false_reflectors, clock_offset; "
+                                               "worlds: every seed a randomized world (world.randomize)."),
     seeds: int = typer.Option(1, "--seeds", min=1, help="Runs per grid point (Monte Carlo), seeds derived from the scenario's."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds per run (default: the scenario's)."),
     set_: Optional[list[str]] = SetOpt,

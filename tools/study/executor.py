@@ -134,7 +134,8 @@ def run_study(tasks: list[Task], out: Path, grid_keys: list[str], executor: Exec
 def write_summary(out: Path, rows: list[dict], grid_keys: list[str]) -> list[dict]:
     summary = summarise(rows, grid_keys)
     buf = io.StringIO()
-    cols = [*grid_keys, "kpi", "n", "mean", "std", "ci95_lo", "ci95_hi"]
+    cols = [*grid_keys, "kpi", "n", "mean", "std", "ci95_lo", "ci95_hi", "median", "median_ci95_lo", "median_ci95_hi",
+            "p2_5", "p97_5"]
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
     for r in summary:

@@ -41,6 +41,9 @@ PRESETS: dict[str, tuple[str, list[float], Any]] = {
                          lambda v: [f"feeder.reflectors.false_bright_points={int(v)}"]),
     "clock_offset": ("unknown LiDAR clock offset [s]", [0.0, 0.005, 0.01, 0.02, 0.05],
                      lambda v: [f"mismatch.lidar_clock_offset_s={v}"]),
+    # every seed a different world: its mismatch drawn (data.sim.randomize), widths x the value
+    "worlds": ("randomized worlds (width of every deviation's distribution)", [1.0],
+               lambda v: ["world.randomize.enabled=true", f"world.randomize.scale={v}"]),
 }
 TIMING_KEYS = ("apt_ms", "runtime_fraction", "wall_s", "time_ms", "filter_ms")
 
@@ -174,9 +177,23 @@ def is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None
 
 
+def median_interval(vals: np.ndarray) -> tuple[float, float]:
+    """The distribution-free 95 % confidence interval of the median: the order statistics the
+    binomial(n, 1/2) puts 2.5 % beyond on each side (NaN for fewer than 6 values, where none is)."""
+    from scipy.stats import binom
+
+    n = len(vals)
+    k = int(binom.ppf(0.025, n, 0.5))  # P(X < k) <= 2.5 %: x_(k) and x_(n+1-k), 1-based
+    if n < 6 or k < 1:
+        return float("nan"), float("nan")
+    v = np.sort(vals)
+    return float(v[k - 1]), float(v[n - k])
+
+
 def summarise(rows: list[dict], grid_keys: list[str]) -> list[dict]:
     """Per grid point and numeric KPI: n, mean, standard deviation and the 95 % confidence
-    interval of the mean (Student t)."""
+    interval of the mean (Student t); the median with its 95 % confidence interval (order
+    statistics) and the runs' own spread (2.5th and 97.5th percentiles)."""
     from scipy.stats import t as student_t
 
     ok = [r for r in rows if r.get("status") == "ok"]
@@ -196,6 +213,9 @@ def summarise(rows: list[dict], grid_keys: list[str]) -> list[dict]:
             mean = float(vals.mean())
             std = float(vals.std(ddof=1)) if n > 1 else float("nan")
             half = float(student_t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n > 1 else float("nan")
+            m_lo, m_hi = median_interval(vals)
             out.append({**dict(zip(grid_keys, point)), "kpi": key, "n": n, "mean": mean, "std": std,
-                        "ci95_lo": mean - half, "ci95_hi": mean + half})
+                        "ci95_lo": mean - half, "ci95_hi": mean + half, "median": float(np.median(vals)),
+                        "median_ci95_lo": m_lo, "median_ci95_hi": m_hi,
+                        "p2_5": float(np.percentile(vals, 2.5)), "p97_5": float(np.percentile(vals, 97.5))})
     return out

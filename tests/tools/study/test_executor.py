@@ -220,7 +220,8 @@ def test_summary_gives_the_student_interval_on_known_numbers(tmp_path):
              {"task": "b2", "lidar.rate_hz": 10, "seed": 2, "status": "ok", "error": "", "mae": 4.0, "flag": True}]
     ex.write_summary(tmp_path, rows, GRID)
     lines = (tmp_path / "summary.csv").read_text().splitlines()
-    assert lines[0] == "lidar.rate_hz,kpi,n,mean,std,ci95_lo,ci95_hi"
+    assert lines[0] == ("lidar.rate_hz,kpi,n,mean,std,ci95_lo,ci95_hi,median,median_ci95_lo,median_ci95_hi,"
+                        "p2_5,p97_5")
     s = _summary(tmp_path / "summary.csv")
     assert set(s) == {("5", "mae"), ("10", "mae")}  # no seed, no text, no bool, no failed row
     five = s[("5", "mae")]
@@ -233,11 +234,14 @@ def test_summary_gives_the_student_interval_on_known_numbers(tmp_path):
     ten = s[("10", "mae")]
     assert int(ten["n"]) == 2 and float(ten["mean"]) == 3.0
     assert float(ten["ci95_hi"]) == pytest.approx(3.0 + T_975_1 * math.sqrt(2.0) / math.sqrt(2), rel=1e-14)
+    # the median, its interval (none from 5 values: the order statistics cannot give 95 %) and the spread
+    assert float(five["median"]) == 3.0 and five["median_ci95_lo"] == "nan"
+    assert float(five["p2_5"]) == pytest.approx(1.1) and float(five["p97_5"]) == pytest.approx(4.9)
 
 
 def test_one_run_has_no_spread_and_no_interval(tmp_path):
     ex.write_summary(tmp_path, [{"task": "a", "lidar.rate_hz": 5, "seed": 1, "status": "ok", "error": "", "mae": 0.5}], GRID)
-    assert (tmp_path / "summary.csv").read_text().splitlines()[1] == "5,mae,1,0.5,nan,nan,nan"
+    assert (tmp_path / "summary.csv").read_text().splitlines()[1] == "5,mae,1,0.5,nan,nan,nan,0.5,nan,nan,0.5,0.5"
 
 
 def test_a_resumed_boolean_grid_is_summarised_as_one_point(tmp_path, study):

@@ -113,3 +113,13 @@ def test_force_never_deletes_the_current_folder_or_a_parent(tmp_path, monkeypatc
     r = runner.invoke(app, ["sweep", *SHORT, "--grid", "lidar.rate_hz=5", "--out", "s", "--executor", "nope"])
     assert r.exit_code == 2 and "--executor" in r.output
     assert (tmp_path / "keep.txt").read_text() == "mine" and work.is_dir()
+
+
+def test_the_median_interval_is_the_binomial_order_statistics():
+    import numpy as np
+
+    from boomtip.tools.study.tasks import median_interval
+
+    assert median_interval(np.arange(1.0, 21.0)) == (6.0, 15.0)  # n = 20: x(6) and x(15), 95.9 %
+    assert median_interval(np.arange(10.0, 0.0, -1.0)) == (2.0, 9.0)  # unsorted in, n = 10: x(2), x(9)
+    assert all(v != v for v in median_interval(np.arange(5.0)))
