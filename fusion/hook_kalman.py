@@ -27,6 +27,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from boomtip.data.crane_model import CraneParams
+from boomtip.fusion.consistency import Innovations
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman_core import HookKalmanCore
 from boomtip.fusion.hook_kalman_steps import stacked_correction
@@ -76,6 +77,7 @@ class HookFilter(HookKalmanCore):
         self._consecutive_rope_rejections = 0
         self.last_nis: float | None = None
         self.nis_history: list[float] = []
+        self.innovations = Innovations()  # every fix's NIS, gated ones too: the consistency without truth
 
     def _lidar_terms(self, z, R):
         """(C, S) of the correction (hook_kalman_steps.stacked_correction) at the current
@@ -134,6 +136,7 @@ class HookFilter(HookKalmanCore):
         kf = self._kf
         M_new, nis = stacked_correction(kf.M, C, S, True)
         self.last_nis = nis
+        self.innovations.add("lidar_block", self.t, nis, 3)
         if nis > self._gate:
             self._consecutive_rejections += 1
             if self._consecutive_rejections < self.cfg.reacquire_after_rejections:
@@ -187,6 +190,7 @@ class HookFilter(HookKalmanCore):
 
         C, S = terms()
         M_new, nis = stacked_correction(kf.M, C, S, True)
+        self.innovations.add("lidar_rope", self.t, nis, 2)
         if not nis <= self._gate_rope:  # (a NaN NIS is a rejection too)
             self._consecutive_rope_rejections += 1
             if self._consecutive_rope_rejections < self.cfg.reacquire_after_rejections:

@@ -12,6 +12,7 @@ import numpy as np
 
 from boomtip.data.crane_model import CraneParams
 from boomtip.data.hook_streams import HookMeasurements
+from boomtip.fusion.consistency import Innovations
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
 from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch, sway_angles_from_directions
@@ -69,6 +70,7 @@ class HookFilterRun:
     n_rope_accepted: int = 0
     n_rope_rejected: int = 0
     nis: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    innovations: Innovations = field(default_factory=Innovations)  # every fix's NIS per stream (fusion.consistency)
     cpu_s: float = float("nan")  # the process's CPU time over the same loop as runtime_s
     n_samples: int = 0  # recorded samples
 
@@ -243,5 +245,5 @@ def run_hook_filter(
         n_lidar_accepted=filt.n_lidar_accepted, n_lidar_rejected=filt.n_lidar_rejected,
         n_reacquired=filt.n_reacquired, lidar_accepted=lidar_ok, kind=kind, model=model,
         n_rope_accepted=filt.n_rope_accepted, n_rope_rejected=filt.n_rope_rejected,
-        nis=np.array(filt.nis_history), cpu_s=cpu_s, n_samples=n_out,
+        nis=np.array(filt.nis_history), innovations=filt.innovations, cpu_s=cpu_s, n_samples=n_out,
     )

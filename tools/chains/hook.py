@@ -20,6 +20,7 @@ import numpy as np
 from boomtip.data.frames import Frame, FrameSource, Truth, sample_after
 from boomtip.data.hook_streams import HookMeasurements
 from boomtip.data.installation import Installation
+from boomtip.fusion.consistency import consistency_block, flagged_notes
 from boomtip.fusion.hook_config import nominal_crane_params
 from boomtip.fusion.hook_run import HookFilterRun, run_hook_filter
 from boomtip.fusion.hook_tracker import HookTracker
@@ -222,7 +223,10 @@ class HookChain:
         hook["segmentation"] = seg
         hook["rope"] = outputs.rope_kpis(rows, truth)
         warnings = list(self.source_notes) + list(self.warnings)
-        return {"hook": hook, **({"warnings": warnings} if warnings else {})}
+        consistency = {f"hook_{name}": consistency_block(run.innovations) for name, run in result.runs.items()}
+        for name, block in consistency.items():
+            warnings += flagged_notes(block, name)
+        return {"hook": hook, "consistency": consistency, **({"warnings": warnings} if warnings else {})}
 
     def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
         if not result.runs:  # the CSVs and kpis.json say what was measured

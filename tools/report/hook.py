@@ -12,6 +12,7 @@ from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.hook_run import HookFilterRun
 from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
 from boomtip.tools.report.hook_store import P, EstimateStore, atomic_text_file
+from boomtip.tools.report.kpis import consistency_table
 from boomtip.tools.report.plots import legend
 
 PLOT_EVERY = 4  # the report's plots take every 4th estimator sample (50 Hz): a 700 s run is 140,000 samples
@@ -211,6 +212,7 @@ def write_hook_estimates_report(out: Path, kpis: dict) -> None:
         sig = " / ".join(f"{100 * x:.2f}" for x in e["median_sigma_rel_m"])
         last = ", ".join(f"{x:.2f}" for x in e["last_m"])
         lines.append(f"| {name} | {' | '.join(rng)} | {e['top_speed_mps']:.2f} | {sig} | {last} at {e['last_t_s']:.1f} s |")
+    lines += ["", *consistency_table(kpis)]
     atomic_write_bytes(out / "hook_report.md", ("\n".join(lines) + "\n").encode())
 
 
@@ -258,6 +260,7 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
         "",
         rope_summary(hook["rope"]),
         "",
+        *consistency_table(kpis),
         "![trajectory](hook_trajectory.png)",
         "![errors](hook_errors.png)",
         "",

@@ -136,7 +136,8 @@ def consistency_table(kpis: dict) -> list[str]:
              "the installation's stated noise are honest. **flagged**: the run's or a 10 s window's NIS beyond its "
              "chi-square 99.9 % bound (the sigmas are too small there); *underconfident*: below it (the sigmas are larger "
              "than the errors, which is safe). Widened: the largest factor the filter put on the stream's stated variance "
-             "to match its innovations. estimates.csv's `consistent` column is the same test on the trailing 10 s.", "",
+             "to match its innovations. The heave chain's estimates.csv marks each row by the same test over the trailing 10 s "
+             "(`consistent`).", "",
              "| solution | stream | updates | NIS per dof | beyond 99 % | widened | verdict |", "|---|---|---|---|---|---|---|"]
     for solution, block in blocks.items():
         for stream, v in block.items():

@@ -67,8 +67,13 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
     out = tmp_path / "hook"
     r = CliRunner().invoke(app, ["run", "-s", "hook-2", "--duration", "8", "--out", str(out), "--rerun"])
     assert r.exit_code == 0, r.output
-    kpis = json.loads((out / "kpis.json").read_text())["hook"]
+    everything = json.loads((out / "kpis.json").read_text())
+    kpis = everything["hook"]
     for name in ("ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"):
+        # each estimator's consistency from its own innovations, block fixes and rope directions apart
+        c = everything["consistency"][f"hook_{name}"]
+        assert c["lidar_block"]["nis_dof"] == 3 and c["lidar_rope"]["nis_dof"] == 2 and c["lidar_block"]["updates"] > 50
+        assert not c["lidar_block"]["flagged"]
         assert {"rmse_pos_m", "rmse_vel_mps", "max_pos_m", "max_vel_mps", "runtime_fraction", "rmse_rel_pos_m",
                 "rmse_rel_vel_mps"} <= set(kpis[name])
         assert len(kpis[name]["rmse_pos_m"]) == 3
