@@ -236,6 +236,22 @@ def lowest_large_plane(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, 
     return planes[-1] if planes else None
 
 
+BELOW_SIGMAS = 3.0  # a plane below must lie beyond this many of the current plane's own noise sigmas
+
+
+def below_margin(residuals_m: np.ndarray, band_m: float, floor_m: float) -> float:
+    """How far below a plane the next search starts: BELOW_SIGMAS of the plane's points' own
+    noise (1.4826 MAD of the residuals within two inlier bands), never under floor_m. A sensor
+    noisier than its data sheet otherwise leaves the lower tail of the deck's own returns below
+    the margin, where it fits a plane of its own and is taken for the deck (a D too long by
+    about the noise)."""
+    near = residuals_m[np.abs(residuals_m) < 2.0 * band_m]
+    if len(near) < 10:
+        return floor_m
+    sigma = 1.4826 * float(np.median(np.abs(near - np.median(near))))
+    return max(floor_m, BELOW_SIGMAS * sigma)
+
+
 def deck_like_planes(pts: np.ndarray, up_sensor: np.ndarray, cfg: DeckConfig, rng: np.random.Generator) -> list[PlaneFit]:
     """Candidates for the feeder deck, from the top down: the deck-like near-horizontal planes
     holding at least min_area_fraction of the first (largest) plane's points, each search run
@@ -259,7 +275,7 @@ def _deck_like_planes_cols(cols: np.ndarray, up_sensor: np.ndarray, cfg: DeckCon
         # Normals point towards the sensor, so points below the plane have negative distance.
         r = current.plane[:3] @ cols
         r += current.plane[3]
-        below = (r < -cfg.below_margin_m).nonzero()[0]
+        below = (r < -below_margin(r, mp.ransac.distance_threshold_m, cfg.below_margin_m)).nonzero()[0]
         if len(below) < need:
             break
         cand = ransac_plane_cols(cols.take(below, axis=1), mp.ransac, rng, axis=up_sensor, max_axis_angle_deg=mp.max_tilt_deg,

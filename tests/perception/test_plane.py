@@ -402,3 +402,16 @@ def test_biweight_refinement_converges_to_one_plane_from_any_start():
     flat = np.vstack([np.column_stack([xy, np.full(20000, -10.0)]), rng.uniform(-5, 5, (5000, 3))])
     p = refine_plane_biweight(flat, np.array([0.0, 0.0, 1.0, 10.02]), 0.16)
     assert abs(p[3] / p[2] - 10.0) < 1e-6 and angle_deg(p[:3], np.array([0, 0, 1.0])) < 1e-4
+
+
+def test_the_search_below_a_plane_starts_beyond_its_own_noise():
+    """A radar three times noisier than its data sheet: the margin follows the points' own
+    spread (3 robust sigma), so the lower tail of the deck's returns is not a plane below it;
+    a quiet sensor keeps the configured floor."""
+    from boomtip.perception.deck import BELOW_SIGMAS, below_margin
+
+    rng = np.random.default_rng(2)
+    noisy = rng.normal(0.0, 0.43, 5000)
+    assert below_margin(noisy, 0.45, 0.3) == pytest.approx(BELOW_SIGMAS * 0.43, rel=0.08)
+    assert below_margin(rng.normal(0.0, 0.02, 5000), 0.08, 0.3) == 0.3
+    assert below_margin(np.zeros(3), 0.45, 0.3) == 0.3  # too few points to say: the floor
