@@ -56,6 +56,8 @@ class FusionConfig(BaseModel):
         3e-3, ge=0, description="the same for D-dot: the rotation-aware Doppler's deck spin comes from a 1 s window "
         "of deck normals, an error its velocity fit cannot see (a few mm/s)",
     )
+    floor_D_dot_correlation_s: float = Field(1.0, ge=0, description="the D-dot floor is one error over this long (the "
+                                             "deck spin's window of normals): frames within it share it (0: independent)")
     lost_sigma_D_m: float = Field(
         0.25, gt=0, description="an estimate whose D sigma exceeds this is lost: written with its reason, never "
         "as a D to use (a crane cannot land a load on a deck known to within a quarter metre)",
@@ -110,13 +112,31 @@ def lost_estimates(x: np.ndarray, var: np.ndarray, cfg: FusionConfig, max_D_m: f
     return Lost(sigma_D | range_D, sigma_V, why)
 
 
-def with_floor(m: Measurement, cfg: FusionConfig) -> Measurement | None:
+def with_floor(m: Measurement, cfg: FusionConfig, interval_s: float = math.inf) -> Measurement | None:
     """The fit's own sigma plus what no fit sees (a floor per quantity); None for a sigma
-    that is not a positive finite number."""
+    that is not a positive finite number. The D-dot floor is one error shared by the frames
+    of `floor_D_dot_correlation_s` (the deck spin's window): a frame interval_s after the last
+    of its source carries its variance times that over the interval, so twenty frames in that
+    window do not average it away (a LiDAR outage integrates it into D)."""
     if not (np.isfinite(m.sigma) and m.sigma > 0 and np.isfinite(m.value)):
         return None
-    floor = cfg.floor_sigma_D_m if m.quantity == "D" else cfg.floor_sigma_D_dot_mps
-    return replace(m, sigma=float(np.hypot(m.sigma, floor)))
+    if m.quantity == "D":
+        return replace(m, sigma=float(np.hypot(m.sigma, cfg.floor_sigma_D_m)))
+    shared = max(1.0, cfg.floor_D_dot_correlation_s / interval_s) if interval_s > 0 else 1.0
+    return replace(m, sigma=float(np.hypot(m.sigma, cfg.floor_sigma_D_dot_mps * math.sqrt(shared))))
+
+
+def with_floors(measurements: list[Measurement], cfg: FusionConfig) -> list[Measurement]:
+    """with_floor of each (in acquisition order per source, for the intervals); the ones
+    without a usable sigma dropped."""
+    out, last = [], {}
+    for m in sorted(measurements, key=lambda m: m.t_acq_s):
+        key = (m.source, m.quantity)
+        m2 = with_floor(m, cfg, m.t_acq_s - last.get(key, -math.inf))
+        last[key] = m.t_acq_s
+        if m2 is not None:
+            out.append(m2)
+    return out
 
 
 def shared_errors(measurements: list[Measurement], correlation_s: float) -> list[Measurement]:
@@ -156,8 +176,7 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     solution's own sources (a fused solution falling back on the radar's deck). max_D_m: the
     sensors' range, beyond which a D is lost (lost_estimates)."""
     methods = methods or SOLUTIONS[name]
-    inputs = shared_errors([m2 for m in measurements if m.source in methods for m2 in [with_floor(m, cfg)] if m2 is not None],
-                           cfg.error_correlation_s)
+    inputs = shared_errors(with_floors([m for m in measurements if m.source in methods], cfg), cfg.error_correlation_s)
     inputs.sort(key=lambda m: (m.t_arrival_s, m.t_acq_s))
     initial_D = None
     if name == "doppler_radar":

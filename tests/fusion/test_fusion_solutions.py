@@ -216,3 +216,22 @@ def test_a_sensor_clock_s_offset_widens_d_by_d_dot_times_its_sigma():
     np.testing.assert_allclose(added[50:], (timed.x[50:, 1] * 0.01) ** 2, rtol=1e-6)
     fast, still = np.argmax(np.abs(timed.x[50:, 1])) + 50, np.argmin(np.abs(timed.x[50:, 1])) + 50
     assert added[fast] > 1e-4 and added[still] < 1e-6
+
+
+def test_the_d_dot_floor_is_shared_by_the_frames_of_its_window():
+    """20 Hz of D-dot frames share the floor's error over its 1 s window: each carries the
+    floor times sqrt(20); 1 Hz frames carry it as it is; D's floor is per frame."""
+    from boomtip.fusion.heave_filter import Measurement
+    from boomtip.fusion.solutions import with_floors
+
+    cfg = FusionConfig()  # floor 3 mm/s over 1 s, 0.5 mm on D
+    fast = [Measurement(t, t, "D_dot", 0.0, 1e-6, "doppler_radar_rot") for t in np.arange(0, 1, 0.05)]
+    slow = [Measurement(t, t, "D_dot", 0.0, 1e-6, "doppler_radar") for t in (0.0, 1.0, 2.0)]
+    D = [Measurement(t, t, "D", 40.0, 1e-6, "deck_lidar") for t in np.arange(0, 1, 0.1)]
+    got = with_floors(fast + slow + D, cfg)
+    by = lambda s: [m.sigma for m in got if m.source == s]
+    assert by("doppler_radar_rot")[1:] == pytest.approx([0.003 * np.sqrt(20)] * 19, rel=1e-6)
+    assert by("doppler_radar") == pytest.approx([0.003] * 3, rel=1e-6)
+    assert by("deck_lidar") == pytest.approx([0.0005] * 10, rel=1e-5)
+    bad = Measurement(0.0, 0.0, "D", 40.0, float("nan"), "deck_lidar")
+    assert with_floors([bad], cfg) == []
