@@ -84,6 +84,9 @@ class LidarSpec(StrictModel):
     # spinning pattern (Ouster OS1 class): uniform channel elevations over channel_fov_deg
     channels: int = Field(64, ge=1, le=512)
     channel_fov_deg: float = Field(45.0, gt=0, le=180)
+    beams_file: str = Field("", description="spinning pattern: an Ouster sensor-metadata JSON whose beam_altitude_angles "
+                            "and beam_azimuth_angles the channels take instead of a uniform fan over channel_fov_deg "
+                            "(its beam count must be `channels`; a path relative to the working folder)")
     columns: int = Field(1024, ge=8, le=8192)
     min_range_m: float = Field(0.5, ge=0)
     max_range_m: float = Field(300.0, gt=0)

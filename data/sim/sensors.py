@@ -16,6 +16,7 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
+from boomtip.data.io.beams import beam_angles_deg
 from boomtip.data.sim.fans import Fans
 from boomtip.data.sim.raycast import Hits, face_offsets
 from boomtip.data.sim.world import Lidar, Radar
@@ -67,10 +68,27 @@ def lidar_pattern(cfg: Lidar) -> ScanPattern:
         az = np.arange(cfg.columns) * (2 * np.pi / cfg.columns)
         el = np.deg2rad(np.linspace(-cfg.channel_fov_deg / 2, cfg.channel_fov_deg / 2, cfg.channels))
         column_time = np.arange(cfg.columns) / cfg.columns / cfg.rate_hz  # one revolution per frame
+        if cfg.beams_file:
+            el, shift = beam_pattern(cfg)
+            column = (np.arange(len(az))[:, None] + shift[None, :]) % len(az)
+            dirs = spherical_dirs(*(g.ravel() for g in np.meshgrid(az, el, indexing="ij")))
+            return ScanPattern(dirs, column.ravel(), column_time, Fans(dirs, az, el))
     az_g, el_g = np.meshgrid(az, el, indexing="ij")
     column = np.repeat(np.arange(len(az)), len(el))
     dirs = spherical_dirs(az_g.ravel(), el_g.ravel())
     return ScanPattern(dirs, column, column_time, Fans(dirs, az, el))
+
+
+def beam_pattern(cfg: Lidar) -> tuple[np.ndarray, np.ndarray]:
+    """The elevations (rad, ascending, as the fans need them) of a beams file's channels and, per
+    channel, the columns its azimuth offset shifts its firing by. A ray at column azimuth a of
+    a beam with Ouster offset d points at a - d (ouster-sdk's sign); the ray at fan azimuth f is
+    so fired d / column-step columns later, rounded: each beam's azimuth within half a column
+    of the file's, its elevation exact."""
+    alt_deg, az_deg = beam_angles_deg(cfg.beams_file, cfg.channels)
+    order = np.argsort(alt_deg, kind="stable")
+    step_deg = 360.0 / cfg.columns
+    return np.deg2rad(alt_deg[order]), np.round(az_deg[order] / step_deg).astype(np.int64)
 
 
 def radar_pattern(cfg: Radar) -> ScanPattern:

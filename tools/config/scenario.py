@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from boomtip.data.io.beams import BeamsFileError, beam_angles_deg
 from boomtip.data.keys import format_validation, leaf_keys, nearest_keys, settings_dump
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.tools.config.processing import Processing
@@ -180,9 +181,16 @@ def scenario_from_dict(raw: dict, source: str = "scenario", overridden: dict[str
     if not isinstance(raw, dict):
         raise ScenarioError(f"{source}: expected a mapping of scenario keys")
     try:
-        return Scenario.model_validate(raw)
+        scenario = Scenario.model_validate(raw)
     except ValidationError as exc:
         raise ScenarioError(_format_validation(exc, source, overridden)) from None
+    lidar = scenario.installation.lidar
+    if lidar.beams_file and lidar.pattern == "spinning":  # refused here, with its key, not mid-simulation
+        try:
+            beam_angles_deg(lidar.beams_file, lidar.channels)
+        except BeamsFileError as exc:
+            raise ScenarioError(f"installation.lidar.beams_file: {exc}") from None
+    return scenario
 
 
 def scenario_to_yaml(scenario: Scenario) -> str:
