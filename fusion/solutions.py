@@ -19,10 +19,12 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.fusion.consistency import Innovations, consistent_rows
+from boomtip.fusion.deck_fallback import radar_deck_bridge
 from boomtip.fusion.heave_filter import HeaveFilter, HeaveFilterConfig, Measurement
 from boomtip.fusion.tuning import default_jerk_psd, relative_heave_jerk_psd
 from boomtip.fusion.wave_predictor import fit_ar, forecast
 
+LIDAR_DISTANCES = ("deck_lidar", "reflectors_lidar")
 SOLUTIONS: dict[str, tuple[str, ...]] = {
     "deck_lidar": ("deck_lidar",),
     "deck_radar": ("deck_radar",),
@@ -65,6 +67,10 @@ class FusionConfig(BaseModel):
     lost_sigma_D_dot_mps: float = Field(0.5, gt=0, description="likewise for D-dot")
     error_correlation_s: float = Field(0.05, ge=0, description="a method's frames closer than this share their "
                                        "errors: each one's variance grows by this over its interval (0: independent)")
+    radar_deck_bridge: bool = Field(True, description="through a LiDAR outage the fused solution also takes the radar's deck "
+                                    "distance, moved by its offset from the LiDAR's as learnt before (fusion.deck_fallback)")
+    radar_deck_after_s: float = Field(0.5, gt=0, description="the LiDAR silent this long: the radar's deck joins")
+    radar_deck_window_s: float = Field(30.0, gt=0, description="the radar-minus-LiDAR offset: over this much before")
     noise_memory_s: float = Field(5.0, ge=0, description="a method noisier than its stated sigma has its variance widened "
                                   "to match its recent innovations over about this long (0: the stated sigmas)")
 
@@ -176,7 +182,12 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     solution's own sources (a fused solution falling back on the radar's deck). max_D_m: the
     sensors' range, beyond which a D is lost (lost_estimates)."""
     methods = methods or SOLUTIONS[name]
-    inputs = shared_errors(with_floors([m for m in measurements if m.source in methods], cfg), cfg.error_correlation_s)
+    own = [m for m in measurements if m.source in methods]
+    if name == "fused" and cfg.radar_deck_bridge and "deck_radar" not in methods:  # through a LiDAR outage
+        lidar_D = tuple(m for m in methods if m in LIDAR_DISTANCES)
+        own += radar_deck_bridge(measurements, lidar_D, "deck_radar", cfg.radar_deck_after_s, cfg.radar_deck_window_s)
+    inputs = shared_errors(with_floors(own, cfg), cfg.error_correlation_s)
+    streams = {m.source for m in inputs}
     inputs.sort(key=lambda m: (m.t_arrival_s, m.t_acq_s))
     initial_D = None
     if name == "doppler_radar":
@@ -219,7 +230,7 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
                 waves.step(tick, t, t - filt.last_time_s, x[k], var[k])
     innovations = Innovations()
     for t_acq, source, nis, scale in filt.innovations():
-        if source in methods:  # not the wave bridge's hand-over
+        if source in streams:  # not the wave bridge's hand-over
             innovations.add(source, t_acq, nis, 1, scale)
     filter_ms = (time.perf_counter() - t0) * 1e3
     return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses, lost_estimates(x, var, cfg, max_D_m),

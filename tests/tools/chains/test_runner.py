@@ -241,3 +241,17 @@ def test_a_radar_whose_rates_wrap_gives_the_same_d_dot_as_one_that_does_not(tmp_
     rows = _rows(tmp_path / "v1.25" / "measurements.csv")
     unknown = [x for x in rows if x["status"].startswith("Doppler alias unknown")]
     assert 0 < len(unknown) <= 4 and all(float(x["t"]) < 0.2 for x in unknown)
+
+
+def test_a_lidar_outage_is_bridged_by_the_radar_deck_within_a_centimetre(tmp_path):
+    """LiDAR out 10 s: the fused D takes the radar's deck, its offset learnt before, and stays
+    within 10 mm and within its 3 sigma; the bridged stream is consistent."""
+    out = tmp_path / "o"
+    r = runner.invoke(app, ["run", "-s", "sts-loaded", "--duration", "45", "--set", "world.lidar.outages_s=[[30,40]]",
+                            "--set", "processing.feeder.enabled=false", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    kpis = json.loads((out / "kpis.json").read_text())
+    outage = kpis["solutions"]["fused"]["outage"]
+    assert outage["max_D_m"] < 0.010 and outage["within_3sigma_D"] == 1.0
+    bridged = kpis["consistency"]["fused"]["deck_radar_bridged"]
+    assert bridged["updates"] > 150 and not bridged["flagged"]
