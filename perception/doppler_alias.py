@@ -3,8 +3,10 @@ unambiguous range rate (a data-sheet figure; the TI mmWave demo's is about 1.25 
 coming up at v + e reads -v + e. Before the velocity fit the rates are put back on the branch
 nearest what a prior velocity predicts for each beam; the prior is the last scan's velocity,
 its vertical part from the last two deck distances when they are recent (the LiDAR's, else the
-radar's: a distance is unambiguous). Without either (the first scans) the scan's alias is not
-known and it gives no velocity. A wrap is then never a jump in D-dot, as long as the prior is within v of the
+radar's: a distance is unambiguous). Without either the scan's alias is not known and it gives
+no velocity, for the first WAIT_S of the radar's scans (a deck is normally seen by then); a
+radar that never sees a deck (handheld, or the deck out of its view) then takes the rates as
+reported, the branch around zero, and tracks from there. A wrap is then never a jump in D-dot, as long as the prior is within v of the
 truth: 1.25 m/s is several seconds of the sea's acceleration, or the LiDAR's D-dot noise many
 times over."""
 
@@ -14,9 +16,10 @@ import math
 
 import numpy as np
 
-__all__ = ["PRIOR_MAX_AGE_S", "alias_prior_level", "deck_rate", "unwrap_range_rates"]
+__all__ = ["PRIOR_MAX_AGE_S", "WAIT_S", "alias_prior_level", "deck_rate", "unwrap_range_rates"]
 
 PRIOR_MAX_AGE_S = 0.3  # a scan's velocity or a LiDAR deck older than this is no prior (s)
+WAIT_S = 1.0  # without a prior this long after the radar's first scan: the branch around zero
 
 
 def unwrap_range_rates(points_sensor: np.ndarray, range_rate_mps: np.ndarray, unambiguous_mps: float,

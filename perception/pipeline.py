@@ -24,7 +24,7 @@ from boomtip.data.frames import Frame, MruLog
 from boomtip.data.installation import Installation
 from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck, status_ok
 from boomtip.perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
-from boomtip.perception.doppler_alias import alias_prior_level, unwrap_range_rates
+from boomtip.perception.doppler_alias import WAIT_S, alias_prior_level, unwrap_range_rates
 from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
@@ -174,6 +174,7 @@ class HeavePipeline:
         self.last_deck: dict[str, tuple[float, float]] = {}  # sensor -> (t, D)
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
         self.last_doppler_level: tuple[float, np.ndarray] | None = None  # (t, u_level): the next scan's alias prior
+        self.first_radar_t: float | None = None  # the radar's first scan (the alias prior's wait)
         self.recent_decks = {"lidar": [], "radar": []}  # sensor -> its last two decks (t, D): the alias prior's D-dot
         self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
         self.bias_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
@@ -335,6 +336,9 @@ class HeavePipeline:
             pts, range_rate_mps = inputs
             if self.unambiguous_mps > 0:  # the radar's wrapped rates back on the prior's branch
                 u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias())
+                self.first_radar_t = frame.t_s if self.first_radar_t is None else self.first_radar_t
+                if u_prior is None and frame.t_s - self.first_radar_t > WAIT_S:
+                    u_prior = np.zeros(3)  # no deck in view for long: the rates as reported
                 if u_prior is None:
                     return {m: (np.nan, np.nan, "Doppler alias unknown: no recent velocity or deck distances yet")
                             for m in wanted if m.startswith("doppler")}

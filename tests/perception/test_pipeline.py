@@ -383,3 +383,27 @@ def test_repeated_time_stamps_leave_the_decks_spin_as_it_was():
     assert not rate.add(0.35, n)  # a late one
     w = rate.omega(0.7)
     assert w is not None and np.all(np.isfinite(w)) and abs(w[1]) > 0
+
+
+def test_a_wrapping_radar_that_never_sees_a_deck_waits_then_takes_the_branch_around_zero(short_sim):
+    """Radar rates that wrap and no deck distance ever (a handheld radar): the first second of
+    scans gives no velocity (the alias is not known), later scans take the rates as reported
+    and track from there; with a deck in view the prior comes from it instead."""
+    inst = short_sim.meta.installation.model_copy(deep=True)
+    inst.radar.unambiguous_range_rate_mps = 1.25
+    pipe = HeavePipeline(inst, short_sim.mru)
+    pipe.recent_decks = {"lidar": [], "radar": []}
+    rng = np.random.default_rng(0)
+    b = rng.normal(size=(200, 3)) * [0.3, 0.3, 1.0]
+    b[:, 2] = -np.abs(b[:, 2])
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    points = b * 8.0  # nothing a deck plane
+    rates = b @ np.array([0.2, -0.1, 0.3]) + rng.normal(0.0, 0.02, 200)
+    statuses = []
+    for k, t in enumerate(np.arange(0.0, 1.6, 0.1)):
+        fields = {"range_rate": rates.astype(np.float32), "range": np.full(200, 8.0, np.float32)}
+        res = pipe.process(Frame("radar", k, float(t), points, fields))
+        statuses.append(next(m.status for m in res.measurements if m.method == "doppler_radar"))
+        pipe.recent_decks = {"lidar": [], "radar": []}  # never a deck
+    assert all(s.startswith("Doppler alias unknown") for s in statuses[:10])
+    assert statuses[-1] == "ok" and pipe.last_doppler_level is not None
