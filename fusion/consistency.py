@@ -15,7 +15,7 @@ __all__ = ["FLAG_PROBABILITY", "WINDOW_S", "Innovations", "consistent_rows", "st
            "consistency_block", "flagged_notes"]
 
 WINDOW_S = 10.0  # a stream is also judged over each window of this length, not only over the run
-FLAG_PROBABILITY = 0.999  # the two-sided interval a consistent stream's NIS sum lies in
+FLAG_PROBABILITY = 0.999  # a consistent stream's NIS sum stays under this quantile (and over its complement)
 BEYOND_PROBABILITY = 0.99  # `beyond_99`: the share of single updates beyond this quantile
 
 
@@ -104,9 +104,11 @@ def consistency_block(innovations: Innovations, window_s: float = WINDOW_S) -> d
 
 def consistent_rows(t_out: np.ndarray, innovations: Innovations, window_s: float = WINDOW_S,
                     probability: float = FLAG_PROBABILITY, both_sides: bool = False) -> np.ndarray:
-    """Per output time, causally: whether every stream's NIS over the trailing window_s stays
-    under its chi-square quantile at `probability` (only an overconfident filter fails; with
-    both_sides also above the lower quantile). True where no update falls in the window."""
+    """Per output time: whether every stream's NIS over the trailing window_s of acquisition
+    time stays under its chi-square quantile at `probability` (only an overconfident filter
+    fails; with both_sides also above the lower quantile). The NIS are the filter's settled
+    ones (after any out-of-sequence replay), so a row may count a measurement that arrived
+    after it by the sensor's latency. True where no update falls in the window."""
     ok = np.ones(len(t_out), dtype=bool)
     alpha = 1.0 - probability
     for stream in innovations.rows:

@@ -30,12 +30,15 @@ def matched_ratio(y: np.ndarray, R: np.ndarray, HPHt: np.ndarray, gate_nis: floa
     tr(R^-1 H P H^T)) / dof, bounded: an innovation beyond the gate on y^T S^-1 y (S the
     covariance in use, R widened by scale) counts as one on it, and no innovation claims more
     than gate_nis times the current scale (one the prediction's own uncertainty dominates would
-    otherwise claim a noise of that uncertainty's size). NaN for a non-finite innovation."""
+    otherwise claim a noise of that uncertainty's size). NaN for a non-finite innovation or a
+    singular R."""
     y = np.atleast_1d(np.asarray(y, dtype=float))
     R, HPHt = np.atleast_2d(R), np.atleast_2d(HPHt)
-    Rinv = np.linalg.inv(R)
-    S = HPHt + scale * R
-    nis = float(y @ np.linalg.solve(S, y))
+    try:
+        Rinv = np.linalg.inv(R)
+        nis = float(y @ np.linalg.solve(HPHt + scale * R, y))
+    except np.linalg.LinAlgError:  # a stated noise of zero somewhere: nothing to match it to
+        return math.nan
     if not math.isfinite(nis):
         return math.nan
     q = float(y @ Rinv @ y)

@@ -38,11 +38,15 @@ def rope_strain(t_fix: np.ndarray, p_rel: np.ndarray, along_sigma_m: np.ndarray,
                 prior_sigma: float, walk_per_sqrt_s: float) -> RopeStrain:
     """The extra strain after each fix. p_rel (K, 3): the fixes relative to the tip (NaN rows:
     none), along_sigma_m (K,): their 1-sigma along the rope; the hoist (as the filter takes
-    it) at the fixes' times by linear interpolation. A loop over fixes (a few per second), not
+    it) its last sample at or before each fix. A loop over fixes (a few per second), not
     over points."""
     t_fix = np.asarray(t_fix, dtype=float)
     length = np.linalg.norm(np.asarray(p_rel, dtype=float), axis=1)
-    hoist = np.interp(t_fix, t_enc, hoist_m) if len(t_enc) else np.full(len(t_fix), np.nan)
+    # the encoder's last sample at or before each fix (causal: never the one after it)
+    i = np.searchsorted(np.asarray(t_enc, dtype=float), t_fix, side="right") - 1
+    hoist = np.full(len(t_fix), np.nan)
+    if len(t_enc):
+        hoist = np.where(i >= 0, np.asarray(hoist_m, dtype=float)[np.maximum(i, 0)], np.nan)
     z = length / hoist - 1.0  # the strain this fix says
     r = (np.asarray(along_sigma_m, dtype=float) / hoist) ** 2
     ok = np.isfinite(z) & np.isfinite(r) & (r > 0) & (hoist > 0)

@@ -139,8 +139,8 @@ def with_floors(measurements: list[Measurement], cfg: FusionConfig) -> list[Meas
     for m in sorted(measurements, key=lambda m: m.t_acq_s):
         key = (m.source, m.quantity)
         m2 = with_floor(m, cfg, m.t_acq_s - last.get(key, -math.inf))
-        last[key] = m.t_acq_s
         if m2 is not None:
+            last[key] = m.t_acq_s
             out.append(m2)
     return out
 
@@ -186,7 +186,9 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
     if name == "fused" and cfg.radar_deck_bridge and "deck_radar" not in methods:  # through a LiDAR outage
         lidar_D = tuple(m for m in methods if m in LIDAR_DISTANCES)
         own += radar_deck_bridge(measurements, lidar_D, "deck_radar", cfg.radar_deck_after_s, cfg.radar_deck_window_s)
-    inputs = shared_errors(with_floors(own, cfg), cfg.error_correlation_s)
+    # the fits' own sigmas shared by close frames first, then the floors (the D-dot floor's own sharing)
+    inputs = with_floors(shared_errors([m for m in own if np.isfinite(m.sigma) and m.sigma > 0 and np.isfinite(m.value)],
+                                       cfg.error_correlation_s), cfg)
     streams = {m.source for m in inputs}
     inputs.sort(key=lambda m: (m.t_arrival_s, m.t_acq_s))
     initial_D = None

@@ -240,12 +240,12 @@ BELOW_SIGMAS = 3.0  # a plane below must lie beyond this many of the current pla
 
 
 def below_margin(residuals_m: np.ndarray, band_m: float, floor_m: float) -> float:
-    """How far below a plane the next search starts: BELOW_SIGMAS of the plane's points' own
-    noise (1.4826 MAD of the residuals within two inlier bands), never under floor_m. A sensor
-    noisier than its data sheet otherwise leaves the lower tail of the deck's own returns below
-    the margin, where it fits a plane of its own and is taken for the deck (a D too long by
-    about the noise)."""
-    near = residuals_m[np.abs(residuals_m) < 2.0 * band_m]
+    """How far below a plane the next search starts: BELOW_SIGMAS of the plane's own noise
+    (1.4826 MAD of its inliers' residuals, |r| < band_m: a plane close below does not inflate
+    it), never under floor_m. A sensor noisier than its data sheet otherwise leaves the lower
+    tail of the deck's own returns below the margin, where it fits a plane of its own and is
+    taken for the deck (a D too long by about the noise)."""
+    near = residuals_m[np.abs(residuals_m) < band_m]
     if len(near) < 10:
         return floor_m
     sigma = 1.4826 * float(np.median(np.abs(near - np.median(near))))

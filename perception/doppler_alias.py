@@ -5,8 +5,9 @@ nearest what a prior velocity predicts for each beam; the prior is the last scan
 its vertical part from the last two deck distances when they are recent (the LiDAR's, else the
 radar's: a distance is unambiguous). Without either the scan's alias is not known and it gives
 no velocity, for the first WAIT_S of the radar's scans (a deck is normally seen by then); a
-radar that never sees a deck (handheld, or the deck out of its view) then takes the rates as
-reported, the branch around zero, and tracks from there. A wrap is then never a jump in D-dot, as long as the prior is within v of the
+radar that has never had a prior by then (handheld, or no deck in its view) takes the rates as
+reported, the branch around zero, and tracks from there. Once a prior has been had, a scan
+without one gives no velocity. A wrap is then never a jump in D-dot, as long as the prior is within v of the
 truth: 1.25 m/s is several seconds of the sea's acceleration, or the LiDAR's D-dot noise many
 times over."""
 
@@ -46,16 +47,20 @@ def deck_rate(t_s: float, decks: list[tuple[float, float]], max_age_s: float = P
 
 
 def alias_prior_level(t_s: float, last_velocity: tuple[float, np.ndarray] | None,
-                      decks_by_sensor: list[list[tuple[float, float]]],
+                      decks_by_sensor: list[list[tuple[float, float]]], unambiguous_mps: float = 0.0,
                       max_age_s: float = PRIOR_MAX_AGE_S) -> np.ndarray | None:
     """The relative velocity expected at t_s in level axes (m/s): the last scan's (t, u_level)
-    when recent, else zero, its vertical part minus the D-dot of the first sensor's last two
-    decks that are recent (D grows downwards: u_z = -D-dot). None when neither is known."""
+    when recent; its vertical part from the D-dot of the first sensor's last two recent decks
+    (D grows downwards: u_z = -D-dot) when there is no recent scan, or when the two disagree by
+    more than half the branch width `unambiguous_mps` (the scan's own branch went wrong: the
+    distances say so; two distances' rate is noisier than a scan's velocity otherwise). None
+    when neither is known."""
     recent = last_velocity is not None and abs(t_s - last_velocity[0]) <= max_age_s
     u = np.array(last_velocity[1], dtype=float) if recent else np.zeros(3)
     for decks in decks_by_sensor:
         rate = deck_rate(t_s, decks, max_age_s)
         if rate is not None:
-            u[2] = -rate
+            if not recent or abs(-rate - u[2]) > 0.5 * unambiguous_mps:
+                u[2] = -rate
             return u
     return u if recent else None

@@ -175,6 +175,7 @@ class HeavePipeline:
         self.last_doppler: tuple[float, np.ndarray] | None = None  # (t, u_sensor): prior for the next scan
         self.last_doppler_level: tuple[float, np.ndarray] | None = None  # (t, u_level): the next scan's alias prior
         self.first_radar_t: float | None = None  # the radar's first scan (the alias prior's wait)
+        self.alias_prior_seen = False  # whether any scan has had an alias prior
         self.recent_decks = {"lidar": [], "radar": []}  # sensor -> its last two decks (t, D): the alias prior's D-dot
         self.mru_sigma_rad = float(np.deg2rad(installation.mru.angle_noise_deg))  # the MRU's stated noise
         self.bias_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
@@ -294,7 +295,8 @@ class HeavePipeline:
             inputs = doppler_inputs(frame, cfg.doppler_preprocess)
             if inputs is not None and len(inputs[0]) >= 3:
                 rates = inputs[1]
-                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias())
+                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias(),
+                                            self.unambiguous_mps)
                 if self.unambiguous_mps > 0 and u_prior is not None:
                     R_rows = level_rotation_rows(rpy_rad, self._R_crane_sensor_rows[frame.sensor])
                     rates = unwrap_range_rates(inputs[0], rates, self.unambiguous_mps, mat3T_vec(R_rows, u_prior))
@@ -335,10 +337,12 @@ class HeavePipeline:
                 return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
             pts, range_rate_mps = inputs
             if self.unambiguous_mps > 0:  # the radar's wrapped rates back on the prior's branch
-                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias())
+                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias(),
+                                            self.unambiguous_mps)
                 self.first_radar_t = frame.t_s if self.first_radar_t is None else self.first_radar_t
-                if u_prior is None and frame.t_s - self.first_radar_t > WAIT_S:
-                    u_prior = np.zeros(3)  # no deck in view for long: the rates as reported
+                self.alias_prior_seen |= u_prior is not None
+                if u_prior is None and not self.alias_prior_seen and frame.t_s - self.first_radar_t > WAIT_S:
+                    u_prior = np.zeros(3)  # never a deck nor a velocity: the rates as reported
                 if u_prior is None:
                     return {m: (np.nan, np.nan, "Doppler alias unknown: no recent velocity or deck distances yet")
                             for m in wanted if m.startswith("doppler")}

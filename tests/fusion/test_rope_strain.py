@@ -31,6 +31,7 @@ def test_a_wild_fix_is_gated_and_nan_fixes_are_skipped():
     p[100] *= 1.05  # 5.7 m off
     p[50] = np.nan
     est = rope_strain(t, p, s, te, hoist, 2e-3, 5e-5)
+    assert est.strain[100] == est.strain[99] and est.strain[50] == est.strain[49]  # gated, skipped: no change
     assert abs(est.strain[101]) < 3 * est.sigma[101] and np.all(np.isfinite(est.strain))
 
 

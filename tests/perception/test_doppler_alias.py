@@ -43,3 +43,7 @@ def test_the_prior_takes_the_scan_velocity_and_the_freshest_decks_rate():
     assert alias_prior_level(10.05, last, [[], []]) == pytest.approx(last[1])
     assert alias_prior_level(11.0, last, [lidar, radar]) is None  # all too old: the alias is not known
     assert deck_rate(10.05, [(9.0, 40.0), (10.0, 39.0)]) is None  # the decks a second apart: no rate
+    # with a branch width: the scan's velocity stands unless the distances say its branch is wrong
+    near = (10.0, np.array([0.2, 0.1, 1.4]))
+    assert alias_prior_level(10.05, near, [lidar], 1.25) == pytest.approx([0.2, 0.1, 1.4])
+    assert alias_prior_level(10.05, last, [lidar], 1.25) == pytest.approx([0.2, 0.1, 1.5])

@@ -407,3 +407,7 @@ def test_a_wrapping_radar_that_never_sees_a_deck_waits_then_takes_the_branch_aro
         pipe.recent_decks = {"lidar": [], "radar": []}  # never a deck
     assert all(s.startswith("Doppler alias unknown") for s in statuses[:10])
     assert statuses[-1] == "ok" and pipe.last_doppler_level is not None
+    # once it has had a prior, a scan without one (0.4 s without fits) gives no velocity
+    fields = {"range_rate": rates.astype(np.float32), "range": np.full(200, 8.0, np.float32)}
+    res = pipe.process(Frame("radar", 99, 1.95, points, fields))
+    assert next(m.status for m in res.measurements if m.method == "doppler_radar").startswith("Doppler alias unknown")
