@@ -16,6 +16,9 @@ import numpy as np
 __all__ = ["RopeStrain", "rope_strain"]
 
 GATE_NIS = 15.1  # chi-square 1 dof, 99.99 %: a fix this far off its length is not a length
+# a fix's strain applies from this long after it: an encoder sample stamped with the fix gets
+# the strain from before it however a recording rounded the two stamps (a CSV keeps 6 digits)
+APPLY_AFTER_S = 1e-3
 
 
 class RopeStrain:
@@ -25,9 +28,9 @@ class RopeStrain:
         self.t_s, self.strain, self.sigma, self.prior_sigma = t_s, strain, sigma, prior_sigma
 
     def at(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(e, sigma) at each time: the estimate after the last fix at or before it (the prior
-        before the first)."""
-        i = np.searchsorted(self.t_s, np.asarray(t_s, dtype=float), side="right") - 1
+        """(e, sigma) at each time: the estimate after the last fix at least APPLY_AFTER_S
+        before it (the prior before the first)."""
+        i = np.searchsorted(self.t_s, np.asarray(t_s, dtype=float) - APPLY_AFTER_S, side="right") - 1
         have = i >= 0
         e = np.where(have, self.strain[np.maximum(i, 0)] if len(self.t_s) else 0.0, 0.0)
         s = np.where(have, self.sigma[np.maximum(i, 0)] if len(self.t_s) else self.prior_sigma, self.prior_sigma)
@@ -38,15 +41,14 @@ def rope_strain(t_fix: np.ndarray, p_rel: np.ndarray, along_sigma_m: np.ndarray,
                 prior_sigma: float, walk_per_sqrt_s: float) -> RopeStrain:
     """The extra strain after each fix. p_rel (K, 3): the fixes relative to the tip (NaN rows:
     none), along_sigma_m (K,): their 1-sigma along the rope; the hoist (as the filter takes
-    it) its last sample at or before each fix. A loop over fixes (a few per second), not
+    it) interpolated at the fixes' times. A loop over fixes (a few per second), not
     over points."""
     t_fix = np.asarray(t_fix, dtype=float)
     length = np.linalg.norm(np.asarray(p_rel, dtype=float), axis=1)
-    # the encoder's last sample at or before each fix (causal: never the one after it)
-    i = np.searchsorted(np.asarray(t_enc, dtype=float), t_fix, side="right") - 1
-    hoist = np.full(len(t_fix), np.nan)
-    if len(t_enc):
-        hoist = np.where(i >= 0, np.asarray(hoist_m, dtype=float)[np.maximum(i, 0)], np.nan)
+    # interpolated between the encoder's samples around each fix (a look-ahead of one encoder
+    # period, 10 ms at 100 Hz: a sample's choice would move the hoist by the hoisting speed
+    # times that period, centimetres)
+    hoist = np.interp(t_fix, t_enc, hoist_m) if len(t_enc) else np.full(len(t_fix), np.nan)
     z = length / hoist - 1.0  # the strain this fix says
     r = (np.asarray(along_sigma_m, dtype=float) / hoist) ** 2
     ok = np.isfinite(z) & np.isfinite(r) & (r > 0) & (hoist > 0)

@@ -174,7 +174,8 @@ def test_the_radars_detections_hold_x_y_and_yaw_through_a_lidar_outage(tmp_path)
     """A 10 s outage once the model is merged and the radar's offset from the LiDAR learnt
     (after about 15 s), no feeder MRU: each radar frame's detections registered to the model
     update x, y and yaw. With the Doppler alone the same run ends the outage with 1-sigma 91 /
-    223 mm in x / y and a y RMSE of 63 mm; with the detections 52 / 82 and 40 mm."""
+    223 mm in x / y and a y RMSE of 63 mm; with the detections 66 / 106 and under 50 mm (20 Hz
+    radar frames share their errors: each counts half)."""
     s = load_scenario("sts-loaded", ["duration_s=30", "world.lidar.outages_s=[[18,28]]"])
     res = run(Simulation(s), tmp_path / "r", report=False)
     k = res.kpis["feeder"]
@@ -183,7 +184,7 @@ def test_the_radars_detections_hold_x_y_and_yaw_through_a_lidar_outage(tmp_path)
     assert min(k["outage"]["within_3sigma_pct"]) > 95 and 0.8 < k["outage"]["nees_mean"] < 3
     f = res.result.feeder
     late = np.sqrt(f.var[(f.t_s > 27.0) & (f.t_s < 28.0), :2].mean(axis=0))
-    assert late[0] < 0.07 and late[1] < 0.1
+    assert late[0] < 0.08 and late[1] < 0.125
 
 
 @pytest.mark.parametrize("args, expected", [
