@@ -25,5 +25,8 @@ class HookMeasurements:
     lidar_cov_m2: np.ndarray | None = None  # (K, 3, 3) per-fix covariance; rows with NaN: lidar_sigma_m
     # the rope's direction in the same LiDAR frames (perception.rope), applied before the frame's
     # block fix: (K, 3) unit vectors, world axes (NaN rows: no rope fit), and (K, 3, 3) covariances
+    # (K,) bool: the fix is the block model fitted (not a far block's few points, whose point on
+    # the block is not the model's); None: every fix is
+    lidar_model_fit: np.ndarray | None = None
     rope_direction: np.ndarray | None = None
     rope_cov: np.ndarray | None = None

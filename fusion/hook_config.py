@@ -75,10 +75,13 @@ class HookFilterConfig(BaseModel):
     # 1-sigma of the levelling's constant tilt (mount survey + MRU static accuracy, rad): a bias
     # no averaging removes, added to the reported covariance across the rope (l sigma per axis)
     levelling_bias_sigma_rad: float = Field(0.0, ge=0.0)
-    # the rope's strain beyond its nominal stretch (fusion/rope_strain.py), learnt from the block
-    # fixes: its prior 1-sigma (2e-3: 23 cm at 115 m, a reeving ten times softer than stated
-    # under a heavy hook) and its random walk (a load picked up or set down); 0: the hoist as read
+    # the rope's length beyond what the hoist reads (fusion/rope_strain.py), learnt from the block
+    # fixes: an offset (the fitted block point off the rope's end) and a strain (2e-3: 23 cm at
+    # 115 m, a reeving ten times softer than stated under a heavy hook), their prior 1-sigmas
+    # and random walks (a load picked up or set down); both 0: the hoist as read
+    rope_offset_sigma_m: float = Field(0.2, ge=0.0, le=5.0)
     rope_strain_sigma: float = Field(2e-3, ge=0.0, le=0.1)
+    rope_offset_walk_m_per_sqrt_s: float = Field(1e-3, ge=0.0)
     rope_strain_walk_per_sqrt_s: float = Field(5e-5, ge=0.0)
     lidar_gate_probability: float = 0.9999  # chi-square (3 dof) gate on the LiDAR innovation
     reacquire_after_rejections: int = 10  # consecutive gated LiDAR fixes -> re-initialise the sway

@@ -15,7 +15,7 @@ from boomtip.data.hook_streams import HookMeasurements
 from boomtip.fusion.consistency import Innovations
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
-from boomtip.fusion.rope_strain import rope_strain
+from boomtip.fusion.rope_strain import rope_length
 from boomtip.fusion.models.crane_pendulum import HOOK_COLS, hook_pos_vel_batch, sway_angles_from_directions
 
 _OUTPUT_CHUNK = 8192  # recorded samples per block of the vectorised hook outputs
@@ -50,11 +50,10 @@ def along_rope_sigma(p_rel: np.ndarray, sigma_m: np.ndarray | None, cov_m2: np.n
     return np.sqrt(var)
 
 
-def with_length_sigma(p_rel: np.ndarray, cov_p: np.ndarray, strain_sigma: np.ndarray) -> np.ndarray:
-    """cov_p plus the rope length's uncertainty (strain sigma times the length) along the rope."""
-    length = np.linalg.norm(p_rel, axis=1)
-    u = p_rel / np.maximum(length, 1e-9)[:, None]
-    return cov_p + ((strain_sigma * length) ** 2)[:, None, None] * (u[:, :, None] * u[:, None, :])
+def with_length_sigma(p_rel: np.ndarray, cov_p: np.ndarray, length_sigma_m: np.ndarray) -> np.ndarray:
+    """cov_p plus the rope length's uncertainty (1-sigma, m) along the rope."""
+    u = p_rel / np.maximum(np.linalg.norm(p_rel, axis=1), 1e-9)[:, None]
+    return cov_p + (np.asarray(length_sigma_m) ** 2)[:, None, None] * (u[:, :, None] * u[:, None, :])
 
 
 @dataclass
@@ -184,8 +183,8 @@ def run_hook_filter(
         p, v, Hp, Hv = hook_pos_vel_batch(x_buf[:m])
         Ps = pb_buf[:m, n:].reshape(m, 6, 6)
         cp = with_levelling_bias(p, Hp @ Ps @ Hp.transpose(0, 2, 1), filt.cfg.levelling_bias_sigma_rad)
-        if strain is not None:  # the strain's own uncertainty, along the rope
-            cp = with_length_sigma(p, cp, strain.at(t_out[a:b])[1])
+        if rope_len is not None:  # the length correction's own uncertainty, along the rope
+            cp = with_length_sigma(p, cp, rope_len.correction(t_out[a:b], np.linalg.norm(p, axis=1))[1])
         cv = (Hv @ Ps @ Hv.transpose(0, 2, 1)).astype(np.float32)
         pd = pb_buf[:m, :n].astype(np.float32)
         if sink is None:
@@ -200,13 +199,16 @@ def run_hook_filter(
     lid, enc, mru = meas.lidar_p_rel_tip_world, meas.encoders, meas.mru
     lid_sigma = meas.lidar_sigma_m
     lid_cov = meas.lidar_cov_m2
-    strain = None
-    if filt.cfg.rope_strain_sigma > 0 and len(enc) and len(lid):  # the rope longer than its nominal stretch
-        along = along_rope_sigma(lid, lid_sigma, lid_cov, filt.cfg.measurement.sigma_lidar_m)
-        strain = rope_strain(meas.t_lidar, lid, along, meas.t_encoders, enc[:, 2], filt.cfg.rope_strain_sigma,
-                             filt.cfg.rope_strain_walk_per_sqrt_s)
+    rope_len = None
+    c = filt.cfg
+    if (c.rope_strain_sigma > 0 or c.rope_offset_sigma_m > 0) and len(enc) and len(lid):  # the rope longer than read
+        along = along_rope_sigma(lid, lid_sigma, lid_cov, c.measurement.sigma_lidar_m)
+        if meas.lidar_model_fit is not None:  # a sparse fix's point on the block is not the model's: no length
+            along = np.where(meas.lidar_model_fit, along, np.nan)
+        rope_len = rope_length(meas.t_lidar, lid, along, meas.t_encoders, enc[:, 2], c.rope_offset_sigma_m, c.rope_strain_sigma,
+                           c.rope_offset_walk_m_per_sqrt_s, c.rope_strain_walk_per_sqrt_s)
         enc = enc.copy()
-        enc[:, 2] *= 1.0 + strain.at(meas.t_encoders)[0]
+        enc[:, 2] += rope_len.correction(meas.t_encoders, enc[:, 2])[0]
     enc_ok = np.isfinite(enc[:, 2]).tolist() if len(enc) else []
 
     rope_z = rope_R = None

@@ -427,11 +427,11 @@ def test_run_equals_step_api_loop(truth, monkeypatch):
     monkeypatch.setattr(hook_run, "_OUTPUT_CHUNK", 97)
     meas = measurements_from_truth(truth, seed=7)
     t_end = 3.0
-    plain = HookFilterConfig(rope_strain_sigma=0.0)  # the hoist as read, as the step API below takes it
+    plain = HookFilterConfig(rope_strain_sigma=0.0, rope_offset_sigma_m=0.0)  # the hoist as read, as the step API takes it
     run = run_hook_filter(meas, "ekf", "flexible", config=plain, t_end=t_end)
     assert len(run.t) > 2 * 97 and len(run.t) % 97 != 0  # several chunks and a short last one
     assert run.P_diag.dtype == run.cov_v.dtype == np.float32  # diagnostics stored in float32
-    run_cs = run_hook_filter(meas, "ekf", "flexible", config=HookFilterConfig(jacobian="complex_step", rope_strain_sigma=0.0),
+    run_cs = run_hook_filter(meas, "ekf", "flexible", config=HookFilterConfig(jacobian="complex_step", rope_strain_sigma=0.0, rope_offset_sigma_m=0.0),
                              t_end=t_end)
     assert np.abs(run.x - run_cs.x).max() < 1e-10
     f = HookFilter("ekf", "flexible")

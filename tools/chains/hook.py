@@ -170,6 +170,7 @@ class HookChain:
             t_lidar=rows["t"], lidar_p_rel_tip_world=rows.xyz(),
             t_encoders=t_enc, encoders=np.asarray(self.enc_table), t_mru=t_mru, mru=np.asarray(self.mru_table),
             lidar_cov_m2=rows.cov_m2, rope_direction=rows.rope_direction, rope_cov=rows.rope_cov,
+            lidar_model_fit=np.asarray(rows["status"]) == "ok",
         )
 
     def finish(self) -> HookResult:
