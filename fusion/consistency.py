@@ -35,17 +35,11 @@ class Innovations:
         if np.isfinite(nis) and np.isfinite(t_s) and dof > 0:
             self.rows.setdefault(stream, []).append((float(t_s), float(nis), int(dof), float(noise_scale)))
 
-    def arrays(self, stream: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Time, NIS and degrees of freedom, in time order."""
-        a = self._sorted(stream)
-        return a[:, 0], a[:, 1], a[:, 2]
-
-    def noise_scales(self, stream: str) -> np.ndarray:
-        return self._sorted(stream)[:, 3]
-
-    def _sorted(self, stream: str) -> np.ndarray:
+    def arrays(self, stream: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Time, NIS, degrees of freedom and noise scale, in time order."""
         a = np.array(self.rows.get(stream, []), dtype=float).reshape(-1, 4)
-        return a[np.argsort(a[:, 0], kind="stable")]
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        return a[:, 0], a[:, 1], a[:, 2], a[:, 3]
 
 
 def _window_sums(t_s: np.ndarray, nis: np.ndarray, dof: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -94,8 +88,8 @@ def consistency_block(innovations: Innovations, window_s: float = WINDOW_S) -> d
     (`noise_scale_max`, `noise_scale_last`: factors on its variance)."""
     block = {}
     for s in sorted(innovations.rows):
-        block[s] = stream_consistency(*innovations.arrays(s), window_s=window_s)
-        scales = innovations.noise_scales(s)
+        t, nis, dof, scales = innovations.arrays(s)
+        block[s] = stream_consistency(t, nis, dof, window_s=window_s)
         if len(scales):
             block[s]["noise_scale_max"] = round(float(scales.max()), 3)
             block[s]["noise_scale_last"] = round(float(scales[-1]), 3)
@@ -112,7 +106,7 @@ def consistent_rows(t_out: np.ndarray, innovations: Innovations, window_s: float
     ok = np.ones(len(t_out), dtype=bool)
     alpha = 1.0 - probability
     for stream in innovations.rows:
-        t, nis, dof = innovations.arrays(stream)
+        t, nis, dof, _ = innovations.arrays(stream)
         cs, cd = np.r_[0.0, np.cumsum(nis)], np.r_[0.0, np.cumsum(dof)]
         hi_i = np.searchsorted(t, t_out, side="right")
         lo_i = np.searchsorted(t, t_out - window_s, side="right")

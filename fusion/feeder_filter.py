@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from boomtip.fusion.consistency import Innovations
+from boomtip.fusion.consistency import Innovations, chi2_quantile
 from boomtip.fusion.noise_matching import NoiseMatch, matched_ratio
 from boomtip.fusion.models.relative_motion import (
     ACC,
@@ -39,15 +39,8 @@ from boomtip.fusion.models.relative_motion import (
     well_observed,
 )
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.special import gammaincinv
 
 DEG = math.pi / 180.0
-
-
-def chi2_ppf(p: float, dof: int) -> float:
-    """The chi-square quantile, 2 P^-1(dof/2, p): scipy.special's, not scipy.stats' (whose import
-    costs half a second for every user of the processing settings)."""
-    return float(2.0 * gammaincinv(0.5 * dof, p))
 
 
 class FeederFilterConfig(BaseModel):
@@ -199,7 +192,7 @@ class FeederFilter:
         match = self.noise_match.get(kind, NoiseMatch())
         try:  # the monitor's NIS is against the covariance as stated; the update uses it widened
             self.out.innovations.add(kind, self.t_s, float(y @ np.linalg.solve(HPHt + R, y)), len(z), match.scale)
-            gate = chi2_ppf(self.cfg.gate_probability, len(z))
+            gate = float(chi2_quantile(self.cfg.gate_probability, len(z)))
             if matched and self.cfg.noise_memory_s > 0:
                 ratio = matched_ratio(y, R, HPHt, gate, match.scale)
                 self.noise_match[kind] = match.after(self.t_s, ratio, self.cfg.noise_memory_s)

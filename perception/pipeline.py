@@ -294,20 +294,28 @@ class HeavePipeline:
             out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_radar, rng, times, "radar_deck")
             inputs = doppler_inputs(frame, cfg.doppler_preprocess)
             if inputs is not None and len(inputs[0]) >= 3:
-                rates = inputs[1]
-                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias(),
-                                            self.unambiguous_mps)
-                if self.unambiguous_mps > 0 and u_prior is not None:
-                    R_rows = level_rotation_rows(rpy_rad, self._R_crane_sensor_rows[frame.sensor])
-                    rates = unwrap_range_rates(inputs[0], rates, self.unambiguous_mps, mat3T_vec(R_rows, u_prior))
-                if self.unambiguous_mps <= 0 or u_prior is not None:
+                wraps = self.unambiguous_mps > 0
+                R_rows = level_rotation_rows(rpy_rad, self._R_crane_sensor_rows[frame.sensor]) if wraps else None
+                rates = self._on_prior_branch(inputs[0], inputs[1], R_rows, self._alias_prior(frame.t_s))
+                if rates is not None:
                     out.doppler = doppler_velocity(inputs[0], rates, cfg.doppler, rng, None)
         if deck.ok:
             last_deck[frame.sensor] = (frame.t_s, deck.D_m)
         return out
 
-    def _decks_for_alias(self) -> list[list[tuple[float, float]]]:
-        return [self.recent_decks["lidar"], self.recent_decks["radar"]]
+    def _alias_prior(self, t_s: float) -> np.ndarray | None:
+        """The velocity (level axes) a scan's wrapped rates are unwrapped about (doppler_alias)."""
+        decks = [self.recent_decks["lidar"], self.recent_decks["radar"]]
+        return alias_prior_level(t_s, self.last_doppler_level, decks, self.unambiguous_mps)
+
+    def _on_prior_branch(self, pts, rates, R_rows, u_prior) -> np.ndarray | None:
+        """The rates as reported by a radar that never wraps; else put back on u_prior's branch
+        (R_rows: level from sensor), None without a prior."""
+        if self.unambiguous_mps <= 0:
+            return rates
+        if u_prior is None:
+            return None
+        return unwrap_range_rates(pts, rates, self.unambiguous_mps, mat3T_vec(R_rows, u_prior))
 
     def frame_rng(self, frame: Frame) -> np.random.Generator:
         """The frame's random draws (RANSAC), from the run's seed, the sensor and the frame's index."""
@@ -337,16 +345,15 @@ class HeavePipeline:
                 return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
             pts, range_rate_mps = inputs
             if self.unambiguous_mps > 0:  # the radar's wrapped rates back on the prior's branch
-                u_prior = alias_prior_level(frame.t_s, self.last_doppler_level, self._decks_for_alias(),
-                                            self.unambiguous_mps)
+                u_prior = self._alias_prior(frame.t_s)
                 self.first_radar_t = frame.t_s if self.first_radar_t is None else self.first_radar_t
                 self.alias_prior_seen |= u_prior is not None
                 if u_prior is None and not self.alias_prior_seen and frame.t_s - self.first_radar_t > WAIT_S:
                     u_prior = np.zeros(3)  # never a deck nor a velocity: the rates as reported
-                if u_prior is None:
+                range_rate_mps = self._on_prior_branch(pts, range_rate_mps, R_rows, u_prior)
+                if range_rate_mps is None:
                     return {m: (np.nan, np.nan, "Doppler alias unknown: no recent velocity or deck distances yet")
                             for m in wanted if m.startswith("doppler")}
-                range_rate_mps = unwrap_range_rates(pts, range_rate_mps, self.unambiguous_mps, mat3T_vec(R_rows, u_prior))
         with times.stage("doppler.fit"):
             prior = self.last_doppler[1] if self.last_doppler and frame.t_s - self.last_doppler[0] <= 0.2 else None
             fit = doppler_velocity(pts, range_rate_mps, self.cfg.doppler, rng, prior) if len(pts) >= 3 else None
