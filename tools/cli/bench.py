@@ -8,7 +8,6 @@ from typing import Optional
 
 import typer
 
-from boomtip.tools.config.scenario import ScenarioError
 from boomtip.tools.cli.common import SetOpt, resolve_scenario, user_errors
 
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks: each prints a ratio against a baseline measured in the same run.")
@@ -27,6 +26,26 @@ def write_bench_json(path: Optional[Path], result: dict, force: bool) -> None:
 
 JsonOpt = typer.Option(None, "--json", help="Also write the figures (ratio, times, accuracies) to this JSON file.")
 ForceOpt = typer.Option(False, "--force", help="Replace an existing --json file.")
+
+
+@bench_app.command("startup")
+def bench_startup_cmd(
+    repeats: int = typer.Option(7, "--repeats", min=1, help="Fresh interpreters per command; the median counts."),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """`boomtip --help` and `boomtip scenarios` from a fresh interpreter, beside loading every chain."""
+    from boomtip.tools.bench.startup import bench_startup
+
+    with user_errors():
+        r = bench_startup(repeats)
+        write_bench_json(json_path, r, force)
+    print(f"startup  median of {repeats} fresh interpreters (the interpreter alone {r['interpreter_s']:.3f} s)")
+    for name, c in r["commands"].items():
+        print(f"  boomtip {name:10s} {c['median_s']:6.3f} s  (min {c['min_s']:.3f}, max {c['max_s']:.3f})")
+    print(f"  loading every chain   {r['load_all_s']:6.3f} s")
+    verdict = "within" if r["within_ceiling"] else "ABOVE"
+    print(f"  ratio {r['ratio']:.1f} (loading every chain / the slower command); {verdict} the {r['ceiling_s']:g} s ceiling")
 
 
 @bench_app.command("raycast")
@@ -109,6 +128,7 @@ def bench_fusion_cmd(
 ) -> None:
     """Hook EKF (flexible) runtime vs the same filter with numerically differenced Jacobians."""
     from boomtip.tools.bench.stages import bench_fusion
+    from boomtip.tools.config.scenario import ScenarioError
 
     with user_errors():
         if program not in ("hook-1", "hook-2", "hook-3", "hook-4"):

@@ -1,4 +1,7 @@
-"""The `boomtip` command line: a thin layer over data/, perception/, fusion/ and tools/."""
+"""The `boomtip` command line: a thin layer over data/, perception/, fusion/ and tools/.
+
+The heavy libraries (numpy, scipy, Open3D, the scenario models) load inside the commands that
+use them: `boomtip --help` and `boomtip scenarios` start at once."""
 
 from __future__ import annotations
 
@@ -9,14 +12,9 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-
-from boomtip.tools.config.scenario import ScenarioError, available_scenarios, load_scenario, scenario_to_yaml, valid_keys
 from rich.markup import escape
 
 from boomtip.tools.cli.bench import bench_app
-from boomtip.data.io.output_folder import locked_output
-from boomtip.data.keys import settings_dump
-from boomtip.tools.config.settings import processing_settings
 from boomtip.tools.cli.common import (INTERRUPTED_STUDY, INTERRUPTED_STUDY_UNSTARTED, ScenarioOpt, SetOpt, console,
                                        progress_bar, resolve_scenario, scenario_inputs, terminate_like_interrupt,
                                        user_errors)
@@ -61,16 +59,22 @@ def scenarios(
     keys: bool = typer.Option(False, "--keys", help="List every valid dotted scenario key."),
 ) -> None:
     """List the built-in scenarios (or show one)."""
+    from boomtip.tools.config.catalog import available_scenarios, scenario_headline
+
     with user_errors():
-        if keys:
-            print("\n".join(valid_keys()))
-            return
-        if show:
-            print(scenario_to_yaml(load_scenario(show)), end="")
+        if keys or show:
+            from boomtip.tools.config.scenario import load_scenario, scenario_to_yaml, valid_keys
+
+            print("\n".join(valid_keys()) if keys else scenario_to_yaml(load_scenario(show)), end="\n" if keys else "")
             return
         for name, path in available_scenarios().items():
-            s = load_scenario(path)
-            print(f"{name:16s} {s.duration_s:6.0f} s  {s.description}")
+            headline = scenario_headline(path)
+            if headline is None:  # left to the defaults: the full model says
+                from boomtip.tools.config.scenario import load_scenario
+
+                s = load_scenario(path)
+                headline = (s.duration_s, s.description)
+            print(f"{name:16s} {headline[0]:6.0f} s  {headline[1]}")
 
 
 @app.command()
@@ -87,6 +91,7 @@ def simulate(
     from boomtip.data.io.recording import write_recording
     from boomtip.data.io.ros_writer import KINDS, write_bag
     from boomtip.data.sim.sources import simulation_for
+    from boomtip.tools.config.scenario import ScenarioError
 
     with user_errors():
         if format not in ("boomtip", *KINDS):
@@ -254,6 +259,7 @@ def process(
     """Run perception + fusion on a recording (any format the loaders read)."""
     from boomtip.data.io.installation_file import load_installation
     from boomtip.data.io.loaders import open_source, parse_topics
+    from boomtip.tools.config.settings import processing_settings
 
     with user_errors():
         inst = load_installation(installation) if installation else None
@@ -273,6 +279,7 @@ def installation_cmd(
     import yaml
 
     from boomtip.data.io.installation_file import installation_template, load_installation
+    from boomtip.tools.config.scenario import ScenarioError
 
     with user_errors():
         if check is not None:
@@ -310,6 +317,7 @@ SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address tc
 
 def _study(tasks, out: Path, grid_keys: list[str], labels: dict, kpis: list[str], executor: str, workers, scheduler,
            resume: bool, force: bool, scenario_dump: dict | None, inputs: tuple[Path, ...] = ()) -> list[dict]:
+    from boomtip.data.io.output_folder import locked_output
     from boomtip.tools.study.executor import (check_executor, make_executor, plot_kpis, prepare_study_dir, run_study,
                                          write_summary, write_sweep_json)
 
@@ -354,6 +362,7 @@ def sweep(
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
 ) -> None:
     """Sweeps and Monte Carlo over any scenario keys: one task per run, on local processes or Dask."""
+    from boomtip.tools.config.scenario import ScenarioError, load_scenario
     from boomtip.tools.study.tasks import axis_from_grid, axis_from_preset, sweep_tasks
 
     with user_errors():
@@ -385,6 +394,8 @@ def batch(
 ) -> None:
     """Process many recordings the same way, one task each, one summary."""
     from boomtip.data.io.recording import Recording
+    from boomtip.data.keys import settings_dump
+    from boomtip.tools.config.settings import processing_settings
     from boomtip.tools.study.tasks import Task
 
     with user_errors():

@@ -16,16 +16,17 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColum
 from rich.text import Text
 
 from boomtip.data.io.output_folder import COMMITTED, InterruptedAfterCommit
-from boomtip.data.io.pcd import PcdError
-from boomtip.data.io.recording import RecordingError
-from boomtip.tools.config.scenario import ScenarioError, load_scenario
-from boomtip.tools.chains.chain import ChainError
 
 console = Console(stderr=True, soft_wrap=True)
 
 ScenarioOpt = typer.Option(..., "--scenario", "-s", help="Built-in scenario name or a YAML file.")
 SetOpt = typer.Option(None, "--set", help="Override a scenario key: dotted.key=value (repeatable).")
 
+
+# the errors that mean bad input, by module: looked up only in the modules already imported (an
+# error class never imported cannot have been raised), so that the command line starts without them
+USER_ERRORS = {"boomtip.tools.config.scenario": "ScenarioError", "boomtip.data.io.recording": "RecordingError",
+               "boomtip.data.io.pcd": "PcdError", "boomtip.tools.chains.chain": "ChainError"}
 
 INTERRUPTED_RUN = "no output was replaced and no input was touched; the run's partial results were removed"
 INTERRUPTED_STUDY = "no input was touched; the finished runs are in runs.csv: --resume does the rest"
@@ -40,9 +41,6 @@ def user_errors(interrupted: str | Callable[[], str] = INTERRUPTED_RUN) -> Itera
     COMMITTED.clear()  # this command's output folders only
     try:
         yield
-    except (ScenarioError, RecordingError, PcdError, ChainError, FileNotFoundError) as exc:
-        console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)  # a key's [a, b] is not markup
-        raise typer.Exit(2) from None
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (terminate_like_interrupt)
         why = str(exc) or "interrupt"
         if isinstance(exc, InterruptedAfterCommit) or COMMITTED:  # the results were already in place
@@ -51,11 +49,23 @@ def user_errors(interrupted: str | Callable[[], str] = INTERRUPTED_RUN) -> Itera
             left = interrupted() if callable(interrupted) else interrupted
         console.print(f"[bold yellow]stopped ({escape(why)}):[/] {escape(left)}", highlight=False)
         raise typer.Exit(130) from None
-    except OSError as exc:  # a read-only or full disk: say so; the staging folder is already gone
+    except Exception as exc:
+        if isinstance(exc, user_error_types()):
+            console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)  # a key's [a, b] is not markup
+            raise typer.Exit(2) from None
+        if not isinstance(exc, OSError):
+            raise
+        # a read-only or full disk: say so; the staging folder is already gone
         where = f" {exc.filename}" if exc.filename else ""
         console.print("[bold red]error:[/] " + escape(f"cannot read or write{where}: {exc.strerror or exc}; nothing was replaced"),
                       highlight=False)
         raise typer.Exit(2) from None
+
+
+def user_error_types() -> tuple[type[Exception], ...]:
+    """The bad-input errors among the modules imported so far, and a missing file."""
+    loaded = [getattr(sys.modules[module], name) for module, name in USER_ERRORS.items() if module in sys.modules]
+    return (*loaded, FileNotFoundError)
 
 
 def terminate_like_interrupt() -> None:
@@ -119,6 +129,8 @@ def scenario_inputs(scenario: str) -> tuple[Path, ...]:
 
 
 def resolve_scenario(scenario: str, overrides: list[str] | None, duration: float | None = None, seed: int | None = None):
+    from boomtip.tools.config.scenario import load_scenario
+
     extra = list(overrides or [])
     if duration is not None:
         extra.append(f"duration_s={duration}")

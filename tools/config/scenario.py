@@ -11,7 +11,6 @@ section that has it. Angles are degrees here (the YAML/CLI edge), radians inside
 
 from __future__ import annotations
 
-from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +20,8 @@ from pydantic import BaseModel, ValidationError
 from boomtip.data.io.beams import BeamsFileError, beam_angles_deg
 from boomtip.data.keys import format_validation, leaf_keys, nearest_keys, settings_dump
 from boomtip.data.sim.run import SimulatedRun
+from boomtip.tools.config.catalog import SCENARIO_DIR, available_scenarios  # noqa: F401 (this module's API)
 from boomtip.tools.config.processing import Processing
-
-# the built-in scenarios ship with the simulator's data (package data of boomtip.data)
-SCENARIO_DIR = Path(str(files("boomtip.data").joinpath("scenarios")))
 
 
 class ScenarioError(ValueError):
@@ -47,10 +44,6 @@ TOP_LEVEL = ("name", "description", "seed", "duration_s") + SECTIONS
 
 # ---------------------------------------------------------------------------------------
 # Loading and overrides
-
-
-def available_scenarios() -> dict[str, Path]:
-    return {p.stem: p for p in sorted(SCENARIO_DIR.glob("*.yaml"))}
 
 
 def valid_keys(model: BaseModel | None = None) -> list[str]:
