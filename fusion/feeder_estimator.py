@@ -147,18 +147,33 @@ class FeederEstimator:
     def attitude(self, t_s: float, sensor: str) -> LevellingAttitude | None:
         """The attitude to level a frame at t_s with, and its noise; None where there is none (a
         gap in the MRU's log, beyond the forecast's limit). Through a gap, the forecast with its
-        variance; the first frames after it take the MRU's own attitude back (see _mru_back)."""
+        variance; the first frames after it take the MRU's own attitude back (see _mru_back).
+        `levelling` then `adopt`: the first reads the log only (a perception worker may call it)."""
+        att = self.levelling(t_s)
+        self.adopt(att, t_s, sensor)
+        return att
+
+    def levelling(self, t_s: float) -> LevellingAttitude | None:
+        """The attitude at t_s from the MRU's log (or its forecast through a gap); changes nothing here."""
         got = self.mru.attitude_var(t_s) if isinstance(self.mru, MruBridge) else self.mru.attitude(t_s)
         if got is None:
             return None
         rpy, rpy_rate, *var = got
         var = var[0] if var else None
         if var is None or not var.any():
-            self._mru_back(sensor)
             return LevellingAttitude(rpy, rpy_rate, self.noise)
-        self.gap_angle_var, self.gap_tip_reset = max(var[0], var[1]), False
-        self.forecast_frames[(t_s, sensor)] = self.gap_angle_var
         return LevellingAttitude(rpy, rpy_rate, self.noise.with_forecast(var, self.lever_m), var)
+
+    def adopt(self, att: LevellingAttitude | None, t_s: float, sensor: str) -> None:
+        """A frame at t_s levelled with `att` (from `levelling`), in time order: through a gap
+        its forecast's variance is kept for the frame's fusion; after one the MRU takes over."""
+        if att is None:
+            return
+        if att.forecast_var is None:
+            self._mru_back(sensor)
+            return
+        self.gap_angle_var, self.gap_tip_reset = max(att.forecast_var[0], att.forecast_var[1]), False
+        self.forecast_frames[(t_s, sensor)] = self.gap_angle_var
 
     def _mru_back(self, sensor: str) -> None:
         """The first frames with the MRU's own attitude after a gap. The tip's place jumps from

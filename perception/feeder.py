@@ -75,6 +75,7 @@ class LidarObservation:
     ms: float = 0.0  # time spent on it so far (the chain adds its own)
     sample_returns_sensor: np.ndarray | None = None  # the measured return each sample stands for (its voxel's first): beams for the static test
     static_keys: tuple | None = None  # those returns' keys in the static test, computed once when counted
+    static_mask: np.ndarray | None = None  # which of those returns are static, as the test said when the frame was handed over
     spin: DeckSpin | None = None  # the deck plane and its rates from the returns' times, when they span the sweep
     noise: AttitudeNoise | None = None  # the attitude's noise as the frame was levelled
 

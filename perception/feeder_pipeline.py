@@ -10,7 +10,9 @@ The first `static.warmup_s` of frames are held back: until then nothing says whi
 static in the sensor frame; `observe` then hands them over in order, and frames from there on
 as they come. Registration starts from the estimator's prediction (`register`), and the model
 grows from the estimate after its update (`keep`): the pipeline holds the model, the estimator
-the state. Through a gap in the crane MRU's log the deck and Doppler stages run on the frame
+the state. `observe` (and `ready`) touch only the per-frame side (the static test, the held-back
+frames), `structure`, `register` and `keep` only the model's: the first may run ahead in
+another process, each frame handed over with its static returns as the test said then. Through a gap in the crane MRU's log the deck and Doppler stages run on the frame
 levelled with the forecast attitude (HeavePipeline.levelled_stages), and every covariance
 carries the forecast's noise.
 """
@@ -111,8 +113,13 @@ class FeederPipeline:
 
     def ready(self) -> list[LidarObservation | RadarObservation]:
         """The observations held back (at the end of a run shorter than the warm-up: with what
-        the static test has)."""
+        the static test has), each LiDAR frame with its static returns as the test says now:
+        what the fusion of these frames uses, so that the fusion may run apart from the test."""
         out, self.queue = self.queue, []
+        for obs in out:
+            if isinstance(obs, LidarObservation):
+                obs.static_mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
+                obs.static_keys = obs.sample_returns_sensor = None  # the test's inputs: not needed past here
         return out
 
     def next_lidar_frame(self) -> None:
@@ -126,9 +133,13 @@ class FeederPipeline:
         if self.footprint is None and obs.plane is not None and obs.plane.points_level is not None:
             deck_map = transform(T_map_level, obs.plane.points_level)
             self.footprint = Footprint(deck_map[:, :2], self.cfg.perception.footprint_margin_m)
-        keys = obs.static_keys
-        return self.stages.structure(obs, deck_abc, self.footprint, T_map_level,
-                                     is_static=lambda rows: self.static.static_mask(obs.sample_returns_sensor, keys, rows))
+        return self.stages.structure(obs, deck_abc, self.footprint, T_map_level, is_static=lambda rows: self.static_of(obs)[rows])
+
+    def static_of(self, obs: LidarObservation) -> np.ndarray:
+        """Which of the frame's returns are static: as `ready` handed it over, else as the test says now."""
+        if obs.static_mask is None:
+            obs.static_mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
+        return obs.static_mask
 
     def register(self, obs: LidarObservation, structure: np.ndarray, T_map_level_guess: np.ndarray,
                  prior_sigma_m: float) -> Registration6 | None:
@@ -174,12 +185,11 @@ class FeederPipeline:
             # the own hull's side among the static returns (a wall: a line in plan), for the
             # calibration's rotation about the vertical
             if len(self.hull_yaws) < self.cfg.hull_edge_frames:  # a constant: a few dozen frames pin it
-                mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
-                static_level = obs.sample_sensor[mask] @ obs.R_level_sensor.T + obs.t_level_sensor
+                static_level = obs.sample_sensor[self.static_of(obs)] @ obs.R_level_sensor.T + obs.t_level_sensor
                 hull = centre_line_yaw(static_level, self.rng, band_m=(-np.inf, np.inf))
                 if hull is not None and hull[1] >= self.cfg.hull_edge_min_points:
                     self.hull_yaws.append(hull[0])
-        obs.static_keys = None
+        obs.static_keys = obs.static_mask = None
         self.lidar_frames += 1
 
     @property

@@ -40,6 +40,13 @@ class HeaveResult:
 LIDAR_D = ("deck_lidar", "reflectors_lidar")
 
 
+def measurements_only(res: FrameResult) -> FrameResult:
+    """A frame's result without its cloud and detections: its measurements and stage times."""
+    frame = res.frame
+    return FrameResult(Frame(frame.sensor, frame.index, frame.t_s, np.empty((0, 3)), path=frame.path, error=frame.error),
+                       res.measurements, res.times)
+
+
 def solution_sources(name: str, have: set[str]) -> tuple[str, ...]:
     """The methods a solution fuses: its own, except that the fused solution falls back on the
     radar's deck for D when the run has no LiDAR distance (a lost or absent LiDAR)."""
@@ -79,7 +86,17 @@ class HeaveChain:
         return iter(source)
 
     def process(self, frame: Frame) -> FrameResult:
+        return self.fuse(self.perceive(frame))
+
+    def perceive(self, frame: Frame, keep_cloud: bool = True) -> FrameResult:
+        """The frame's measurements (the pipeline's stages; a worker may run it ahead of `fuse`).
+        keep_cloud False: the result without the frame's points and the stages' detections,
+        which only a visualiser draws."""
         res = self.pipeline.process(frame)
+        return res if keep_cloud else measurements_only(res)
+
+    def fuse(self, res: FrameResult) -> FrameResult:
+        """The frame's measurements kept for the filters (which run at the end)."""
         self.rows.extend(res.measurements)
         return res
 

@@ -75,6 +75,11 @@ def release_free_memory() -> None:
 @dataclass(frozen=True)
 class RunResources:
     lean: bool = False
+    workers: int = 1  # processes a run may use: above 1, the work that can go ahead goes to a child
+
+    @property
+    def parallel(self) -> bool:
+        return self.workers > 1 and workers.parallel_enabled()
 
     def start(self) -> None:
         """At the start of a run: the allocator keeps freed frames for the next (lean only)."""
@@ -86,14 +91,27 @@ class RunResources:
         return DiskTable(array) if self.lean else np.asarray(array, float)
 
     def frames(self, source: FrameSource) -> Iterator[Frame]:
-        """The source's frames; a simulation's made ahead in a forked child when lean."""
-        if self.lean and workers.parallel_enabled() and isinstance(source, Simulation):
+        """The source's frames; a simulation's made ahead in a forked child when parallel."""
+        if self.parallel and isinstance(source, Simulation):
             return workers.frames_in_child(source)
         return iter(source)
 
+    def processed(self, chain, source: FrameSource, keep_clouds: bool) -> Iterator[tuple[str, object]]:
+        """(sensor, chain's output) for each of the source's frames in order. A chain that splits
+        its work per frame (`perceive` ahead, `fuse` in order) has its perception made in a
+        forked child when parallel, without the clouds unless `keep_clouds` (a visualiser's);
+        the fusion runs here. The same calls in the same order either way: the same outputs."""
+        frames = chain.frames(source)
+        if self.parallel and hasattr(chain, "perceive"):
+            for sensor, perceived in workers.mapped_in_child(frames, lambda f: (f.sensor, chain.perceive(f, keep_clouds))):
+                yield sensor, chain.fuse(perceived)
+            return
+        for frame in frames:
+            yield frame.sensor, chain.process(frame)
+
     def map_split(self, names: Sequence[str], costs: dict[str, float], work: Callable[[str], object]) -> dict[str, object]:
-        """{name: work(name)}: shared by cost between two forked children when lean."""
-        if self.lean:
+        """{name: work(name)}: shared by cost between two forked children when parallel."""
+        if self.parallel:
             return workers.run_split(names, costs, work)
         return {name: work(name) for name in names}
 

@@ -118,9 +118,9 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     chain = build_chain(source, processing, resources)
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
     per_sensor = {"lidar": 0, "radar": 0}
-    for frame in chain.frames(source):
-        viz.log_frame(chain.process(frame))
-        per_sensor[frame.sensor] = per_sensor.get(frame.sensor, 0) + 1
+    for sensor, output in resources.processed(chain, source, keep_clouds=rerun):
+        viz.log_frame(output)
+        per_sensor[sensor] = per_sensor.get(sensor, 0) + 1
         if progress:
             progress(1)
     frames = sum(per_sensor.values())

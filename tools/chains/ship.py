@@ -11,23 +11,36 @@ OUT/feeder_calibration.csv        the feeder frame's definition over the run
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from boomtip.data.frames import Frame, FrameSource, Truth
+from boomtip.data.frames import Frame, FrameSource, LevellingAttitude, Truth
 from boomtip.data.poses import inverse, pose_vector
 from boomtip.fusion.feeder_estimator import DeckMeasurement, FeederEstimator
 from boomtip.fusion.radar_offset import RadarOffsetConfig
 from boomtip.perception.feeder import FeederPerception, LidarObservation, RadarObservation
 from boomtip.perception.feeder_pipeline import FeederPipeline
 from boomtip.perception.pipeline import FrameResult
-from boomtip.tools.chains.heave import HeaveChain, HeaveResult
+from boomtip.tools.chains.heave import HeaveChain, HeaveResult, measurements_only
 from boomtip.tools.chains.provenance import outage_windows
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import feeder as feeder_outputs
 from boomtip.tools.report.feeder import FeederResult
+
+
+@dataclass
+class ShipFrame:
+    """What `ShipChain.perceive` made of a frame, for `fuse`."""
+
+    heave: FrameResult
+    t_s: float
+    sensor: str
+    skipped: str | None  # why the feeder has nothing of it (an unreadable or empty frame, no attitude)
+    attitude: LevellingAttitude | None = None
+    observations: list[LidarObservation | RadarObservation] = field(default_factory=list)  # ready to fuse, in time order
+    missing: list[tuple[float, str, str]] = field(default_factory=list)  # what the feeder's stages could not measure
 
 
 @dataclass
@@ -67,15 +80,32 @@ class ShipChain:
 
     # -- per frame -------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
-        heave = self.heave.process(frame)
+        return self.fuse(self.perceive(frame))
+
+    def perceive(self, frame: Frame, keep_cloud: bool = True) -> ShipFrame:
+        """The heave and feeder pipelines' per-frame stages. Reads the MRU log, not the estimator's
+        state: a worker may run it ahead of `fuse` (keep_cloud False: without the frame's points)."""
+        heave = self.heave.perceive(frame)
+        kept = heave if keep_cloud else measurements_only(heave)
         if frame.error is not None or len(frame) == 0:
-            self.missing.append((frame.t_s, frame.sensor, frame.error or "empty frame"))
-            return heave
-        att = self.estimator.attitude(frame.t_s, frame.sensor)
+            return ShipFrame(kept, frame.t_s, frame.sensor, frame.error or "empty frame")
+        att = self.estimator.levelling(frame.t_s)
         if att is None:
-            self.missing.append((frame.t_s, frame.sensor, "no MRU attitude"))
+            return ShipFrame(kept, frame.t_s, frame.sensor, "no MRU attitude")
+        known = len(self.pipeline.missing)
+        observations = self.pipeline.observe(frame, heave, att)
+        missing, self.pipeline.missing[known:] = self.pipeline.missing[known:], []  # to fuse, in order with its own
+        return ShipFrame(kept, frame.t_s, frame.sensor, None, att, observations, missing)
+
+    def fuse(self, p: ShipFrame) -> FrameResult:
+        """A perceived frame into the estimators, in time order."""
+        heave = self.heave.fuse(p.heave)
+        if p.skipped is not None:
+            self.missing.append((p.t_s, p.sensor, p.skipped))
             return heave
-        for obs in self.pipeline.observe(frame, heave, att):
+        self.estimator.adopt(p.attitude, p.t_s, p.sensor)
+        self.pipeline.missing.extend(p.missing)
+        for obs in p.observations:
             self._fuse(obs)
         return heave
 

@@ -1,5 +1,6 @@
-"""A hook run on two cores: the simulator's frames made in a child process while this one runs
-the perception on the previous ones, and the estimators shared between two children.
+"""A run on two cores: what can go ahead made in a child process while this one works on the
+previous frames (a hook run's simulated frames; a ship run's per-frame perception, whose fusion
+stays here), and a hook run's estimators shared between two children.
 
 The children are forks that run exactly the code a serial run would (same inputs, same random
 draws, same order), so a run's outputs do not depend on it; only the wall clock does. Processes
@@ -14,14 +15,16 @@ import multiprocessing as mp
 import os
 import signal
 import traceback
-from queue import Full
-from typing import Callable, Iterator, Sequence
+from queue import Empty, Full
+from typing import Callable, Iterable, Iterator, Sequence
 
 from boomtip.data.frames import Frame, FrameSource
+from boomtip.tools.chains.chain import ChainError
 
-__all__ = ["serial", "parallel_enabled", "frames_in_child", "run_split", "split_by_cost"]
+__all__ = ["serial", "parallel_enabled", "frames_in_child", "mapped_in_child", "run_split", "split_by_cost", "WorkerDied"]
 
-FRAMES_AHEAD = 4  # frames the simulator may run ahead of the perception (a hook frame: 0.6 MB)
+FRAMES_AHEAD = 32  # frames a child may run ahead of this process (a hook frame: 0.6 MB, a perceived 128 x 1024 one: ~1 MB)
+CHILD_POLL_S = 0.5  # how often a wait for a child checks that it is still alive
 _serial_depth = 0
 
 
@@ -62,11 +65,11 @@ def _put(queue, item, parent_pid: int) -> None:
                 os._exit(1)
 
 
-def _produce(source: FrameSource, queue, parent_pid: int) -> None:
+def _produce(items: Iterable, fn: Callable | None, queue, parent_pid: int) -> None:
     _as_child()
     try:
-        for frame in source:
-            _put(queue, ("frame", frame), parent_pid)
+        for item in items:
+            _put(queue, ("item", item if fn is None else fn(item)), parent_pid)
         _put(queue, ("end", None), parent_pid)
     except BaseException as exc:  # the parent re-raises it
         _put(queue, ("error", _picklable(exc)), parent_pid)
@@ -86,14 +89,23 @@ def _picklable(exc: BaseException) -> BaseException:
 
 def frames_in_child(source: FrameSource) -> Iterator[Frame]:
     """The source's frames in order, made by a forked child up to FRAMES_AHEAD ahead."""
+    return mapped_in_child(source, None, "boomtip-frames")
+
+
+def mapped_in_child(items: Iterable, fn: Callable | None, name: str = "boomtip-perception") -> Iterator:
+    """fn(item) for each item in order (the items themselves when fn is None), made by a forked
+    child up to FRAMES_AHEAD ahead: the child iterates `items` and calls `fn` on its own copy
+    of everything they use, so `fn` may keep state (a pipeline's priors) but must not need any
+    this process changes meanwhile. A child that dies (killed, out of memory) stops the
+    iteration with WorkerDied."""
     ctx = mp.get_context("fork")
     queue = ctx.Queue(FRAMES_AHEAD)
-    proc = ctx.Process(target=_produce, args=(source, queue, os.getpid()), name="boomtip-frames", daemon=True)
+    proc = ctx.Process(target=_produce, args=(items, fn, queue, os.getpid()), name=name, daemon=True)
     proc.start()
     try:
         while True:
-            kind, payload = queue.get()
-            if kind == "frame":
+            kind, payload = _get(queue, proc)
+            if kind == "item":
                 yield payload
             elif kind == "end":
                 break
@@ -103,6 +115,28 @@ def frames_in_child(source: FrameSource) -> Iterator[Frame]:
     finally:
         _stop(proc)  # when the consumer stopped early or failed: the child's work is not wanted
         queue.close()
+
+
+class WorkerDied(ChainError):
+    """A worker process ended without finishing its work (killed, out of memory)."""
+
+
+def _get(queue, proc):
+    """The child's next message; WorkerDied if it ended without sending one."""
+    while True:
+        try:
+            return queue.get(timeout=CHILD_POLL_S)
+        except Empty:
+            if proc.exitcode is None:
+                continue
+            try:  # what it sent just before it ended
+                return queue.get(timeout=CHILD_POLL_S)
+            except Empty:
+                code = proc.exitcode
+                how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+                hint = " (out of memory?)" if code == -signal.SIGKILL else ""
+                raise WorkerDied(f"the worker process {proc.name} ended before its work was done: {how}{hint}; "
+                                 "the run stopped and wrote nothing") from None
 
 
 def _stop(proc) -> None:

@@ -48,6 +48,31 @@ def bench_startup_cmd(
     print(f"  ratio {r['ratio']:.1f} (loading every chain / the slower command); {verdict} the {r['ceiling_s']:g} s ceiling")
 
 
+@bench_app.command("process")
+def bench_process_cmd(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s", help="The scenario simulated (128 x 1024, 20 Hz LiDAR)."),
+    duration: float = typer.Option(20.0, "--duration", help="Seconds simulated."),
+    repeats: int = typer.Option(3, "--repeats", min=1, help="Runs of each; the median counts."),
+    recording: Optional[Path] = typer.Option(None, "--recording", help="Bench this recording instead of a simulated one."),
+    installation: Optional[Path] = typer.Option(None, "--installation", help="Its installation file, where its format carries none."),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """`boomtip process` in real time factors (default workers and one), beside kiss-icp's own pipeline."""
+    from boomtip.tools.bench.process import bench_process
+
+    with user_errors():
+        r = bench_process(scenario, duration, repeats, recording, installation)
+        write_bench_json(json_path, r, force)
+    print(f"process  {r['recording']}: {r['recording_s']:.1f} s, {r['lidar_frames']} LiDAR frames, median of {repeats}")
+    labels = {"default": "boomtip process", "workers_1": "boomtip process --workers 1", "kiss_icp": "kiss-icp pipeline"}
+    for key, label in labels.items():
+        k = r[key]
+        print(f"  {label:28s} {k['wall_s']:7.2f} s (min {k['min_s']:.2f}, max {k['max_s']:.2f})  {k['realtime_factor']:5.2f}x real time")
+    print(f"  workers: {r['speedup_workers']:.2f}x over one; kiss-icp {r['kiss_icp']['ms_per_lidar_frame']:.1f} ms per LiDAR frame")
+    print(f"  ratio {r['ratio']:.2f} (real-time factor, start-up and every output included)")
+
+
 @bench_app.command("raycast")
 def bench_raycast_cmd(
     scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),

@@ -15,6 +15,7 @@ import typer
 from rich.markup import escape
 
 from boomtip.tools.cli.bench import bench_app
+from boomtip.tools.cli.summary import print_kpis
 from boomtip.tools.cli.common import (INTERRUPTED_STUDY, INTERRUPTED_STUDY_UNSTARTED, ScenarioOpt, SetOpt, console,
                                        progress_bar, resolve_scenario, scenario_inputs, terminate_like_interrupt,
                                        user_errors)
@@ -27,10 +28,13 @@ ProcessingSetOpt = typer.Option(None, "--set", help="A processing setting: proce
                                  "section may be left out where the key is only processing's).")
 ProcessingFileOpt = typer.Option(None, "--processing", help="Processing settings from a YAML file (or a run's "
                                  "settings.json); --set comes on top.")
-LeanOpt = typer.Option(True, "--lean/--plain", help="lean (default): a long run's memory flat in its length and both "
-                       "cores used (per-run tables on disk, a simulation's frames and the hook estimators in child "
-                       "processes, freed heap returned to the system); plain: everything in this process's memory. The "
-                       "outputs are the same.")
+LeanOpt = typer.Option(True, "--lean/--plain", help="lean (default): a long run's memory flat in its length (per-run "
+                       "tables on disk, freed heap returned to the system); plain: everything in this process's memory. "
+                       "The outputs are the same.")
+RunWorkersOpt = typer.Option(None, "--workers", "-j", help="Processes the run uses (default: the cores): with 2 or more, "
+                             "each frame's perception (or a hook run's simulation and estimators) goes ahead in a second "
+                             "process while this one fuses; the chains have no third share yet. 1: everything in this "
+                             "process. The outputs are the same.")
 
 
 def _version(value: bool) -> None:
@@ -113,101 +117,36 @@ def simulate(
     )
 
 
-def _print_kpis(kpis: dict) -> None:
-    from boomtip.tools.report.feeder import estimated_motion_line
-    from boomtip.tools.report.heave import estimated_tables, kpi_table, measurement_table
-
-    seed = kpis['seed'] if kpis.get('seed') is not None else '-'
-    print(f"\n{kpis['scenario']} (seed {seed}, {kpis['duration_s']:.0f} s)\n")
-    for w in kpis.get("warnings", []):
-        console.print("[bold yellow]warning:[/] " + escape(w), highlight=False)
-    if "hook" in kpis:
-        h = kpis["hook"]
-        seg = h["segmentation"]
-        scored = (f"precision {seg['precision']:.4f}, recall {seg['recall']:.4f}, " if "precision" in seg else "")
-        print(f"hook segmentation: model fit in {100 * seg['found_fraction']:.1f} % and sparse fix in "
-              f"{100 * seg.get('sparse_fraction', 0.0):.1f} % of {seg['frames']} frames, {scored}{seg['apt_ms']:.1f} ms/frame")
-        if "rope" in h:
-            from boomtip.tools.report.hook import rope_summary
-
-            print(rope_summary(h["rope"]))
-        if "estimated" in h:  # no truth: the path each estimator made of the hook
-            print("No truth to score against; the hook's path as estimated (world frame):")
-            print(f"{'estimator':14s} {'x range [m]':>18s} {'y range [m]':>18s} {'z range [m]':>18s} {'top speed':>10s} "
-                  f"{'sigma rel. tip x/y/z [cm]':>26s}")
-            for name, e in h["estimated"].items():
-                if e.get("samples"):
-                    rng = [f"{a:.2f} to {b:.2f}" for a, b in zip(e["min_m"], e["max_m"])]
-                    sig = "/".join(f"{100 * x:.2f}" for x in e["median_sigma_rel_m"])
-                    print(f"{name:14s} {rng[0]:>18s} {rng[1]:>18s} {rng[2]:>18s} {e['top_speed_mps']:8.2f}m/s {sig:>26s}")
-            return
-        print(f"{'estimator':14s} {'RMSE pos x/y/z [cm]':>24s} {'RMSE vel x/y/z [cm/s]':>24s} {'runtime':>9s} {'NEES (3)':>9s}"
-              f" {'rel. tip pos [cm]':>20s}")
-        for name, k in h.items():
-            if isinstance(k, dict) and "rmse_pos_m" in k:
-                f = lambda v: "/".join(f"{100 * x:.2f}" for x in v)  # noqa: E731
-                print(f"{name:14s} {f(k['rmse_pos_m']):>24s} {f(k['rmse_vel_mps']):>24s} {100 * k['runtime_fraction']:8.2f}% "
-                      f"{k.get('nees_pos_mean', float('nan')):9.2f} {f(k.get('rmse_rel_pos_m', [float('nan')] * 3)):>20s}")
-        return
-    if "estimated" in kpis:  # no truth: what was measured and estimated, not how well
-        print("No truth to score against; what was measured and estimated:")
-        print(estimated_tables(kpis))
-    else:
-        print("Raw measurements (before any filter):")
-        print(measurement_table(kpis))
-    if "solutions" in kpis:
-        print("\nSolutions after the Kalman filter (" + kpis["solutions_note"] + "), document 000's Table 5.4 beside ours:")
-        print(kpi_table(kpis))
-    f = kpis.get("feeder")
-    side = (f or {}).get("D_side_by_side", {})
-    if f and "rmse_pos_m" in f:
-        mm = lambda v: " / ".join(f"{1000 * x:.1f}" for x in v)  # noqa: E731
-        print(f"\nFeeder 6-DOF relative to the crane vessel ({f['note']}): position RMSE x/y/z {mm(f['rmse_pos_m'])} mm "
-              f"(max {mm(f['max_pos_m'])}), angles r/p/y {' / '.join(f'{x:.3f}' for x in f['rmse_rpy_deg'])} deg, "
-              f"NEES {f['nees_mean']:.2f} (6), {f['apt_ms']:.1f} ms per LiDAR frame")
-        online = feeder_online_line(f)
-        if online:
-            print(online)
-        if "feeder_rmse_m" in side:
-            print(f"D from the feeder's pose {1000 * side['feeder_rmse_m']:.2f} mm RMSE; the heave chain's fused D "
-                  f"{1000 * side['heave_fused_rmse_m']:.2f} mm")
-    elif f:
-        why = f"nothing scored: {f['note']}" if "note" in f else "no truth to score"
-        print(f"\nFeeder 6-DOF: {f.get('apt_ms', float('nan')):.1f} ms per LiDAR frame ({why})")
-        motion = estimated_motion_line(f.get("estimated"))
-        if motion:
-            print(motion)
-    if side and "feeder_rmse_m" not in side:
-        print(f"D from the feeder's pose and the heave chain's fused D: {1000 * side['feeder_minus_fused_rms_m']:.2f} mm RMS apart")
-
-
-def feeder_online_line(f: dict) -> str | None:
-    """The feeder's figures as a live controller had them (kpis' `feeder.online`: each row
-    levelled and defined with what was known at its time), for the line beside the offline
-    ones; None when the run has no scored online block."""
-    o = f.get("online") or {}
-    if "rmse_pos_m" not in o:
-        return None
-    mm = " / ".join(f"{1000 * x:.1f}" for x in o["rmse_pos_m"])
-    deg = " / ".join(f"{x:.3f}" for x in o["rmse_rpy_deg"])
-    return f"  online (causal calibration): position RMSE x/y/z {mm} mm, angles r/p/y {deg} deg, NEES {o['nees_mean']:.2f} (6)"
-
-
 def _command_record(ctx: typer.Context) -> dict:
     """The command as settings.json records it: its name and its parsed options (paths as text)."""
     plain = lambda v: [plain(x) for x in v] if isinstance(v, (list, tuple)) else (str(v) if isinstance(v, Path) else v)  # noqa: E731
     return {"name": ctx.info_name, "params": {k.rstrip("_"): plain(v) for k, v in ctx.params.items()}}
 
 
+def run_workers(workers: int | None) -> int:
+    """--workers checked against the machine: 1 to 4 x its cores (default: its cores)."""
+    import os
+
+    from boomtip.tools.chains.chain import ChainError
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if workers is None:
+        return cores
+    if not 1 <= workers <= 4 * cores:
+        raise ChainError(f"--workers {workers}: expected 1 to {4 * cores} (4 x the {cores} cores this process may use)")
+    return workers
+
+
 def _run_and_report(ctx: typer.Context, source, out: Path, force: bool, rerun: bool, inputs=(), lean: bool = True,
-                    processing=None) -> None:
+                    processing=None, workers: int | None = None) -> None:
     from boomtip.tools.chains.resources import RunResources
     from boomtip.tools.chains.runner import run
 
+    resources = RunResources(lean=lean, workers=run_workers(workers))
     with progress_bar(len(source), "processing") as advance:
         result = run(source, out, force=force, processing=processing, rerun=rerun, inputs=inputs, progress=advance,
-                     resources=RunResources(lean=lean), command=_command_record(ctx))
-    _print_kpis(result.kpis)
+                     resources=resources, command=_command_record(ctx))
+    print_kpis(result.kpis)
     console.print(f"\nwrote {out}: " + ", ".join(result.written))
 
 
@@ -222,13 +161,16 @@ def run(
     rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
     lean: bool = LeanOpt,
+    workers: Optional[int] = RunWorkersOpt,
 ) -> None:
     """Simulate a scenario in memory and run perception + fusion on it (no recording on disk)."""
     from boomtip.data.sim.sources import simulation_for
 
     with user_errors():
+        run_workers(workers)  # before anything is simulated
         s = resolve_scenario(scenario, set_, duration, seed)
-        _run_and_report(ctx, simulation_for(s), out, force, rerun, inputs=scenario_inputs(scenario), lean=lean)
+        _run_and_report(ctx, simulation_for(s), out, force, rerun, inputs=scenario_inputs(scenario), lean=lean,
+                        workers=workers)
 
 
 @app.command()
@@ -250,6 +192,7 @@ def process(
     rerun: bool = typer.Option(False, "--rerun", help="Also write a rerun-sdk recording OUT/boomtip.rrd."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty --out."),
     lean: bool = LeanOpt,
+    workers: Optional[int] = RunWorkersOpt,
     set_: Optional[list[str]] = ProcessingSetOpt,
     processing: Optional[Path] = ProcessingFileOpt,
     strict: bool = typer.Option(False, "--strict", help="Refuse a recording with a bad sample in a stream (NaN, beyond "
@@ -262,12 +205,13 @@ def process(
     from boomtip.tools.config.settings import processing_settings
 
     with user_errors():
+        run_workers(workers)  # before anything is read
         inst = load_installation(installation) if installation else None
         source = open_source(recording, format, inst, start, duration, every, topics=parse_topics(topic), meta=meta,
                              strict=strict)
         settings = processing_settings(source.meta.processing, processing, set_) if (processing or set_) else None
         _run_and_report(ctx, source, out, force, rerun, inputs=(recording, installation, meta, processing), lean=lean,
-                        processing=settings)
+                        processing=settings, workers=workers)
 
 
 @app.command("installation")

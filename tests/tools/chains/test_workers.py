@@ -1,5 +1,6 @@
-"""A hook run on two cores gives the serial run's outputs: the frames made in a child process,
-the estimators split between two processes."""
+"""A run on two cores gives the serial run's outputs: a hook run's frames made in a child
+process and its estimators split between two; a ship run's perception made in a child ahead of
+its fusion. A child that dies stops the run with that reason."""
 
 from __future__ import annotations
 
@@ -13,14 +14,21 @@ from boomtip.data.frames import Frame, FrameSource
 from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.sources import simulation_for
 from boomtip.tools.chains import workers
+from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.chains.runner import run_into
 
 TIMING_KEYS = {"runtime_fraction", "apt_ms", "time_ms"}
 
 
+def _is_timing(key: str) -> bool:
+    return key in TIMING_KEYS or "_ms" in key or key in ("worker_s", "wait_s")
+
+
 def _without_timings(x):
     if isinstance(x, dict):
-        return {k: _without_timings(v) for k, v in x.items() if k not in TIMING_KEYS}
+        return {k: _without_timings(v) for k, v in x.items() if not _is_timing(k)}
+    if isinstance(x, list):
+        return [_without_timings(v) for v in x]
     return x
 
 
@@ -42,7 +50,7 @@ def test_a_run_on_two_cores_writes_what_the_serial_run_writes(tmp_path):
                 assert not workers.parallel_enabled()
                 run_into(sim, out, report=False)
         else:
-            run_into(sim, out, report=False)
+            run_into(sim, out, report=False, resources=RunResources(lean=True, workers=2))
         outs[label] = out
     s, p = outs["serial"], outs["parallel"]
     assert (s / "hook_estimates.csv").read_bytes() == (p / "hook_estimates.csv").read_bytes()
@@ -51,6 +59,24 @@ def test_a_run_on_two_cores_writes_what_the_serial_run_writes(tmp_path):
     ks, kp = json.loads((s / "kpis.json").read_text()), json.loads((p / "kpis.json").read_text())
     assert _without_timings(ks) == _without_timings(kp)
     assert set(ks["hook"]) >= {"ekf_flexible", "ekf_rigid", "ukf_flexible", "ukf_rigid"}
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not workers.parallel_enabled(), reason="one core, or no fork: nothing runs in parallel")
+def test_a_ship_run_with_its_perception_in_a_worker_writes_what_one_process_writes(tmp_path):
+    outs = {}
+    for n in (1, 2):
+        sim = simulation_for(load_scenario("sts-loaded", ["duration_s=7"]))  # past the static test's 4 s warm-up
+        outs[n] = tmp_path / f"workers{n}"
+        outs[n].mkdir()
+        run_into(sim, outs[n], report=False, resources=RunResources(lean=True, workers=n))
+    one, two = outs[1], outs[2]
+    for name in ("estimates.csv", "feeder_estimates.csv", "feeder_estimates_online.csv", "feeder_calibration.csv"):
+        assert (one / name).read_bytes() == (two / name).read_bytes(), name
+    assert _rows(one / "measurements.csv") == _rows(two / "measurements.csv")
+    k1, k2 = json.loads((one / "kpis.json").read_text()), json.loads((two / "kpis.json").read_text())
+    assert _without_timings(k1) == _without_timings(k2)
+    assert k1["feeder"]["rmse_pos_m"][0] < 0.02  # the feeder was estimated, not skipped alike in both
 
 
 class _Counting(FrameSource):
@@ -130,3 +156,41 @@ def test_stopping_early_ends_the_child_under_the_clis_sigterm_handler():
     finally:
         signal.signal(signal.SIGTERM, saved)
     assert not [p for p in mp.active_children() if p.name == "boomtip-frames"]
+
+
+class _Tally:
+    """A stateful function: what it was given so far."""
+
+    def __init__(self) -> None:
+        self.seen = 0
+
+    def __call__(self, frame: Frame) -> tuple[int, int]:
+        self.seen += 1
+        return frame.index, self.seen
+
+
+def test_a_mapped_function_keeps_its_state_in_the_child_and_its_results_come_in_order():
+    tally = _Tally()
+    got = list(workers.mapped_in_child(_Counting(40), tally))
+    assert got == [(k, k + 1) for k in range(40)]
+    assert tally.seen == 0  # the state lives in the child
+
+
+def _die_at(k: int):
+    import os
+    import signal
+
+    def fn(frame: Frame) -> int:
+        if frame.index == k:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return frame.index
+
+    return fn
+
+
+def test_a_child_that_is_killed_stops_the_run_with_that_reason():
+    got = []
+    with pytest.raises(workers.WorkerDied, match="killed by signal 9"):
+        for index in workers.mapped_in_child(_Counting(20), _die_at(6)):
+            got.append(index)
+    assert got == list(range(len(got))) and len(got) <= 6  # what reached this process before it died, then the reason

@@ -3,7 +3,7 @@ only when kpis has them."""
 
 from __future__ import annotations
 
-from boomtip.tools.cli.commands import _print_kpis, feeder_online_line
+from boomtip.tools.cli.summary import feeder_online_line, print_kpis as _print_kpis
 
 
 def _feeder(online: dict | None) -> dict:
