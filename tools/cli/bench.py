@@ -73,6 +73,29 @@ def bench_process_cmd(
     print(f"  ratio {r['ratio']:.2f} (real-time factor, start-up and every output included)")
 
 
+@bench_app.command("batch")
+def bench_batch_cmd(
+    scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),
+    recordings: int = typer.Option(6, "--recordings", min=2, help="Recordings simulated once, processed by each executor."),
+    duration: float = typer.Option(6.0, "--duration", help="Seconds per recording."),
+    json_path: Optional[Path] = JsonOpt,
+    force: bool = ForceOpt,
+) -> None:
+    """`boomtip batch`'s speed-up of two workers over one, on Dask and on local processes."""
+    from boomtip.tools.bench.batch import bench_batch
+
+    with user_errors():
+        r = bench_batch(scenario, recordings, duration)
+        write_bench_json(json_path, r, force)
+    print(f"batch  {recordings} recordings of {scenario}, {duration:g} s each")
+    for kind in ("dask", "local"):
+        k = r[kind]
+        print(f"  {kind:5s}  1 worker {k['one_worker_wall_s']:6.2f} s, 2 workers {k['two_workers_wall_s']:6.2f} s: "
+              f"{k['speedup']:.2f}x (the tasks' own time {k['tasks_own_s']['one_worker']:.2f} s on one, "
+              f"{k['tasks_own_s']['two_workers']:.2f} s on two)")
+    print(f"  ratio {r['ratio']:.2f} (Dask, two workers over one)")
+
+
 @bench_app.command("raycast")
 def bench_raycast_cmd(
     scenario: str = typer.Option("sts-loaded", "--scenario", "-s"),

@@ -17,9 +17,15 @@ import json
 
 from boomtip.data.io.recording import RecordingError, check_output_folder, write_json
 from boomtip.tools.study.tasks import TIMING_KEYS, Task, run_task, summarise
+from boomtip.tools.study.worker_env import one_thread_each
 from boomtip.tools.report.plots import legend
 
 FIRST_COLUMNS = ("task", "seed", "status", "error", "wall_s")
+# A local cluster's own upkeep, kept off the tasks' cores: no statistical profiler (its stack
+# sampling every 10 ms takes the GIL from the task: a third longer per task with two workers on
+# two cores), and the memory and system monitors every few seconds instead of 10 times a second
+QUIET_DASK = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "2s",
+              "distributed.admin.system-monitor.interval": "5s"}
 
 
 def check_executor(kind: str) -> None:
@@ -31,7 +37,10 @@ def check_executor(kind: str) -> None:
 def make_executor(kind: str = "local", workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
     """`local`: a pool of worker processes (spawned: Open3D's and OpenMP's threads do not survive
     a fork). `dask`: the cluster at `scheduler`, or a LocalCluster of `workers` processes with
-    one thread each. The task code is the same: both are concurrent.futures executors."""
+    one thread each. The task code is the same: both are concurrent.futures executors. Each
+    worker runs one task at a time on one core: its OpenMP and BLAS threads are pinned to one
+    (Dask's nanny does it by default), or the workers of a pool with a worker per core would
+    fight for the cores."""
     import os
 
     n = max(1, workers or os.cpu_count() or 1)
@@ -39,18 +48,23 @@ def make_executor(kind: str = "local", workers: int | None = None, scheduler: st
     if kind == "local":
         import multiprocessing
 
-        with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=one_thread_each) as pool:
             yield pool
     elif kind == "dask":
+        import dask
         from distributed import Client, LocalCluster
 
+        # pure=False: every task runs. Dask's default takes equal calls for one and hands back a
+        # result still held (a re-run task, a warm-up's) without running it, with its old timings
         if scheduler:
             with Client(scheduler) as client:
-                yield client.get_executor()
+                yield client.get_executor(pure=False)
         else:
-            with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            with dask.config.set(QUIET_DASK), \
+                    LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
                     Client(cluster) as client:
-                yield client.get_executor()
+                yield client.get_executor(pure=False)
     else:
         raise ValueError(f"--executor '{kind}': expected local or dask")
 

@@ -259,3 +259,26 @@ def test_a_resumed_boolean_grid_is_summarised_as_one_point(tmp_path, study):
     summary = ex.write_summary(out, rows, grid)
     points = [(r["feeder.cargo"], r["kpi"]) for r in summary if r["kpi"] == "kpi.mae_D_m"]
     assert len(points) == 2 and all(r["n"] == 2 for r in summary if r["kpi"] == "kpi.mae_D_m")
+
+
+def test_a_local_worker_runs_its_libraries_on_one_thread_each():
+    import os
+
+    from boomtip.tools.study.executor import make_executor
+    from boomtip.tools.study.worker_env import ONE_THREAD
+
+    with make_executor("local", 1) as pool:
+        got = {k: pool.submit(os.getenv, k).result() for k in ONE_THREAD}
+    assert got == {k: os.environ.get(k, v) for k, v in ONE_THREAD.items()}  # the user's own setting wins
+
+
+@pytest.mark.slow
+def test_dask_runs_every_call_even_an_equal_one():
+    import time
+
+    from boomtip.tools.study.executor import make_executor
+
+    with make_executor("dask", 1) as pool:
+        calls = [pool.submit(time.perf_counter) for _ in range(2)]  # both held, as a study holds its tasks
+        first, second = sorted(c.result() for c in calls)
+    assert second > first  # dask's default (pure) would hand back the first call's result
