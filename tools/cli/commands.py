@@ -238,17 +238,37 @@ def installation_cmd(
 def view(
     out: Path = typer.Argument(..., help="An output folder of `boomtip run --rerun` or `boomtip process --rerun`."),
     spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer on it (needs a display)."),
+    web: bool = typer.Option(False, "--web", help="Serve rerun's web viewer on this machine (127.0.0.1) and print its "
+                             "page's URL; stops on Ctrl-C or SIGTERM. Works without a display."),
+    port: int = typer.Option(9090, "--port", min=0, max=65535, help="--web: the viewer page's port (0: a free one)."),
+    grpc_port: Optional[int] = typer.Option(None, "--grpc-port", min=0, max=65535, help="--web: the port the recording "
+                                            "is served from (default: 9876, or a free one if it is taken)."),
 ) -> None:
-    """Show where a run's rerun recording is, or open it in the rerun viewer."""
+    """Show where a run's rerun recording is, open it in the rerun viewer, or serve it to a browser."""
+    from boomtip.tools.cli.view import ViewerError, has_display, no_display_message, serve_web
+
     rrd = out / "boomtip.rrd"
     if not rrd.is_file():
-        console.print(f"[bold red]error:[/] {rrd} not found; run `boomtip run ... --rerun` or `boomtip process ... --rerun` first")
+        console.print(f"[bold red]error:[/] {escape(str(rrd))} not found; run `boomtip run ... --rerun` or "
+                      "`boomtip process ... --rerun` first", highlight=False)
         raise typer.Exit(2)
+    if web:
+        with user_errors(f"the web viewer on {rrd} was stopped"):
+            try:
+                code = serve_web(rrd, port, grpc_port, lambda url: print(f"rerun web viewer on {rrd}: {url}", flush=True))
+            except ViewerError as exc:
+                console.print("[bold red]error:[/] " + escape(str(exc)), highlight=False)
+                raise typer.Exit(2) from None
+        raise typer.Exit(code)
     if spawn:
+        if not has_display():
+            console.print(no_display_message(out), highlight=False)
+            raise typer.Exit(2)
         import subprocess
 
         raise typer.Exit(subprocess.call([sys.executable, "-m", "rerun", str(rrd)]))
-    print(f"{rrd} ({rrd.stat().st_size / 1e6:.1f} MB): open it with `rerun {rrd}` or `boomtip view {out} --spawn`")
+    print(f"{rrd} ({rrd.stat().st_size / 1e6:.1f} MB): open it with `rerun {rrd}`, `boomtip view {out} --spawn` (a display) "
+          f"or `boomtip view {out} --web` (a browser)")
 
 
 DEFAULT_KPIS = ("solutions.fused.mae_D_m", "solutions.fused.mae_D_dot_mps", "solutions.deck_lidar.mae_D_m",
