@@ -8,7 +8,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from boomtip.tools.bench.sweep import _timed
+from boomtip.tools.bench.sweep import timed_map
 
 __all__ = ["bench_batch"]
 
@@ -34,8 +34,8 @@ def bench_batch(scenario: str = "sts-loaded", recordings: int = 6, duration_s: f
         paths = _recordings(scenario, recordings, duration_s, Path(tmp))
         tasks = [Task(f"{i}:{p}", "", (), None, 0, {"recording": str(p)}, recording=str(p)) for i, p in enumerate(paths)]
         for kind in ("dask", "local"):
-            one, own_one = _timed(tasks, kind, 1)
-            two, own_two = _timed(tasks, kind, 2)
+            one, own_one = timed_map(tasks, kind, 1)
+            two, own_two = timed_map(tasks, kind, 2)
             # the tasks' own times: longer on two workers when they share what a core does not own (memory, cache)
             out[kind] = {"one_worker_wall_s": round(one, 3), "two_workers_wall_s": round(two, 3),
                          "tasks_own_s": {"one_worker": round(own_one, 3), "two_workers": round(own_two, 3)},

@@ -10,7 +10,7 @@ from boomtip.tools.study.tasks import axis_from_grid, sweep_tasks, run_task
 from boomtip.tools.study.executor import make_executor
 
 
-def _timed(tasks, kind: str, workers: int) -> tuple[float, float]:
+def timed_map(tasks, kind: str, workers: int) -> tuple[float, float]:
     """Wall time of the tasks on a warm executor (workers started and modules imported by one
     warm-up task each) and the sum of the tasks' own times."""
     with make_executor(kind, workers) as pool:
@@ -29,12 +29,12 @@ def bench_sweep(scenario: str = "sts-empty", tasks: int = 16, duration_s: float 
     out: dict = {"scenario": scenario, "tasks": len(todo), "task_duration_s": duration_s}
     baseline_own = None
     for kind in ("local", "dask"):
-        wall, own = _timed(todo, kind, 1)
+        wall, own = timed_map(todo, kind, 1)
         # the same tasks' own time in a plain local worker is the baseline for both: a Dask
         # worker's threads also slow the task itself, which is part of what Dask costs
         baseline_own = own if baseline_own is None else baseline_own
         out[kind] = {"wall_s": wall, "tasks_own_s": own, "overhead_per_task_s": max(wall - baseline_own, 0.0) / len(todo)}
-    wall2, _ = _timed(todo, "local", 2)
+    wall2, _ = timed_map(todo, "local", 2)
     out["two_workers_wall_s"] = wall2
     out["ratio"] = wall2 / out["local"]["wall_s"]  # two workers' time over one worker's
     return out
