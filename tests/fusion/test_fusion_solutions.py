@@ -107,7 +107,7 @@ def test_run_and_process_write_their_outputs(tmp_path):
     rec, out1, out2 = tmp_path / "rec", tmp_path / "run", tmp_path / "proc"
     r = runner.invoke(app, ["run", "-s", "sts-empty", "--duration", "6", "--out", str(out1), "--rerun"])
     assert r.exit_code == 0, r.output
-    for name in ("measurements.csv", "estimates.csv", "kpis.json", "report.md", "heave_D.png", "boomtip.rrd"):
+    for name in ("measurements.csv", "estimates.csv", "kpis.json", "report.md", "plots/heave_D.png", "boomtip.rrd"):
         assert (out1 / name).is_file(), name
     kpis = json.loads((out1 / "kpis.json").read_text())
     assert set(kpis["measurements"]) == {"deck_lidar", "deck_radar", "reflectors_lidar", "doppler_radar", "doppler_radar_rot"}

@@ -234,10 +234,10 @@ class HookChain:
             return []
         if truth is None:
             outputs.write_hook_estimates_report(out, kpis)
-            return ["hook_report.md"]
+            return ["report.md"]
         self.resources.release()  # what the outputs freed, before the plots' peak
         outputs.write_hook_report(out, kpis, kpis.get("program"), result.runs, result.stores, truth, result.rows)
-        return ["hook_report.md", "plots"]
+        return ["report.md", "plots"]
 
     def visualiser(self, path: Path, source: FrameSource):
         from boomtip.tools.report.rerun import HookRerunLogger

@@ -28,6 +28,7 @@ from boomtip.tools.chains.provenance import outage_windows
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import feeder as feeder_outputs
 from boomtip.tools.report.feeder import FeederResult
+from boomtip.tools.report.plots import plot_link
 
 
 @dataclass
@@ -173,13 +174,13 @@ class ShipChain:
         return kpis
 
     def report(self, out: Path, kpis: dict, result: ShipResult, truth: Truth | None) -> list[str]:
-        heave, feeder = result.heave, result.feeder
-        written = self.heave.report(out, kpis, heave, truth)
+        written = self.heave.report(out, kpis, result.heave, truth)
+        plot = feeder_outputs.write_feeder_plot(out, result.feeder, truth, self.p_tip_crane_m)
         report = out / "report.md"
         if report.exists():
             with open(report, "a", encoding="utf-8") as fh:
-                fh.write(feeder_outputs.report_section(kpis, outage_windows(self.source)))
-        plot = feeder_outputs.write_feeder_plot(out, feeder, truth, self.p_tip_crane_m)
+                fh.write(feeder_outputs.report_section(kpis, outage_windows(self.source))
+                         + (f"\n{plot_link(plot)}\n" if plot is not None else ""))
         return written + ([] if plot is None or "plots" in written else ["plots"])
 
     def visualiser(self, path: Path, source: FrameSource):

@@ -16,7 +16,7 @@ from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import SENSOR_OF, Measurement
 from boomtip.tools.report.heave import COLORS
 from boomtip.tools.report.kpis import consistency_table
-from boomtip.tools.report.plots import legend
+from boomtip.tools.report.plots import PLOTS_DIR, legend, plot_link, plot_path, save
 
 EPOCH_LIKE_S = 1e8  # a clock beyond this (1973) counts seconds since the epoch; below, a sensor's own
 
@@ -94,9 +94,9 @@ def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates
         gaps = stream_gaps(mru.t_s, float(np.median(np.diff(mru.t_s))) if len(mru.t_s) > 1 else 1.0)
         lines.append(f"- MRU: {len(mru.t_s)} samples, {len(gaps)} gaps" + "".join(f"; {a:.2f}-{b:.2f} s" for a, b in gaps[:10]))
     plot = _plot(out, estimates, kpis.get("t_origin_s"))
-    lines += ["", f"![estimates]({plot.name})", ""]
+    lines += ["", plot_link(plot), ""]
     atomic_write_bytes(out / "report.md", "\n".join(lines).encode())
-    return ["report.md", plot.name]
+    return ["report.md", PLOTS_DIR]
 
 
 def _plot(out: Path, estimates: dict[str, Estimates], t_origin_s: float | None = None) -> Path:
@@ -105,7 +105,7 @@ def _plot(out: Path, estimates: dict[str, Estimates], t_origin_s: float | None =
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
+    fig, ax = plt.subplots(2, 1, figsize=(13, 7), sharex=True)
     for qi, label in enumerate(("D [m]", "D-dot [m/s]")):
         for name, e in estimates.items():
             if name == "doppler_radar" and qi == 0:
@@ -116,11 +116,7 @@ def _plot(out: Path, estimates: dict[str, Estimates], t_origin_s: float | None =
                 s = 3 * np.sqrt(e.var[:, qi])
                 ax[qi].fill_between(e.t_s, e.x[:, qi] - s, e.x[:, qi] + s, color=c, alpha=0.2, label="fused +-3 sigma")
         ax[qi].set_ylabel(label)
-        legend(ax[qi], fontsize=8, ncol=4)
-    ax[1].set_xlabel("t [s]" + (f" from {_clock(t_origin_s)}" if t_origin_s else ""))
-    ax[0].set_title("Estimates (no truth)")
-    fig.tight_layout()
-    path = out / "estimates.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+        legend(ax[qi], fontsize=8)
+    ax[1].set_xlabel("t [s] from the recording's start")
+    ax[0].set_title("Estimates (no truth)" + (f"; the recording starts at {_clock(t_origin_s)}" if t_origin_s else ""))
+    return save(fig, plot_path(out, "estimates"))

@@ -27,7 +27,7 @@ from boomtip.tools.report.feeder_truth import (
     feeder_twist_truth,
 )
 from boomtip.tools.report.kpis import WARMUP_S
-from boomtip.tools.report.plots import legend
+from boomtip.tools.report.plots import legend, plot_link, plot_path, save
 
 RATES = tuple(f"{a}_rate" for a in POSE)
 COLUMNS = ("t",) + POSE + RATES + tuple(f"var_{a}" for a in POSE + RATES)
@@ -309,6 +309,9 @@ def _D_side_by_side_lines(f: dict) -> list[str]:
     return []
 
 
+FEEDER_PLOT = "feeder_pose"
+
+
 def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarray) -> Path | None:
     import matplotlib
 
@@ -332,14 +335,11 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
             ax.plot(res.t_s, res.pose[:, i] * scale[i], lw=0.8)
             ax.set_ylabel(f"{POSE[i]} [{units[i]}]")
         ax.grid(alpha=0.3)
-    legend(axes[0], loc="upper right")
-    axes[-1].set_xlabel("t [s]")
-    fig.tight_layout()
-    path = out / "plots" / "feeder_pose.png"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    legend(axes[0])
+    axes[-1].set_xlabel("t [s] from the recording's start")
+    axes[0].set_title("The feeder's pose relative to the crane vessel: " + ("error (estimate - truth) and its 3 sigma"
+                      if pose_t is not None else "as estimated (no truth)"))
+    return save(fig, plot_path(out, FEEDER_PLOT))
 
 
 def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_map_feeder: np.ndarray | None,

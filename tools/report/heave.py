@@ -11,7 +11,7 @@ from boomtip.data.io.pcd import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import Measurement
 from boomtip.tools.report.kpis import WARMUP_S, consistency_table
-from boomtip.tools.report.plots import legend
+from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path, save
 
 # Document 000, Table 5.4 (after its Kalman filter) and its truth amplitudes (section 5.1.2).
 DOC000 = {
@@ -22,7 +22,7 @@ DOC000 = {
 }
 DOC000_AMPLITUDE = {"D_m": 3.06, "D_dot_mps": 2.3}
 COLORS = {"deck_lidar": "#1f77b4", "deck_radar": "#ff7f0e", "reflectors_lidar": "#2ca02c", "doppler_radar": "#9467bd", "fused": "#d62728",
-          "doppler_radar_rot": "#8c564b"}
+          "doppler_radar_rot": "#17becf"}  # cyan: apart from doppler_radar's purple at a glance
 
 
 def _fmt(v, pct_of=None, unit_mm=False) -> str:
@@ -106,7 +106,7 @@ def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: 
         *consistency_table(kpis),
         "## Plots",
         "",
-        *[f"![{p.stem}]({p.name})" for p in plots],
+        *[plot_link(p) for p in plots],
         "",
     ]
     atomic_write_bytes(out / "report.md", "\n".join(text).encode())
@@ -120,32 +120,29 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
 
     paths = []
     for qi, (q, unit, scale) in enumerate((("D", "mm", 1e3), ("D_dot", "mm/s", 1e3))):
-        fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(12, 7), sharex=True, gridspec_kw={"height_ratios": [1, 1.3]})
-        ax0.plot(truth.t_s, truth.columns[q], color="black", lw=2.5, label="truth")
+        fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(13, 7), sharex=True, gridspec_kw={"height_ratios": [1, 1.3]})
+        ax1.axvspan(0, WARMUP_S, color="0.9", label=f"first {WARMUP_S:g} s: not scored")
         for name, e in estimates.items():
             c = COLORS.get(name)
             ax0.plot(e.t_s, e.x[:, qi], lw=1, color=c, label=name)
             err = (e.x[:, qi] - truth.at(q, e.t_s)) * scale
             ax1.plot(e.t_s, err, lw=0.9, color=c, label=name)
+        ax0.plot(truth.t_s, truth.columns[q], label="truth", **TRUTH_STYLE)
         ax0.set_ylabel(f"{q} [{'m' if q == 'D' else 'm/s'}]")
-        legend(ax0, ncol=6, fontsize=8, loc="upper right")
-        ax0.set_title(f"{q}: truth and estimates")
+        legend(ax0, fontsize=8)
+        ax0.set_title(f"{q}: estimates and the truth (dashed)")
         # Doppler-only D drifts by design; the limit follows the others so their errors stay readable.
         lim = _robust_limit([((e.x[:, qi] - truth.at(q, e.t_s)) * scale, e.t_s >= WARMUP_S) for n, e in estimates.items()
                              if not (q == "D" and n == "doppler_radar") or len(estimates) == 1])
         ax1.set_ylim(-lim, lim)
-        ax1.axvspan(0, WARMUP_S, color="0.9", label="not scored")
         ax1.axhline(0, color="black", lw=0.5)
         ax1.set_ylabel(f"error [{unit}]")
-        ax1.set_xlabel("t [s]")
+        ax1.set_xlabel("t [s] from the recording's start")
+        legend(ax1, fontsize=8)
         ax1.set_title(f"{q} error (estimate - truth); y-axis clipped to the bulk of the scored errors"
                       + ("; doppler_radar's D drifts off-scale" if q == "D" and "doppler_radar" in estimates else ""))
-        fig.tight_layout()
-        p = out / f"heave_{q}.png"
-        fig.savefig(p, dpi=90)
-        plt.close(fig)
-        paths.append(p)
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+        paths.append(save(fig, plot_path(out, f"heave_{q}")))
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4))
     for qi, (q, unit) in enumerate((("D", "mm"), ("D_dot", "mm/s"))):
         for name, e in estimates.items():
             keep = e.t_s >= WARMUP_S
@@ -155,15 +152,12 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
                 continue  # drifts by design; it would swamp the others
             axes[qi].hist(err, bins=80, histtype="step", lw=1.5, color=COLORS.get(name), label=name)
         axes[qi].set_xlabel(f"{q} error [{unit}]")
+        axes[qi].set_ylabel("estimates per bin [count]")
         axes[qi].set_title(f"{q} error histogram (t >= {WARMUP_S:g} s)")
-        legend(axes[qi], fontsize=8)
-    fig.tight_layout()
-    p = out / "error_histograms.png"
-    fig.savefig(p, dpi=90)
-    plt.close(fig)
-    paths.append(p)
+    legend(axes[1], fontsize=8)
+    paths.append(save(fig, plot_path(out, "error_histograms")))
     # Raw measurement errors per method.
-    fig, ax = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
+    fig, ax = plt.subplots(2, 1, figsize=(13, 6), sharex=True)
     methods = sorted({r.method for r in rows})
     for m in methods:
         ok = [r for r in rows if r.method == m and r.ok]
@@ -174,16 +168,12 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
         ax[0 if ok[0].quantity == "D" else 1].plot(t, err, ".", ms=2, label=m, color=COLORS.get(m))
     ax[0].set_ylabel("D error [mm]")
     ax[1].set_ylabel("D-dot error [mm/s]")
-    ax[1].set_xlabel("t [s]")
+    ax[1].set_xlabel("t [s] from the recording's start")
     ax[0].set_title("Raw measurements minus truth (before filtering)")
     for a in ax:
-        legend(a, fontsize=8, ncol=3)
+        legend(a, fontsize=8, markerscale=6)
         a.axhline(0, color="black", lw=0.5)
-    fig.tight_layout()
-    p = out / "measurements.png"
-    fig.savefig(p, dpi=90)
-    plt.close(fig)
-    paths.append(p)
+    paths.append(save(fig, plot_path(out, "measurements")))
     return paths
 
 

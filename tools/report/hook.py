@@ -1,5 +1,5 @@
 """The hook chain's outputs: per-frame rows and estimates as CSV, the KPIs against the truth
-(only when there is one), and hook_report.md with document 002's Tables 6.1/6.4 layout."""
+(only when there is one), and report.md with document 002's Tables 6.1/6.4 layout."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from boomtip.fusion.hook_run import HookFilterRun
 from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
 from boomtip.tools.report.hook_store import P, EstimateStore, atomic_text_file
 from boomtip.tools.report.kpis import consistency_table
-from boomtip.tools.report.plots import legend
+from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path, save
 
 PLOT_EVERY = 4  # the report's plots take every 4th estimator sample (50 Hz): a 700 s run is 140,000 samples
 # and at most about this many points per line: a plotted line's memory grows with its points, and
@@ -192,7 +192,7 @@ def rope_summary(rope: dict) -> str:
 
 
 def write_hook_estimates_report(out: Path, kpis: dict) -> None:
-    """hook_report.md of a recording without truth: what was found and estimated, not how well."""
+    """report.md of a recording without truth: what was found and estimated, not how well."""
     hook = kpis["hook"]
     seg = hook["segmentation"]
     lines = [f"# boomtip hook report: {kpis['scenario']} ({kpis['duration_s']:g} s, no truth)", "",
@@ -213,7 +213,7 @@ def write_hook_estimates_report(out: Path, kpis: dict) -> None:
         last = ", ".join(f"{x:.2f}" for x in e["last_m"])
         lines.append(f"| {name} | {' | '.join(rng)} | {e['top_speed_mps']:.2f} | {sig} | {last} at {e['last_t_s']:.1f} s |")
     lines += ["", *consistency_table(kpis)]
-    atomic_write_bytes(out / "hook_report.md", ("\n".join(lines) + "\n").encode())
+    atomic_write_bytes(out / "report.md", ("\n".join(lines) + "\n").encode())
 
 
 def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str, HookFilterRun],
@@ -261,11 +261,11 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
         rope_summary(hook["rope"]),
         "",
         *consistency_table(kpis),
-        "![trajectory](hook_trajectory.png)",
-        "![errors](hook_errors.png)",
+        plot_link(plot_path(out, "hook_trajectory")),
+        plot_link(plot_path(out, "hook_errors")),
         "",
     ]
-    atomic_write_bytes(out / "hook_report.md", "\n".join(lines).encode())
+    atomic_write_bytes(out / "report.md", "\n".join(lines).encode())
     fig, ax = plt.subplots(1, 2, figsize=(13, 5))
     # the truth at the estimates' plotting rate too
     step = max(PLOT_EVERY, -(-max((st.n for st in stores.values()), default=0) // PLOT_MAX_POINTS))
@@ -276,7 +276,7 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
         # a copy: a plotted view would keep the whole column (a 700 s run's 140,000 samples)
         return truth.columns[name][every].copy()
 
-    ax[0].plot(truth_plotted("hook_x"), truth_plotted("hook_y"), "k", lw=2, label="truth")
+    ax[0].plot(truth_plotted("hook_x"), truth_plotted("hook_y"), label="truth", **TRUTH_STYLE)
     best = "ekf_flexible" if "ekf_flexible" in runs else next(iter(runs))
     t_best, p = stores[best].columns(P, step)
     ax[0].plot(p[:, 0], p[:, 1], "r", lw=1, label=runs[best].kind + " " + runs[best].model)
@@ -285,20 +285,18 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
     ax[0].set_aspect("equal", adjustable="datalim")
     legend(ax[0])
     ax[0].set_title("hook path seen from above (world)")
-    ax[1].plot(tt, truth_plotted("hook_z"), "k", lw=2, label="truth z")
+    ax[1].plot(tt, truth_plotted("hook_z"), label="truth z", **TRUTH_STYLE)
     ax[1].plot(t_best, p[:, 2], "r", lw=1, label="estimate z")
     ok = rows["status"] == "ok"
     if ok.any():
         t_ok = rows["t"][ok]
         tip_z = truth.at("tip_z", t_ok)
         ax[1].plot(t_ok, tip_z + rows["z"][ok], ".", ms=2, color="tab:blue", label="LiDAR detections")
-    ax[1].set_xlabel("t [s]")
+    ax[1].set_xlabel("t [s] from the recording's start")
     ax[1].set_ylabel("z [m]")
     legend(ax[1])
     ax[1].set_title("hook height")
-    fig.tight_layout()
-    fig.savefig(out / "hook_trajectory.png", dpi=90)
-    plt.close(fig)
+    save(fig, plot_path(out, "hook_trajectory"))
     fig, ax = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
     for name, run in runs.items():
         t, pv = stores[name].columns(slice(P.start, P.start + 6), step)
@@ -312,12 +310,10 @@ def write_hook_report(out: Path, kpis: dict, program: str | None, runs: dict[str
         ax[1].plot(t, 100 * np.linalg.norm(v - refv, axis=1), label=name, **style)
     ax[0].set_ylabel("|position error| [cm]")
     ax[1].set_ylabel("|velocity error| [cm/s]")
-    ax[1].set_xlabel("t [s]")
+    ax[1].set_xlabel("t [s] from the recording's start")
     for a in ax:
-        a.axvspan(0, WARMUP_S, color="0.9")
-        legend(a, fontsize=8, ncol=4)
+        a.axvspan(0, WARMUP_S, color="0.9", label=f"first {WARMUP_S:g} s: not scored")
+        legend(a, fontsize=8)
         a.set_yscale("log")
-    ax[0].set_title("hook errors (world frame); grey: not scored")
-    fig.tight_layout()
-    fig.savefig(out / "hook_errors.png", dpi=90)
-    plt.close(fig)
+    ax[0].set_title("hook errors (world frame)")
+    save(fig, plot_path(out, "hook_errors"))

@@ -50,7 +50,7 @@ def test_a_folder_of_pcds_reads_like_its_recording(rec, tmp_path):
     assert _deck_rows(tmp_path / "f" / "measurements.csv") == _deck_rows(tmp_path / "b" / "measurements.csv")
     # without truth, the report says what was estimated
     report = (tmp_path / "f" / "report.md").read_text()
-    assert "no truth" in report and "| deck_lidar | 20 | 100.0 % |" in report and (tmp_path / "f" / "estimates.png").is_file()
+    assert "no truth" in report and "| deck_lidar | 20 | 100.0 % |" in report and (tmp_path / "f" / "plots" / "estimates.png").is_file()
     # without an installation file the folder is refused, naming what is missing
     r = runner.invoke(app, ["process", str(clouds), "--out", str(tmp_path / "g")])
     assert r.exit_code == 2 and "--installation" in r.output

@@ -85,7 +85,7 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
     assert rope["found_fraction"] > 0.95 and rope["precision"] > 0.99
     assert rope["rmse_angle_mrad"] < 0.5 and max(rope["rmse_at_hook_m"]) < 0.05
     assert abs(rope["radius_median_m"] - 0.04) < 1e-3
-    for name in ("hook_measurements.csv", "hook_estimates.csv", "hook_report.md", "hook_trajectory.png", "boomtip.rrd"):
+    for name in ("hook_measurements.csv", "hook_estimates.csv", "report.md", "plots/hook_trajectory.png", "boomtip.rrd"):
         assert (out / name).is_file()
     import csv
 

@@ -196,7 +196,7 @@ def test_a_hook_recording_without_truth_says_the_path_it_estimated(tmp_path):
     assert "the hook's path as estimated" in r.output and "RMSE" not in r.output and "nan" not in r.output
     path = json.loads((tmp_path / "o" / "kpis.json").read_text())["hook"]["estimated"]["ekf_flexible"]
     assert path["samples"] > 0 and all(a < b for a, b in zip(path["min_m"], path["max_m"]))
-    assert "| ekf_flexible |" in (tmp_path / "o" / "hook_report.md").read_text()
+    assert "| ekf_flexible |" in (tmp_path / "o" / "report.md").read_text()
 
 
 def test_a_radar_noisier_than_stated_is_flagged_and_the_fused_estimate_holds(tmp_path):

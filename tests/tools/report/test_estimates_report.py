@@ -111,12 +111,12 @@ def report(tmp_path_factory):
 
 def test_the_report_says_it_has_no_truth(report):
     out, written, lines = report
-    assert written == ["report.md", "estimates.png"]
-    assert (out / "estimates.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert written == ["report.md", "plots"]
+    assert (out / "plots" / "estimates.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert lines[0] == "# boomtip relative-heave report: recorded-run (10 s, no truth)"
     assert "**Warning:** the loader assumed a level boom tip" in lines
     assert "No truth came with this recording: this report says what was estimated, not how well." in lines
-    assert lines[-1] == "![estimates](estimates.png)"
+    assert lines[-1] == "![estimates](plots/estimates.png)"
 
 
 def test_the_solutions_table_gives_sources_range_and_sigmas(report):

@@ -115,10 +115,11 @@ def test_the_report_names_the_run_its_sources_and_its_plots(tmp_path):
     assert "truth's maximum amplitude: here 1.50 m for D and 0.94 m/s for D-dot" in text
     assert kpi_table(kpis()) in text and measurement_table(kpis()) in text
     plots = ["heave_D", "heave_D_dot", "error_histograms", "measurements"]
-    assert [line for line in lines if line.startswith("![")] == [f"![{p}]({p}.png)" for p in plots]
+    assert [line for line in lines if line.startswith("![")] == [f"![{p}](plots/{p}.png)" for p in plots]
     for p in plots:
-        assert (tmp_path / f"{p}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert sorted(f.name for f in tmp_path.iterdir()) == sorted([f"{p}.png" for p in plots] + ["report.md"])
+        assert (tmp_path / "plots" / f"{p}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["plots", "report.md"]
+    assert sorted(f.name for f in (tmp_path / "plots").iterdir()) == sorted(f"{p}.png" for p in plots)
 
 
 def test_a_solution_without_d_dot_sources_says_it_takes_d_dot_from_d(tmp_path, monkeypatch):
