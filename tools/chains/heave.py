@@ -24,6 +24,7 @@ from boomtip.fusion.consistency import consistency_block, flagged_notes
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
 from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
 from boomtip.tools.chains.chain import ChainError
+from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.report.kpis import WARMUP_S, estimated_kpis, measurement_kpis, solution_kpis, truth_amplitudes
 
 MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
@@ -65,8 +66,9 @@ def to_fusion(row: Measurement, latency_s: dict[str, float], clock_sigma_s: dict
 class HeaveChain:
     name = "heave"
 
-    def __init__(self, source: FrameSource, processing: Processing) -> None:
+    def __init__(self, source: FrameSource, processing: Processing, resources: RunResources | None = None) -> None:
         inst = source.meta.installation
+        self.resources = resources or RunResources()
         if not inst.sensors():
             raise ChainError("installation.lidar.enabled and installation.radar.enabled are both false: "
                              "the heave chain needs a LiDAR or a radar")
@@ -106,7 +108,7 @@ class HeaveChain:
         meas = [to_fusion(r, self.latency_s, self.clock_sigma_s) for r in self.rows if r.ok]
         have = {m.source for m in meas}
         ran = {r.method for r in self.rows}
-        estimates, sources, warnings = {}, {}, list(self.notes) + list(self.source_notes)
+        sources, warnings, solved = {}, list(self.notes) + list(self.source_notes), {}
         for name in self.fusion.solutions:
             methods = solution_sources(name, have)
             if methods != SOLUTIONS[name]:
@@ -120,8 +122,12 @@ class HeaveChain:
                 if set(methods) & ran:  # its sensor ran but never measured D: say so
                     warnings.append(f"{name}: no distance source in this run; no estimate")
                 continue
-            estimates[name] = run_solution(name, meas, self.fusion, duration, self.sea_state, methods, t_start_s,
-                                           self.max_D_m)
+            solved[name] = methods
+        # the solutions are independent filters over the same measurements: shared between two
+        # processes by how many methods each fuses, when the run has two
+        estimates = self.resources.map_split(list(solved), {n: float(len(m)) for n, m in solved.items()},
+                                             lambda name: run_solution(name, meas, self.fusion, duration, self.sea_state,
+                                                                       solved[name], t_start_s, self.max_D_m))
         return HeaveResult(self.rows, estimates, sources, warnings)
 
     # -- outputs -------------------------------------------------------------------------

@@ -58,8 +58,8 @@ def build_chain(source: FrameSource, processing: Processing, resources: RunResou
     if kind == "hook":
         return HookChain(source, processing, resources)
     if processing.feeder.enabled and source.meta.installation.lidar.enabled:
-        return ShipChain(source, processing)
-    return HeaveChain(source, processing)
+        return ShipChain(source, processing, resources)
+    return HeaveChain(source, processing, resources)
 
 
 def run(source: FrameSource, out: Path, force: bool = False, processing: Processing | None = None, rerun: bool = False,

@@ -25,6 +25,7 @@ from boomtip.perception.feeder_pipeline import FeederPipeline
 from boomtip.perception.pipeline import FrameResult
 from boomtip.tools.chains.heave import HeaveChain, HeaveResult, measurements_only
 from boomtip.tools.chains.provenance import outage_windows
+from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import feeder as feeder_outputs
 from boomtip.tools.report.feeder import FeederResult
@@ -63,8 +64,8 @@ def deck_measurement(obs: LidarObservation | RadarObservation) -> DeckMeasuremen
 class ShipChain:
     name = "heave"  # kpis.json's chain: the heave chain's figures, with the feeder's beside them
 
-    def __init__(self, source: FrameSource, processing: Processing) -> None:
-        self.heave = HeaveChain(source, processing)
+    def __init__(self, source: FrameSource, processing: Processing, resources: RunResources | None = None) -> None:
+        self.heave = HeaveChain(source, processing, resources)
         inst, cfg = source.meta.installation, processing.feeder
         rr = cfg.radar_registration
         self.estimator = FeederEstimator(source.mru, inst, cfg, RadarOffsetConfig(rr.enabled, rr.after_s, rr.learn_every,
@@ -174,8 +175,11 @@ class ShipChain:
         return kpis
 
     def report(self, out: Path, kpis: dict, result: ShipResult, truth: Truth | None) -> list[str]:
-        written = self.heave.report(out, kpis, result.heave, truth)
-        plot = feeder_outputs.write_feeder_plot(out, result.feeder, truth, self.p_tip_crane_m)
+        # the heave report and the feeder's plot drawn side by side when the run has two processes
+        parts = {"heave": lambda: self.heave.report(out, kpis, result.heave, truth),
+                 "feeder": lambda: feeder_outputs.write_feeder_plot(out, result.feeder, truth, self.p_tip_crane_m)}
+        drawn = self.heave.resources.map_split(list(parts), {"heave": 2.0, "feeder": 1.0}, lambda name: parts[name]())
+        written, plot = drawn["heave"], drawn["feeder"]
         report = out / "report.md"
         if report.exists():
             with open(report, "a", encoding="utf-8") as fh:
