@@ -122,7 +122,6 @@ class HookChain:
         # What finish() needs, without the frame's cloud and masks (a 700 s run has 14,000 frames)
         ok = res.rope is not None and res.rope.ok
         self.rows.append(res.row, res.cov, res.rope.direction if ok else None, res.rope.cov if ok else None)
-        self.resources.frame_done(len(self.rows))
         return res
 
     def _perceive(self, frame: Frame, res: HookFrameResult, times: StageTimes) -> None:

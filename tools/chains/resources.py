@@ -15,6 +15,7 @@ command line's runs) keeps a run's memory flat in its length and uses both cores
 from __future__ import annotations
 
 import ctypes
+import itertools
 from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence
 
@@ -103,7 +104,14 @@ class RunResources:
         the fusion runs here. The same calls in the same order either way: the same outputs."""
         frames = chain.frames(source)
         if self.parallel and hasattr(chain, "perceive"):
-            for sensor, perceived in workers.mapped_in_child(frames, lambda f: (f.sensor, chain.perceive(f, keep_clouds))):
+            made = itertools.count(1)
+
+            def perceive(frame: Frame) -> tuple[str, object]:  # in the child: its heap trimmed as this one's
+                out = frame.sensor, chain.perceive(frame, keep_clouds)
+                self.frame_done(next(made))
+                return out
+
+            for sensor, perceived in workers.mapped_in_child(frames, perceive):
                 yield sensor, chain.fuse(perceived)
             return
         for frame in frames:

@@ -121,9 +121,11 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     for sensor, output in resources.processed(chain, source, keep_clouds=rerun):
         viz.log_frame(output)
         per_sensor[sensor] = per_sensor.get(sensor, 0) + 1
+        resources.frame_done(sum(per_sensor.values()))
         if progress:
             progress(1)
     frames = sum(per_sensor.values())
+    resources.release()  # what the frames freed, before the estimators (and their forks) and the outputs
     result = chain.finish()
     written = chain.outputs(staging, result)
     kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth, outage_windows(source))}
