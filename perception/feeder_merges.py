@@ -3,10 +3,10 @@
 A merge aligns every collected frame to the others (perception/feeder_registration.py,
 `merged_model`): seconds for 200 frames, while a frame has tens of milliseconds. By default
 (`merge_lag_frames` (0,)) it runs inline, in the frame it is due at, and its time is that
-frame's. With a lag it runs in a worker thread (its ICP's nearest-neighbour searches in Open3D
-and its numpy work release the GIL, so neither it nor the chain's thread slows the other much)
-on a snapshot of the frames and poses collected when it was due; the chain keeps registering
-to the current model and collecting.
+frame's. With a lag it runs on a snapshot of the frames and poses collected when it was due, in a worker
+thread or, given an executor, wherever that runs it (the ship chain forks a process per merge
+when the run has two: a thread shares the interpreter with the chain, and the merge's many small
+numpy steps hold it); the chain keeps registering to the current model and collecting.
 
 Its model is taken at a fixed LiDAR frame (`merge_lag_frames` after the one that started
 it), waiting there if it is not done: when it is taken never depends on the machine's
@@ -18,7 +18,7 @@ is waited for (its result dropped): the thread would otherwise hold a core past 
 from __future__ import annotations
 
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from boomtip.perception.feeder_registration import FeederModel, MergedModel, merged_model
@@ -35,10 +35,13 @@ class MergeRecord:
 
 
 class BackgroundMerges:
-    """Merges of a FeederModel run beside the frames and taken at fixed frames."""
+    """Merges of a FeederModel run beside the frames and taken at fixed frames. `executor`: where
+    a lagged merge runs (anything with concurrent.futures' `submit`, e.g. another process: a merge
+    is a pure function and its result pickles); None: a worker thread."""
 
-    def __init__(self, model: FeederModel) -> None:
+    def __init__(self, model: FeederModel, executor: Executor | None = None) -> None:
         self.model = model
+        self._executor = executor
         lags = model.cfg.merge_lag_frames
         # merge's frames -> its lag (past the end of the lags, the last; none: inline)
         self.lags = {n: lags[min(i, len(lags) - 1)] if lags else 0 for i, n in enumerate(model.cfg.model_merges)}
@@ -70,7 +73,7 @@ class BackgroundMerges:
                 future.set_exception(e)
         else:
             if self._pool is None:
-                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="feeder-merge")
+                self._pool = self._executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="feeder-merge")
             future = self._pool.submit(_timed, merged_model, frames, poses, self.model.cfg)
         self._pending = (future, rec, self.model.keyframes)
         if lag == 0:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import Executor
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -68,12 +69,12 @@ class FeederPipeline:
     stages it reuses."""
 
     def __init__(self, installation: Installation, cfg: FeederPipelineConfig, stages: FeederPerception, seed: int,
-                 heave: HeavePipeline | None = None) -> None:
+                 heave: HeavePipeline | None = None, merge_executor: Executor | None = None) -> None:
         self.cfg = cfg
         self.stages = stages
         self.static = StaticReturns(cfg.perception.static)
         self.model = FeederModel(cfg.perception.registration)
-        self.merges = BackgroundMerges(self.model)
+        self.merges = BackgroundMerges(self.model, merge_executor)
         # frames the model must be merged from before a registration's x and y update the filter:
         # at most its last merge's (no merges at all: the first keyframe's one frame)
         self.xy_after_frames = min(cfg.register_xy_after_frames, max(cfg.perception.registration.model_merges, default=1))

@@ -221,6 +221,18 @@ class MergedModel:
     cloud: object  # an Open3D cloud with normals, in the map frame
     surface: Surface
 
+    def __getstate__(self) -> dict:
+        """As arrays (a merge made in another process comes back pickled): the cloud and its
+        search index are rebuilt from its points and normals, the same ones."""
+        return {"frames": self.frames, "poses": self.poses, "points": np.asarray(self.cloud.points),
+                "normals": np.asarray(self.cloud.normals)}
+
+    def __setstate__(self, state: dict) -> None:
+        o3d = _o3d()
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(state["points"]))
+        cloud.normals = o3d.utility.Vector3dVector(state["normals"])
+        self.frames, self.poses, self.cloud, self.surface = state["frames"], state["poses"], cloud, surface_of(cloud)
+
 
 def merged_model(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig) -> MergedModel:
     """The frames aligned to each other and merged into a model (a pure function of its

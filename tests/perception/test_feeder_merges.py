@@ -135,3 +135,21 @@ def test_a_failed_merge_of_an_old_keyframe_leaves_the_new_model_alone(monkeypatc
     assert merges.records[-1].status.startswith("dropped: a new keyframe")
     assert not model.merged and model.collected  # the new model still grows and merges
     merges.close()
+
+
+def test_a_merge_pickles_as_arrays_and_comes_back_the_same_model():
+    """A merge made in another process comes back pickled: its cloud and search index rebuilt
+    from the same points and normals."""
+    import pickle
+
+    from boomtip.perception.feeder_registration import RegistrationConfig, merged_model
+
+    frames = [_structure(k) for k in range(4)]
+    merged = merged_model(frames, [np.eye(4)] * 4, RegistrationConfig())
+    back = pickle.loads(pickle.dumps(merged))
+    assert back.frames == merged.frames and all(np.array_equal(a, b) for a, b in zip(back.poses, merged.poses))
+    assert np.array_equal(np.asarray(back.cloud.points), np.asarray(merged.cloud.points))
+    assert np.array_equal(np.asarray(back.cloud.normals), np.asarray(merged.cloud.normals))
+    query = frames[1][:200] + 0.01
+    for a, b in zip(back.surface.nearest(query, 0.5), merged.surface.nearest(query, 0.5)):
+        assert np.array_equal(a, b)

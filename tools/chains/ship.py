@@ -26,6 +26,7 @@ from boomtip.perception.pipeline import FrameResult
 from boomtip.tools.chains.heave import HeaveChain, HeaveResult, measurements_only
 from boomtip.tools.chains.provenance import outage_windows
 from boomtip.tools.chains.resources import RunResources
+from boomtip.tools.chains.workers import ForkExecutor
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import feeder as feeder_outputs
 from boomtip.tools.report.feeder import FeederResult
@@ -71,7 +72,9 @@ class ShipChain:
         self.estimator = FeederEstimator(source.mru, inst, cfg, RadarOffsetConfig(rr.enabled, rr.after_s, rr.learn_every,
                                          rr.offset_frames, rr.min_offset_frames, rr.max_sigma_m), source.feeder_mru)
         stages = FeederPerception(inst, cfg.perception, self.estimator.rates_averaged_over, self.estimator.noise.angle_rad)
-        self.pipeline = FeederPipeline(inst, cfg, stages, processing.seed, heave=self.heave.pipeline)
+        # a lagged merge of the feeder's model in a process of its own when the run has two
+        merges = ForkExecutor("boomtip-merge") if self.heave.resources.parallel else None
+        self.pipeline = FeederPipeline(inst, cfg, stages, processing.seed, heave=self.heave.pipeline, merge_executor=merges)
         self.source = source
         self.p_tip_crane_m = inst.T_crane_boomtip()[:3, 3]
         self.missing: list[tuple[float, str, str]] = []  # frames the feeder could not use: (t, sensor, why)

@@ -14,14 +14,17 @@ import contextlib
 import multiprocessing as mp
 import os
 import signal
+import threading
 import traceback
+from concurrent.futures import Executor, Future
 from queue import Empty, Full
 from typing import Callable, Iterable, Iterator, Sequence
 
 from boomtip.data.frames import Frame, FrameSource
 from boomtip.tools.chains.chain import ChainError
 
-__all__ = ["serial", "parallel_enabled", "frames_in_child", "mapped_in_child", "run_split", "split_by_cost", "WorkerDied"]
+__all__ = ["serial", "parallel_enabled", "frames_in_child", "mapped_in_child", "run_split", "split_by_cost", "WorkerDied",
+           "ForkExecutor"]
 
 FRAMES_AHEAD = 32  # frames a child may run ahead of this process (a hook frame: 0.6 MB, a perceived 128 x 1024 one: ~1 MB)
 CHILD_POLL_S = 0.5  # how often a wait for a child checks that it is still alive
@@ -205,3 +208,57 @@ def run_split(names: Sequence[str], costs: dict[str, float], work: Callable[[str
     if failure is not None:
         raise failure
     return {name: out[name] for name in names}
+
+
+def _call_in_child(fn: Callable, args: tuple, conn) -> None:
+    _as_child()
+    try:
+        conn.send(("ok", fn(*args)))
+    except BaseException as exc:  # the parent's future raises it
+        conn.send(("error", _picklable(exc)))
+    conn.close()
+
+
+class ForkExecutor(Executor):
+    """Each call in a forked child of its own: its inputs are the child's copy of this process
+    (nothing is pickled on the way in), its result comes back pickled; a thread here waits for
+    it. For a few long calls (the feeder model's merges), not many short ones: a fork costs
+    milliseconds. A child that dies fails its future with WorkerDied."""
+
+    def __init__(self, name: str = "boomtip-call") -> None:
+        self.name = name
+        self._children: list = []
+
+    def submit(self, fn: Callable, /, *args) -> Future:
+        ctx = mp.get_context("fork")
+        recv, send = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_call_in_child, args=(fn, args, send), name=self.name, daemon=True)
+        proc.start()
+        send.close()
+        future: Future = Future()
+
+        def wait() -> None:
+            try:
+                kind, payload = recv.recv()
+            except (EOFError, OSError):
+                proc.join()
+                future.set_exception(WorkerDied(f"the worker process {proc.name} ended before its work was done "
+                                                f"(exit code {proc.exitcode})"))
+                return
+            finally:
+                recv.close()
+            proc.join()
+            (future.set_result if kind == "ok" else future.set_exception)(payload)
+
+        threading.Thread(target=wait, name=f"{self.name}-wait", daemon=True).start()
+        self._children.append(proc)
+        return future
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        """Children still running are stopped (cancel_futures, or not wait) or waited for."""
+        for proc in self._children:
+            if cancel_futures or not wait:
+                _stop(proc)
+            else:
+                proc.join()
+        self._children = []

@@ -63,10 +63,13 @@ def test_a_run_on_two_cores_writes_what_the_serial_run_writes(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.skipif(not workers.parallel_enabled(), reason="one core, or no fork: nothing runs in parallel")
-def test_a_ship_run_with_its_perception_in_a_worker_writes_what_one_process_writes(tmp_path):
+@pytest.mark.parametrize("lags", ["[0]", "[0,3]"])  # [0,3]: the 50-frame merge in a thread, or in a forked process
+def test_a_ship_run_with_its_perception_in_a_worker_writes_what_one_process_writes(tmp_path, lags):
     outs = {}
     for n in (1, 2):
-        sim = simulation_for(load_scenario("sts-loaded", ["duration_s=7"]))  # past the static test's 4 s warm-up
+        # past the static test's 4 s warm-up and the model's 50-frame merge
+        sim = simulation_for(load_scenario("sts-loaded", ["duration_s=7",
+                                                          f"processing.feeder.perception.registration.merge_lag_frames={lags}"]))
         outs[n] = tmp_path / f"workers{n}"
         outs[n].mkdir()
         run_into(sim, outs[n], report=False, resources=RunResources(lean=True, workers=n))
@@ -77,6 +80,8 @@ def test_a_ship_run_with_its_perception_in_a_worker_writes_what_one_process_writ
     k1, k2 = json.loads((one / "kpis.json").read_text()), json.loads((two / "kpis.json").read_text())
     assert _without_timings(k1) == _without_timings(k2)
     assert k1["feeder"]["rmse_pos_m"][0] < 0.02  # the feeder was estimated, not skipped alike in both
+    merged = [(m["frames"], m["started_frame"], m["taken_frame"], m["status"]) for m in k1["feeder"]["model_merges"]]
+    assert merged == ([(20, 20, 20, "ok"), (50, 50, 50, "ok")] if lags == "[0]" else [(20, 20, 20, "ok"), (50, 50, 53, "ok")])
 
 
 class _Counting(FrameSource):
@@ -194,3 +199,21 @@ def test_a_child_that_is_killed_stops_the_run_with_that_reason():
         for index in workers.mapped_in_child(_Counting(20), _die_at(6)):
             got.append(index)
     assert got == list(range(len(got))) and len(got) <= 6  # what reached this process before it died, then the reason
+
+
+def _kill_self() -> None:
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_forked_call_returns_its_result_or_its_error_or_says_it_died():
+    pool = workers.ForkExecutor("boomtip-test")
+    big = np.arange(1_000_000.0)  # the child's copy: not pickled on the way in
+    assert pool.submit(np.sum, big).result(timeout=30) == big.sum()
+    with pytest.raises(KeyError, match="no such key"):
+        pool.submit({}.__getitem__, "no such key").result(timeout=30)
+    with pytest.raises(workers.WorkerDied, match="ended before its work was done"):
+        pool.submit(_kill_self).result(timeout=30)
+    pool.shutdown()
