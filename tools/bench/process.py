@@ -8,6 +8,7 @@ instead (with its installation file where the format carries none)."""
 
 from __future__ import annotations
 
+import json
 import statistics
 import subprocess
 import sys
@@ -78,6 +79,15 @@ def _recording_seconds(recording: Path, installation: Path | None) -> float:
     return float(open_source(recording, None, inst, None, None, 1).duration_s)
 
 
+def _accuracy(kpis: dict) -> dict:
+    """What the default run measured, where the recording has truth (the same in every repeat)."""
+    fused = ((kpis.get("solutions") or {}).get("fused") or {})
+    feeder = kpis.get("feeder") or {}
+    got = {"fused_mae_D_m": fused.get("mae_D_m"), "fused_mae_D_dot_mps": fused.get("mae_D_dot_mps"),
+           "feeder_rmse_pos_m": feeder.get("rmse_pos_m"), "feeder_rmse_rpy_deg": feeder.get("rmse_rpy_deg")}
+    return {k: v for k, v in got.items() if v is not None}
+
+
 def bench_process(scenario: str = "sts-loaded", duration_s: float = 20.0, repeats: int = 3,
                   recording: Path | None = None, installation: Path | None = None) -> dict:
     """Median wall time of `repeats` runs of `boomtip process` with the default workers and with
@@ -88,9 +98,12 @@ def bench_process(scenario: str = "sts-loaded", duration_s: float = 20.0, repeat
         rec = recording if recording is not None else _simulate(scenario, duration_s, folder)
         seconds = _recording_seconds(rec, installation)
         runs: dict[str, list[float]] = {"default": [], "workers_1": [], "kiss_icp": []}
-        lidar_frames = 0
+        lidar_frames, apt_ms, accuracy = 0, [], {}
         for _ in range(repeats):  # interleaved: a machine's drift falls on all three alike
             runs["default"].append(_process_wall_s(rec, folder / "out", None, extra))
+            kpis = json.loads((folder / "out" / "kpis.json").read_text())
+            apt_ms.append((kpis.get("feeder") or {}).get("apt_ms", float("nan")))
+            accuracy = _accuracy(kpis)
             runs["workers_1"].append(_process_wall_s(rec, folder / "out", 1, extra))
             wall, lidar_frames = _kiss_icp_wall_s(rec, installation)
             runs["kiss_icp"].append(wall)
@@ -101,6 +114,8 @@ def bench_process(scenario: str = "sts-loaded", duration_s: float = 20.0, repeat
         out[name] = {"wall_s": round(wall, 3), "min_s": round(min(walls), 3), "max_s": round(max(walls), 3),
                      "realtime_factor": round(seconds / wall, 3)}
     out["kiss_icp"]["ms_per_lidar_frame"] = round(1e3 * out["kiss_icp"]["wall_s"] / max(lidar_frames, 1), 2)
+    out["feeder_apt_ms"] = round(statistics.median(apt_ms), 2)  # the feeder chain per LiDAR frame, its worker's share included
+    out["accuracy"] = accuracy
     out["speedup_workers"] = round(out["workers_1"]["wall_s"] / out["default"]["wall_s"], 3)
     out["ratio"] = out["default"]["realtime_factor"]
     out["ratio_note"] = "the real-time factor of `boomtip process` with the default workers, start-up and outputs included"

@@ -69,7 +69,13 @@ def bench_process_cmd(
     for key, label in labels.items():
         k = r[key]
         print(f"  {label:28s} {k['wall_s']:7.2f} s (min {k['min_s']:.2f}, max {k['max_s']:.2f})  {k['realtime_factor']:5.2f}x real time")
-    print(f"  workers: {r['speedup_workers']:.2f}x over one; kiss-icp {r['kiss_icp']['ms_per_lidar_frame']:.1f} ms per LiDAR frame")
+    print(f"  workers: {r['speedup_workers']:.2f}x over one; the feeder chain {r['feeder_apt_ms']:.1f} ms per LiDAR frame "
+          f"(its worker's share included); kiss-icp {r['kiss_icp']['ms_per_lidar_frame']:.1f} ms per LiDAR frame")
+    a = r["accuracy"]
+    if "fused_mae_D_m" in a:
+        print(f"  accuracy: fused D MAE {1000 * a['fused_mae_D_m']:.2f} mm, D-dot {1000 * a['fused_mae_D_dot_mps']:.2f} mm/s"
+              + (f"; feeder position RMSE x/y/z {' / '.join(f'{1000 * v:.1f}' for v in a['feeder_rmse_pos_m'])} mm"
+                 if "feeder_rmse_pos_m" in a else ""))
     print(f"  ratio {r['ratio']:.2f} (real-time factor, start-up and every output included)")
 
 
