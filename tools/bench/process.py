@@ -102,7 +102,8 @@ def bench_process(scenario: str = "sts-loaded", duration_s: float = 20.0, repeat
         for _ in range(repeats):  # interleaved: a machine's drift falls on all three alike
             runs["default"].append(_process_wall_s(rec, folder / "out", None, extra))
             kpis = json.loads((folder / "out" / "kpis.json").read_text())
-            apt_ms.append((kpis.get("feeder") or {}).get("apt_ms", float("nan")))
+            apt = (kpis.get("feeder") or {}).get("apt_ms")
+            apt_ms.append(float("nan") if apt is None else apt)
             accuracy = _accuracy(kpis)
             runs["workers_1"].append(_process_wall_s(rec, folder / "out", 1, extra))
             wall, lidar_frames = _kiss_icp_wall_s(rec, installation)
