@@ -43,6 +43,9 @@ bench: setup
 	$(BIN)/boomtip bench ground --json runs/bench/ground.json --force
 	$(BIN)/boomtip bench hook --json runs/bench/hook.json --force
 	$(BIN)/boomtip bench feeder --json runs/bench/feeder.json --force
+	$(BIN)/boomtip bench startup --json runs/bench/startup.json --force
+	$(BIN)/boomtip bench process --json runs/bench/process.json --force
+	$(BIN)/boomtip bench batch --json runs/bench/batch.json --force
 
 # Resolve every dependency afresh (the newest releases pyproject.toml allows) into $(LOCK). Run
 # `make test` on the result before committing it: the lock holds the versions that passed.
