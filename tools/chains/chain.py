@@ -6,6 +6,10 @@ through this protocol:
     for frame in chain.frames(source): viz.log_frame(chain.process(frame))
     result = chain.finish(); chain.outputs(out, result); chain.kpis(result, truth, windows)
     chain.report(out, kpis, result, truth); chain.visualise_result(viz, result, truth)
+
+A chain may also split `process` into `perceive(frame, keep_cloud)` (per-frame perception that
+may run ahead in another process) and `fuse(perceived)` (in order, here), and draw one frame's
+detections at the end with `picture(out, output, result)`.
 """
 
 from __future__ import annotations

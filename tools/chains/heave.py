@@ -176,6 +176,17 @@ class HeaveChain:
         write_report(out, kpis, result.estimates, truth, result.rows)
         return ["report.md", "plots"]
 
+    def picture(self, out: Path, frame: FrameResult | None, result: HeaveResult) -> list[str]:
+        """plots/detections.png (one LiDAR frame's detections, every method's status), linked from report.md."""
+        from boomtip.tools.report.detections import write_detections
+        from boomtip.tools.report.plots import PLOTS_DIR, plot_link
+
+        path = write_detections(out, frame, result.rows, self.pipeline.p_tip["lidar"])
+        if (out / "report.md").exists():
+            with open(out / "report.md", "a", encoding="utf-8") as fh:
+                fh.write(f"\n## Detections\n\n{plot_link(path)}\n")
+        return [PLOTS_DIR]
+
     def visualiser(self, path: Path, source: FrameSource):
         from boomtip.tools.report.rerun import RerunLogger
 

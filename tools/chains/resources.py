@@ -97,17 +97,18 @@ class RunResources:
             return workers.frames_in_child(source)
         return iter(source)
 
-    def processed(self, chain, source: FrameSource, keep_clouds: bool) -> Iterator[tuple[str, object]]:
+    def processed(self, chain, source: FrameSource, keep_clouds: Callable[[Frame], bool]) -> Iterator[tuple[str, object]]:
         """(sensor, chain's output) for each of the source's frames in order. A chain that splits
         its work per frame (`perceive` ahead, `fuse` in order) has its perception made in a
-        forked child when parallel, without the clouds unless `keep_clouds` (a visualiser's);
-        the fusion runs here. The same calls in the same order either way: the same outputs."""
+        forked child when parallel, without the clouds but where `keep_clouds(frame)` (a
+        visualiser's, a picture's); the fusion runs here. The same calls in the same order
+        either way: the same outputs."""
         frames = chain.frames(source)
         if self.parallel and hasattr(chain, "perceive"):
             made = itertools.count(1)
 
             def perceive(frame: Frame) -> tuple[str, object]:  # in the child: its heap trimmed as this one's
-                out = frame.sensor, chain.perceive(frame, keep_clouds)
+                out = frame.sensor, chain.perceive(frame, keep_clouds(frame))
                 self.frame_done(next(made))
                 return out
 

@@ -39,6 +39,29 @@ class RunResult:
     written: list[str]
 
 
+class PictureFrame:
+    """The frame a run's detections picture shows: the first LiDAR frame from the middle of the
+    run on. `wants` says so of a frame before it is processed (a worker keeps its cloud),
+    `offer` keeps the chain's output of it."""
+
+    def __init__(self, source: FrameSource) -> None:
+        self.t_mid_s = source.meta.t_start_s + max(source.duration_s, 0.0) / 2.0
+        self.output = None
+        self._wanted = False  # the frame has been chosen (in this process's view of the frames)
+
+    def wants(self, sensor: str, t_s: float) -> bool:
+        if self._wanted or sensor != "lidar" or t_s < self.t_mid_s:
+            return False
+        self._wanted = True
+        return True
+
+    def offer(self, sensor: str, output) -> None:
+        if self.output is None and output is not None and sensor == "lidar":
+            frame = getattr(output, "frame", None)
+            if frame is not None and frame.t_s >= self.t_mid_s:
+                self.output = output
+
+
 def processing_for(source: FrameSource, processing: Processing | None = None) -> Processing:
     """The processing settings: given, else those the source asks for, else the defaults."""
     if processing is not None:
@@ -118,8 +141,10 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     chain = build_chain(source, processing, resources)
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
     per_sensor = {"lidar": 0, "radar": 0}
-    for sensor, output in resources.processed(chain, source, keep_clouds=rerun):
+    pick = PictureFrame(source)
+    for sensor, output in resources.processed(chain, source, keep_clouds=lambda f: rerun or pick.wants(f.sensor, f.t_s)):
         viz.log_frame(output)
+        pick.offer(sensor, output)
         per_sensor[sensor] = per_sensor.get(sensor, 0) + 1
         resources.frame_done(sum(per_sensor.values()))
         if progress:
@@ -146,6 +171,8 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     written += ["kpis.json", "settings.json"]
     if report:
         written += chain.report(staging, kpis, result, source.truth)
+        if hasattr(chain, "picture"):  # a chain that draws one frame's detections
+            written += [w for w in chain.picture(staging, pick.output, result) if w not in written]
     chain.visualise_result(viz, result, source.truth)
     viz.close()
     if rerun:

@@ -190,6 +190,9 @@ class ShipChain:
                          + (f"\n{plot_link(plot)}\n" if plot is not None else ""))
         return written + ([] if plot is None or "plots" in written else ["plots"])
 
+    def picture(self, out: Path, frame: FrameResult | None, result: ShipResult) -> list[str]:
+        return self.heave.picture(out, frame, result.heave)
+
     def visualiser(self, path: Path, source: FrameSource):
         return self.heave.visualiser(path, source)
 
