@@ -86,7 +86,9 @@ class BackgroundMerges:
         try:
             merged, rec.worker_s = future.result()
             failure = None
-        except Exception as e:  # noqa: BLE001 - any failure of the merge: the chain goes on with the old model
+        except Exception as e:  # noqa: BLE001 - a failure of the merge: the chain goes on with the old model
+            if isinstance(e, getattr(self._executor, "fatal", ())):  # the executor's own failure (a worker lost) stops the run
+                raise
             failure = f"failed: {type(e).__name__}: {e}"
         rec.wait_s = time.perf_counter() - t0
         rec.taken_frame = self.frame

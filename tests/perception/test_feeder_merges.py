@@ -153,3 +153,40 @@ def test_a_merge_pickles_as_arrays_and_comes_back_the_same_model():
     query = frames[1][:200] + 0.01
     for a, b in zip(back.surface.nearest(query, 0.5), merged.surface.nearest(query, 0.5)):
         assert np.array_equal(a, b)
+
+
+def test_an_executors_own_failure_stops_the_run_where_a_failed_merge_would_not():
+    """A merge that fails leaves the old model; the executor losing its worker (its `fatal`
+    errors) is no merge's failure and is raised."""
+    from concurrent.futures import Future
+
+    from boomtip.perception.feeder_merges import BackgroundMerges
+
+    class Lost(RuntimeError):
+        pass
+
+    class Failing:
+        fatal = (Lost,)
+
+        def __init__(self, error):
+            self.error = error
+
+        def submit(self, fn, *args):
+            f = Future()
+            f.set_exception(self.error)
+            return f
+
+        def shutdown(self, wait=True, *, cancel_futures=False):
+            pass
+
+    for error, raised in ((ValueError("no overlap"), False), (Lost("the worker was killed"), True)):
+        model, due = _model_with(4)
+        merges = BackgroundMerges(model, Failing(error))
+        merges.start()
+        merges.next_frame()
+        if raised:
+            with pytest.raises(Lost):
+                merges.next_frame()
+        else:
+            merges.next_frame()
+            assert merges.records[-1].status.startswith("failed: ValueError: no overlap")

@@ -112,7 +112,19 @@ class RunResources:
                 self.frame_done(next(made))
                 return out
 
-            for sensor, perceived in workers.mapped_in_child(frames, perceive):
+            def at_end() -> tuple[None, tuple[list[str], object]]:
+                # what the child's copies gathered: the notes its reading added to the source, and
+                # what its pipeline still holds (frames held back by a warm-up longer than the run)
+                held = chain.finish_perception() if hasattr(chain, "finish_perception") else None
+                return None, (list(source.meta.notes), held)
+
+            for sensor, perceived in workers.mapped_in_child(frames, perceive, at_end):
+                if sensor is None:
+                    notes, held = perceived
+                    source.meta.notes[:] = notes  # the same list, grown in the child
+                    if held:
+                        chain.finish_fusion(held)
+                    continue
                 yield sensor, chain.fuse(perceived)
             return
         for frame in frames:

@@ -150,9 +150,17 @@ class ShipChain:
         est.record(obs.t_s, "radar", obs.tip_velocity, obs.lidar_level, self.pipeline.edges_known)
 
     # -- at the end ------------------------------------------------------------------------
-    def finish(self) -> ShipResult:
-        for obs in self.pipeline.ready():  # a run shorter than the warm-up: what the static test has
+    def finish_perception(self) -> list[LidarObservation | RadarObservation]:
+        """After the last frame: the observations the feeder's pipeline still holds back (a run
+        shorter than its warm-up), with what the static test has; for `finish_fusion`."""
+        return self.pipeline.ready()
+
+    def finish_fusion(self, held: list[LidarObservation | RadarObservation]) -> None:
+        for obs in held:
             self._fuse(obs)
+
+    def finish(self) -> ShipResult:
+        self.finish_fusion(self.finish_perception())  # empty when a worker's perception handed them over
         model_points = self.pipeline.finish()
         est = self.estimator.finish(self.pipeline.lines, self.pipeline.hull_yaws)
         started = np.isfinite(est.t_definition_s)

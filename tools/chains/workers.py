@@ -68,11 +68,13 @@ def _put(queue, item, parent_pid: int) -> None:
                 os._exit(1)
 
 
-def _produce(items: Iterable, fn: Callable | None, queue, parent_pid: int) -> None:
+def _produce(items: Iterable, fn: Callable | None, at_end: Callable | None, queue, parent_pid: int) -> None:
     _as_child()
     try:
         for item in items:
             _put(queue, ("item", item if fn is None else fn(item)), parent_pid)
+        if at_end is not None:
+            _put(queue, ("item", at_end()), parent_pid)
         _put(queue, ("end", None), parent_pid)
     except BaseException as exc:  # the parent re-raises it
         _put(queue, ("error", _picklable(exc)), parent_pid)
@@ -92,19 +94,24 @@ def _picklable(exc: BaseException) -> BaseException:
 
 def frames_in_child(source: FrameSource) -> Iterator[Frame]:
     """The source's frames in order, made by a forked child up to FRAMES_AHEAD ahead."""
-    return mapped_in_child(source, None, "boomtip-frames")
+    return mapped_in_child(source, None, name="boomtip-frames")
 
 
-def mapped_in_child(items: Iterable, fn: Callable | None, name: str = "boomtip-perception") -> Iterator:
-    """fn(item) for each item in order (the items themselves when fn is None), made by a forked
-    child up to FRAMES_AHEAD ahead: the child iterates `items` and calls `fn` on its own copy
-    of everything they use, so `fn` may keep state (a pipeline's priors) but must not need any
-    this process changes meanwhile. A child that dies (killed, out of memory) stops the
-    iteration with WorkerDied."""
+def mapped_in_child(items: Iterable, fn: Callable | None, at_end: Callable | None = None,
+                    name: str = "boomtip-perception") -> Iterator:
+    """fn(item) for each item in order (the items themselves when fn is None), then at_end()
+    if given, made by a forked child up to FRAMES_AHEAD ahead: the child iterates `items` and
+    calls `fn` on its own copy of everything they use, so `fn` may keep state (a pipeline's
+    priors) but must not need any this process changes meanwhile; `at_end` hands back what the
+    child's copy gathered. A child that dies (killed, out of memory) stops the iteration with
+    WorkerDied."""
     ctx = mp.get_context("fork")
     queue = ctx.Queue(FRAMES_AHEAD)
-    proc = ctx.Process(target=_produce, args=(items, fn, queue, os.getpid()), name=name, daemon=True)
+    proc = ctx.Process(target=_produce, args=(items, fn, at_end, queue, os.getpid()), name=name, daemon=True)
     proc.start()
+    # the queue's sending end is the child's: closed here, a child that dies halfway through a
+    # message ends the read with EOF (WorkerDied) instead of a wait for the rest forever
+    queue._writer.close()
     try:
         while True:
             kind, payload = _get(queue, proc)
@@ -129,17 +136,24 @@ def _get(queue, proc):
     while True:
         try:
             return queue.get(timeout=CHILD_POLL_S)
+        except (EOFError, OSError):  # it ended halfway through a message
+            proc.join()
+            raise _died(proc) from None
         except Empty:
             if proc.exitcode is None:
                 continue
             try:  # what it sent just before it ended
                 return queue.get(timeout=CHILD_POLL_S)
-            except Empty:
-                code = proc.exitcode
-                how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
-                hint = " (out of memory?)" if code == -signal.SIGKILL else ""
-                raise WorkerDied(f"the worker process {proc.name} ended before its work was done: {how}{hint}; "
-                                 "the run stopped and wrote nothing") from None
+            except (Empty, EOFError, OSError):
+                raise _died(proc) from None
+
+
+def _died(proc) -> "WorkerDied":
+    code = proc.exitcode
+    how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+    hint = " (out of memory?)" if code == -signal.SIGKILL else ""
+    return WorkerDied(f"the worker process {proc.name} ended before its work was done: {how}{hint}; "
+                      "the run stopped and wrote nothing")
 
 
 def _stop(proc) -> None:
@@ -224,6 +238,8 @@ class ForkExecutor(Executor):
     (nothing is pickled on the way in), its result comes back pickled; a thread here waits for
     it. For a few long calls (the feeder model's merges), not many short ones: a fork costs
     milliseconds. A child that dies fails its future with WorkerDied."""
+
+    fatal = (WorkerDied,)  # a caller that tolerates a call's failure must not tolerate a lost worker
 
     def __init__(self, name: str = "boomtip-call") -> None:
         self.name = name
