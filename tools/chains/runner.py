@@ -142,16 +142,21 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
     per_sensor = {"lidar": 0, "radar": 0}
     pick = PictureFrame(source)
-    for sensor, output in resources.processed(chain, source, keep_clouds=lambda f: rerun or pick.wants(f.sensor, f.t_s)):
-        viz.log_frame(output)
-        pick.offer(sensor, output)
-        per_sensor[sensor] = per_sensor.get(sensor, 0) + 1
-        resources.frame_done(sum(per_sensor.values()))
-        if progress:
-            progress(1)
+    try:
+        for sensor, output in resources.processed(chain, source, keep_clouds=lambda f: rerun or pick.wants(f.sensor, f.t_s)):
+            viz.log_frame(output)
+            pick.offer(sensor, output)
+            per_sensor[sensor] = per_sensor.get(sensor, 0) + 1
+            resources.frame_done(sum(per_sensor.values()))
+            if progress:
+                progress(1)
+        resources.release()  # what the frames freed, before the estimators (and their forks) and the outputs
+        result = chain.finish()
+    except BaseException:
+        if hasattr(chain, "close"):  # what a chain runs beside the frames (a merge in its own process) stops with the run
+            chain.close()
+        raise
     frames = sum(per_sensor.values())
-    resources.release()  # what the frames freed, before the estimators (and their forks) and the outputs
-    result = chain.finish()
     written = chain.outputs(staging, result)
     kpis = {**run_labels(source, chain.name), **chain.kpis(result, source.truth, outage_windows(source))}
     if frames == 0:

@@ -150,6 +150,10 @@ class ShipChain:
         est.record(obs.t_s, "radar", obs.tip_velocity, obs.lidar_level, self.pipeline.edges_known)
 
     # -- at the end ------------------------------------------------------------------------
+    def close(self) -> None:
+        """A run that stops early: a merge running beside the frames is stopped."""
+        self.pipeline.merges.close()
+
     def finish_perception(self) -> list[LidarObservation | RadarObservation]:
         """After the last frame: the observations the feeder's pipeline still holds back (a run
         shorter than its warm-up), with what the static test has; for `finish_fusion`."""

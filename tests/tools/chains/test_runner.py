@@ -293,3 +293,16 @@ def test_a_run_on_two_processes_draws_its_detections_from_the_frame_kept_whole(t
     import matplotlib.image as mpimg
 
     assert mpimg.imread(tmp_path / "plots" / "detections.png")[..., :3].std() > 0.05
+
+
+def test_a_run_that_fails_closes_what_its_chain_runs_beside_the_frames(tmp_path, monkeypatch):
+    from boomtip.data.sim.sources import simulation_for
+    from boomtip.tools.chains import runner
+    from boomtip.tools.chains.ship import ShipChain
+
+    closed = []
+    monkeypatch.setattr(ShipChain, "close", lambda self: closed.append(True))
+    monkeypatch.setattr(ShipChain, "finish", lambda self: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        runner.run_into(simulation_for(load_scenario("sts-loaded", ["duration_s=0.3"])), tmp_path)
+    assert closed == [True]

@@ -299,3 +299,15 @@ def test_a_child_killed_halfway_through_a_message_stops_the_run_instead_of_a_wai
     reader.join(timeout=30)
     assert not reader.is_alive(), "the read waited for the dead child's message forever"
     assert failure and "killed by signal 9" in str(failure[0])
+
+
+def test_shutting_a_fork_executor_down_stops_a_call_still_running():
+    import multiprocessing as mp
+    import time
+
+    pool = workers.ForkExecutor("boomtip-test-sleep")
+    pool.submit(time.sleep, 60)
+    (child,) = [p for p in mp.active_children() if p.name == "boomtip-test-sleep"]
+    t0 = time.perf_counter()
+    pool.shutdown(cancel_futures=True)
+    assert not child.is_alive() and time.perf_counter() - t0 < 10
