@@ -105,30 +105,34 @@ class RunResources:
         either way: the same outputs."""
         frames = chain.frames(source)
         if self.parallel and hasattr(chain, "perceive"):
-            made = itertools.count(1)
-
-            def perceive(frame: Frame) -> tuple[str, object]:  # in the child: its heap trimmed as this one's
-                out = frame.sensor, chain.perceive(frame, keep_clouds(frame))
-                self.frame_done(next(made))
-                return out
-
-            def at_end() -> tuple[None, tuple[list[str], object]]:
-                # what the child's copies gathered: the notes its reading added to the source, and
-                # what its pipeline still holds (frames held back by a warm-up longer than the run)
-                held = chain.finish_perception() if hasattr(chain, "finish_perception") else None
-                return None, (list(source.meta.notes), held)
-
-            for sensor, perceived in workers.mapped_in_child(frames, perceive, at_end):
-                if sensor is None:
-                    notes, held = perceived
-                    source.meta.notes[:] = notes  # the same list, grown in the child
-                    if held:
-                        chain.finish_fusion(held)
-                    continue
-                yield sensor, chain.fuse(perceived)
+            yield from self._perceived_in_child(chain, source, frames, keep_clouds)
             return
         for frame in frames:
             yield frame.sensor, chain.process(frame)
+
+    def _perceived_in_child(self, chain, source: FrameSource, frames: Iterator[Frame],
+                            keep_clouds: Callable[[Frame], bool]) -> Iterator[tuple[str, object]]:
+        made = itertools.count(1)
+
+        def perceive(frame: Frame) -> tuple[str, object]:  # in the child: its heap trimmed as this one's
+            out = frame.sensor, chain.perceive(frame, keep_clouds(frame))
+            self.frame_done(next(made))
+            return out
+
+        def at_end() -> tuple[None, tuple[list[str], object]]:
+            # what the child's copies gathered: the notes its reading added to the source, and what
+            # its pipeline still holds (frames held back by a warm-up longer than the run)
+            held = chain.finish_perception() if hasattr(chain, "finish_perception") else None
+            return None, (list(source.meta.notes), held)
+
+        for sensor, perceived in workers.mapped_in_child(frames, perceive, at_end):
+            if sensor is not None:
+                yield sensor, chain.fuse(perceived)
+                continue
+            notes, held = perceived
+            source.meta.notes[:] = notes  # the same list, grown in the child
+            if held:
+                chain.finish_fusion(held)
 
     def map_split(self, names: Sequence[str], costs: dict[str, float], work: Callable[[str], object]) -> dict[str, object]:
         """{name: work(name)}: shared by cost between two forked children when parallel."""
