@@ -43,9 +43,10 @@ def serial() -> Iterator[None]:
 
 
 def parallel_enabled() -> bool:
-    """A second core to use, the fork start method (Linux), and not inside `serial()`."""
+    """A second core to use, the fork start method (Linux), not inside `serial()`, and not in a
+    worker of ours (a daemonic process may not have children of its own)."""
     return (_serial_depth == 0 and len(os.sched_getaffinity(0)) > 1
-            and "fork" in mp.get_all_start_methods())
+            and "fork" in mp.get_all_start_methods() and not mp.current_process().daemon)
 
 
 def _as_child() -> None:
@@ -278,3 +279,4 @@ class ForkExecutor(Executor):
             else:
                 proc.join()
         self._children = []
+

@@ -311,3 +311,10 @@ def test_shutting_a_fork_executor_down_stops_a_call_still_running():
     t0 = time.perf_counter()
     pool.shutdown(cancel_futures=True)
     assert not child.is_alive() and time.perf_counter() - t0 < 10
+
+
+@pytest.mark.skipif(not workers.parallel_enabled(), reason="one core, or no fork: nothing runs in parallel")
+def test_a_worker_of_ours_runs_its_own_work_serially():
+    pool = workers.ForkExecutor("boomtip-test-daemon")
+    assert pool.submit(workers.parallel_enabled).result(timeout=30) is False  # a daemonic process may not fork
+    pool.shutdown()
