@@ -16,6 +16,18 @@ import time
 import numpy as np
 
 
+def plain_kiss_icp():
+    """kiss-icp's own pipeline as a user starts it: its defaults, the voxel max_range / 100, no
+    deskew (boomtip's frames carry no per-point times it reads)."""
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
+
+    cfg = KISSConfig()
+    cfg.mapping.voxel_size = cfg.data.max_range / 100.0
+    cfg.data.deskew = False
+    return KissICP(cfg)
+
+
 def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrides: list[str] | None = None) -> dict:
     from boomtip.tools.config.scenario import load_scenario
     from boomtip.data.sim.sources import simulation_for
@@ -26,9 +38,6 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     from boomtip.tools.chains.chain import ChainError
     from boomtip.tools.chains.runner import build_chain, processing_for
     from boomtip.tools.chains.ship import ShipChain
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
-
     if duration_s <= WARMUP_S + 1.0:
         raise ChainError(f"--duration {duration_s:g}: expected more than {WARMUP_S + 1.0:g} s (the first {WARMUP_S:g} s "
                          "are the filter's warm-up and are not scored)")
@@ -37,10 +46,7 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
     chain = build_chain(sim, processing_for(sim))
     if not isinstance(chain, ShipChain):
         raise ChainError(f"{scenario}: the feeder chain does not run here (no LiDAR, or a hook scenario)")
-    cfg = KISSConfig()
-    cfg.mapping.voxel_size = cfg.data.max_range / 100.0
-    cfg.data.deskew = False
-    kiss = KissICP(cfg)
+    kiss = plain_kiss_icp()
     perception = FeederPerception(sim.meta.installation)
     kiss_t, kiss_T, kiss_ms, chain_wall = [], [], [], 0.0
     for frame in sim:

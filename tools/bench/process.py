@@ -45,23 +45,19 @@ def _process_wall_s(recording: Path, out: Path, workers: int | None, extra: list
     return wall
 
 
-def _kiss_icp_wall_s(recording: Path, installation: Path | None) -> tuple[float, int]:
-    """kiss-icp's pipeline (its defaults, voxel max_range / 100, no deskew: the frames carry no
-    per-point times it reads) over the recording's LiDAR frames, reading included."""
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
-
+def _open(recording: Path, installation: Path | None):
     from boomtip.data.io.installation_file import load_installation
     from boomtip.data.io.loaders import open_source
 
-    inst = load_installation(installation) if installation else None
+    return open_source(recording, None, load_installation(installation) if installation else None, None, None, 1)
+
+
+def _kiss_icp_wall_s(recording: Path, installation: Path | None) -> tuple[float, int]:
+    """kiss-icp's own pipeline over the recording's LiDAR frames, reading included."""
+    from boomtip.tools.bench.feeder import plain_kiss_icp
+
     t0 = time.perf_counter()
-    source = open_source(recording, None, inst, None, None, 1)
-    cfg = KISSConfig()
-    cfg.mapping.voxel_size = cfg.data.max_range / 100.0
-    cfg.data.deskew = False
-    kiss = KissICP(cfg)
-    frames = 0
+    source, kiss, frames = _open(recording, installation), plain_kiss_icp(), 0
     for frame in source:
         if frame.sensor != "lidar" or frame.error is not None or len(frame) == 0:
             continue
@@ -69,14 +65,6 @@ def _kiss_icp_wall_s(recording: Path, installation: Path | None) -> tuple[float,
         kiss.register_frame(pts, np.zeros(len(pts)))
         frames += 1
     return time.perf_counter() - t0, frames
-
-
-def _recording_seconds(recording: Path, installation: Path | None) -> float:
-    from boomtip.data.io.installation_file import load_installation
-    from boomtip.data.io.loaders import open_source
-
-    inst = load_installation(installation) if installation else None
-    return float(open_source(recording, None, inst, None, None, 1).duration_s)
 
 
 def _accuracy(kpis: dict) -> dict:
@@ -96,7 +84,7 @@ def bench_process(scenario: str = "sts-loaded", duration_s: float = 20.0, repeat
     with tempfile.TemporaryDirectory(prefix="boomtip-bench-process-") as tmp:
         folder = Path(tmp)
         rec = recording if recording is not None else _simulate(scenario, duration_s, folder)
-        seconds = _recording_seconds(rec, installation)
+        seconds = float(_open(rec, installation).duration_s)
         runs: dict[str, list[float]] = {"default": [], "workers_1": [], "kiss_icp": []}
         lidar_frames, apt_ms, accuracy = 0, [], {}
         for _ in range(repeats):  # interleaved: a machine's drift falls on all three alike
