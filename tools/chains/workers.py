@@ -28,6 +28,7 @@ __all__ = ["serial", "parallel_enabled", "frames_in_child", "mapped_in_child", "
 
 FRAMES_AHEAD = 32  # frames a child may run ahead of this process (a hook frame: 0.6 MB, a perceived 128 x 1024 one: ~1 MB)
 CHILD_POLL_S = 0.5  # how often a wait for a child checks that it is still alive
+STOP_WAIT_S = 5.0  # a child asked to stop gets this long before it is killed
 _serial_depth = 0
 
 
@@ -267,16 +268,23 @@ class ForkExecutor(Executor):
             proc.join()
             (future.set_result if kind == "ok" else future.set_exception)(payload)
 
-        threading.Thread(target=wait, name=f"{self.name}-wait", daemon=True).start()
-        self._children.append(proc)
+        waiter = threading.Thread(target=wait, name=f"{self.name}-wait", daemon=True)
+        waiter.start()
+        self._children.append((proc, waiter))
         return future
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
-        """Children still running are stopped (cancel_futures, or not wait) or waited for."""
-        for proc in self._children:
+        """Children still running are stopped (cancel_futures, or not wait) or waited for. Only
+        each child's waiting thread reaps it (two threads waiting for one process race for its
+        exit status): here it is signalled, and its thread waited for."""
+        for proc, waiter in self._children:
             if cancel_futures or not wait:
-                _stop(proc)
-            else:
-                proc.join()
+                for stop in (proc.terminate, proc.kill):
+                    if not waiter.is_alive():
+                        break
+                    with contextlib.suppress(OSError):
+                        stop()
+                    waiter.join(STOP_WAIT_S)
+            waiter.join()
         self._children = []
 
