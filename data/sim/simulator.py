@@ -261,6 +261,15 @@ class Simulation(FrameSource):
         R_crane = Rs[0].reshape(-1, 3)  # (M*3,3): one product, not M small ones
         return (R_crane @ T_cs[:3, :3]).reshape(-1, 3, 3), (R_crane @ T_cs[:3, 3]).reshape(-1, 3) + ps[0], Rs, ps, None
 
+    def bodies_about_tip(self, t_s: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+        """For display: each body's rotation (M,3,3), position (M,3) relative to the true boom
+        tip in world axes, and its per-axis scale (M,3) or None, at the times."""
+        R_ws, p_ws, Rs, ps, scales = self._scene_poses(np.asarray(t_s, float), "lidar")
+        T_ts = self.world.T_boomtip_sensor["lidar"]
+        p_tip = p_ws + R_ws @ (-T_ts[:3, :3].T @ T_ts[:3, 3])
+        scales = scales or [None] * len(Rs)
+        return {b.name: (R, p - p_tip, s) for b, R, p, s in zip(self.world.bodies, Rs, ps, scales)}
+
     def lidar_frame(self, index: int, t_s: float) -> Frame:
         return self._lidar_frame_from(index, t_s, self._scene_poses, self._sensor_fixed_hits("lidar"))
 

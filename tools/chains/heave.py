@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -24,6 +26,7 @@ from boomtip.fusion.consistency import consistency_block, flagged_notes
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
 from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
 from boomtip.tools.chains.chain import ChainError
+from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.report.kpis import WARMUP_S, estimated_kpis, measurement_kpis, solution_kpis, truth_amplitudes
 
@@ -90,12 +93,33 @@ class HeaveChain:
     def process(self, frame: Frame) -> FrameResult:
         return self.fuse(self.perceive(frame))
 
-    def perceive(self, frame: Frame, keep_cloud: bool = True) -> FrameResult:
-        """The frame's measurements (the pipeline's stages; a worker may run it ahead of `fuse`).
-        keep_cloud False: the result without the frame's points and the stages' detections,
-        which only a visualiser draws."""
-        res = self.pipeline.process(frame)
-        return res if keep_cloud else measurements_only(res)
+    def perceive(self, frame: Frame) -> FrameResult:
+        """The frame's measurements (the pipeline's stages; a worker may run it ahead of `fuse`)."""
+        return self.pipeline.process(frame)
+
+    def without_clouds(self, res: FrameResult) -> FrameResult:
+        """What `fuse` needs of a perceived frame: not its points nor the stages' detections,
+        which only a visualiser or a picture draws."""
+        return measurements_only(res)
+
+    def frame_score(self, res: FrameResult, truth: Truth | None) -> tuple[float, str] | None:
+        """How bad a LiDAR frame's deck measurement is, for the pictures' worst frame (None: not
+        a candidate): with truth, its D error in its stated sigmas; without, a failed deck stage
+        (the first of them wins) or else its stated sigma."""
+        if res.frame.sensor != "lidar":
+            return None
+        row = next((r for r in res.measurements if r.method == "deck_lidar"), None)
+        if row is None:
+            return None
+        if truth is None:
+            if not row.ok:
+                return math.inf, f"the first frame whose LiDAR deck stage found nothing ({row.status}); no truth here"
+            return row.sigma, f"the least certain LiDAR deck measurement (sigma {row.sigma * 1e3:.1f} mm); no truth here"
+        error_m = row.value - float(truth.at("D", np.array([row.t_s]))[0]) if row.ok else math.nan
+        if not np.isfinite(error_m) or not row.sigma > 0:
+            return None
+        z = abs(error_m) / row.sigma
+        return z, f"the worst LiDAR deck measurement: D error {error_m * 1e3:+.1f} mm, {z:.1f} of its sigmas"
 
     def fuse(self, res: FrameResult) -> FrameResult:
         """The frame's measurements kept for the filters (which run at the end)."""
@@ -176,24 +200,27 @@ class HeaveChain:
         write_report(out, kpis, result.estimates, truth, result.rows)
         return ["report.md", "plots"]
 
-    def picture(self, out: Path, frame: FrameResult | None, result: HeaveResult) -> list[str]:
-        """plots/detections.png (one LiDAR frame's detections, every method's status), linked from report.md."""
+    def picture(self, out: Path, pictures: FramePictures, result: HeaveResult,
+                as_frame_result: Callable[[object], FrameResult] = lambda output: output) -> list[str]:
+        """plots/detections.png (the pictured LiDAR frames' detections, every method's status), linked from report.md."""
         from boomtip.tools.report.detections import write_detections
         from boomtip.tools.report.plots import PLOTS_DIR, plot_link
 
-        path = write_detections(out, frame, result.rows, self.pipeline.p_tip["lidar"])
+        frames = [(p.output, p.why) for p in pictures.frames(as_frame_result)]
+        path = write_detections(out, frames, result.rows, self.pipeline.p_tip["lidar"])
         if (out / "report.md").exists():
             with open(out / "report.md", "a", encoding="utf-8") as fh:
                 fh.write(f"\n## Detections\n\n{plot_link(path)}\n")
         return [PLOTS_DIR]
 
     def visualiser(self, path: Path, source: FrameSource):
-        from boomtip.tools.report.rerun import RerunLogger
+        from boomtip.tools.report.recording.heave import RerunLogger
 
         return RerunLogger(path, source)
 
     def visualise_result(self, viz, result: HeaveResult, truth: Truth | None) -> None:
         viz.log_estimates(result.estimates, truth)
+        viz.log_world()
 
 
 def write_measurements(path: Path, rows: list[Measurement]) -> None:

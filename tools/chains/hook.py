@@ -11,6 +11,7 @@ run's RunResources, not this module's.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -29,8 +30,9 @@ from boomtip.perception.hook_pipeline import HookPipeline, sigma_across
 from boomtip.perception.rope import RopeFix
 from boomtip.perception.timing import StageTimes
 from boomtip.tools.chains.chain import ChainError, NullVisualiser
+from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.report.hook_rows import FrameRows, fill_block, fill_prediction, fill_rope, fill_scores, frame_row
-from boomtip.tools.report.hook_store import P_REL, EstimateStore
+from boomtip.tools.report.hook_store import COV_P, P_REL, EstimateStore
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import hook as outputs
@@ -52,6 +54,10 @@ class HookFrameResult:
     hoist_m: float | None = None
     cov: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
     times: StageTimes | None = None  # the frame's stage times (ms), for benchmarks
+
+    @property
+    def t_s(self) -> float:
+        return float(self.row["t"])
 
 
 @dataclass
@@ -238,8 +244,41 @@ class HookChain:
         outputs.write_hook_report(out, kpis, kpis.get("program"), result.runs, result.stores, truth, result.rows)
         return ["report.md", "plots"]
 
+    def frame_score(self, res: HookFrameResult, truth: Truth | None) -> tuple[float, str] | None:
+        """How bad a frame's hook fix is, for the pictures' worst frame (None: not a candidate):
+        with truth, its largest error along an axis in that axis's stated sigmas; without, a
+        failed fit (the first of them wins) or else its largest stated sigma."""
+        row = res.row
+        if res.detection is None:
+            return None
+        p = np.array([row["x"], row["y"], row["z"]], float)
+        sigma = np.array([row["sigma_x_m"], row["sigma_y_m"], row["sigma_z_m"]], float)
+        if truth is None:
+            if not res.detection.has_fix:
+                return math.inf, f"the first frame without a hook fix ({row['status']}); no truth here"
+            return float(np.max(sigma)), f"the least certain hook fix (sigma {100 * np.max(sigma):.1f} cm); no truth here"
+        error_m = p - np.array([truth.at(f"hook_rel_{a}", np.array([res.t_s]))[0] for a in "xyz"])
+        if not (np.all(np.isfinite(error_m)) and np.all(sigma > 0)):
+            return None
+        z = float(np.max(np.abs(error_m) / sigma))
+        return z, f"the worst hook fix: error {100 * np.linalg.norm(error_m):.1f} cm, {z:.1f} of its sigmas along an axis"
+
+    def picture(self, out: Path, pictures: FramePictures, result: HookResult) -> list[str]:
+        """plots/detections.png (the pictured frames' detections, the block and rope fits' status), linked from report.md."""
+        from boomtip.tools.report.hook_detections import statuses, write_hook_detections
+        from boomtip.tools.report.plots import PLOTS_DIR, plot_link
+
+        rows = result.rows
+        frames = [(p.output, p.why) for p in pictures.frames()]
+        path = write_hook_detections(out, frames, statuses(rows["t"], rows["status"], rows["rope_status"]),
+                                     self.pipeline.cfg.block_height_m)
+        if (out / "report.md").exists():
+            with open(out / "report.md", "a", encoding="utf-8") as fh:
+                fh.write(f"\n## Detections\n\n{plot_link(path)}\n")
+        return [PLOTS_DIR]
+
     def visualiser(self, path: Path, source: FrameSource):
-        from boomtip.tools.report.rerun import HookRerunLogger
+        from boomtip.tools.report.recording.hook import HookRerunLogger
 
         return HookRerunLogger(path, source, gate_radius_m=self.pipeline.cfg.prior_radius_m)
 
@@ -250,8 +289,11 @@ class HookChain:
             return
         name = "ekf_flexible" if "ekf_flexible" in result.runs else next(iter(result.runs))
         t_run, p_rel = result.stores[name].columns(P_REL)
+        _, cov = result.stores[name].columns(COV_P)
         t_l = result.rows["t"]
         t_l = t_l[(t_l >= t_run[0]) & (t_l <= t_run[-1])]
         p_est = np.column_stack([np.interp(t_l, t_run, p_rel[:, k]) for k in range(3)])
+        cov_l = np.column_stack([np.interp(t_l, t_run, cov[:, k]) for k in range(9)]).reshape(-1, 3, 3)
         p_true = np.column_stack([truth.at(f"hook_rel_{a}", t_l) for a in "xyz"]) if truth is not None else None
-        viz.log_hook_tracks(t_l, p_est, p_true, name)
+        viz.log_hook_tracks(t_l, p_est, p_true, name, cov_l)
+        viz.log_world()

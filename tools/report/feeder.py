@@ -1,5 +1,5 @@
 """The feeder chain's outputs: feeder_estimates.csv, kpis.json's `feeder` block, the report's
-section beside document 004's Tables 1-3, its plot, and the rerun entities.
+section beside document 004's Tables 1-3, and its plot.
 
 OUT/feeder_estimates.csv   t, x, y, z, roll, pitch, yaw, their rates, the 12 variances
                             (m, rad; the feeder frame in the heading frame at the boom tip)
@@ -340,71 +340,3 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
     axes[0].set_title("The feeder's pose relative to the crane vessel: " + ("error (estimate - truth) and its 3 sigma"
                       if pose_t is not None else "as estimated (no truth)"))
     return save(fig, plot_path(out, FEEDER_PLOT))
-
-
-def log_feeder(viz, res: FeederResult, model_points_map: np.ndarray | None, T_map_feeder: np.ndarray | None,
-               truth_pose: np.ndarray | None, rpy_yaw, rate_hz: float = 0.2, max_points: int = 800,
-               mesh_feeder: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-    """The pose series as columns at 10 Hz, and in the tip view the feeder at the estimated pose
-    (and a ghost at the true one): its mesh (vertices in the feeder frame, triangles) moved by
-    a transform at 10 Hz when the run has one (a simulated run: for display only, processing
-    never sees it), else the chain's own model as points `rate_hz` times a second."""
-    rr, rec = vars(viz).get("rr"), vars(viz).get("rec")  # the null visualiser has neither
-    if rr is None or rec is None or len(res.t_s) == 0:
-        return
-    from boomtip.data.poses import inverse, pose_matrix, transform
-    from boomtip.tools.report.rerun import TIMELINE
-
-    keep = np.r_[True, np.diff(np.floor(res.t_s * 10.0)) > 0]  # the pose series at 10 Hz: the file stays small
-    t_keep = res.t_s[keep]
-    for i, name in enumerate(POSE):
-        scale = 1.0 if i < 3 else 180 / math.pi
-        rec.send_columns(f"feeder/{name}/estimate", indexes=[rr.TimeColumn(TIMELINE, duration=t_keep)],
-                         columns=rr.Scalars.columns(scalars=res.pose[keep, i] * scale))
-        if truth_pose is not None:
-            rec.send_columns(f"feeder/{name}/truth", indexes=[rr.TimeColumn(TIMELINE, duration=t_keep)],
-                             columns=rr.Scalars.columns(scalars=truth_pose[keep, i] * scale))
-    if mesh_feeder is not None:
-        _log_feeder_mesh(rr, rec, TIMELINE, t_keep, res.pose[keep], None if truth_pose is None else truth_pose[keep],
-                         rpy_yaw, mesh_feeder)
-        return
-    if model_points_map is None or T_map_feeder is None or len(model_points_map) == 0:
-        return
-    pts_feeder = transform(inverse(T_map_feeder), model_points_map)
-    pts_feeder = pts_feeder[:: max(1, len(pts_feeder) // max_points)]
-    last = -np.inf
-    for k, t in enumerate(res.t_s):
-        if t - last < 1.0 / rate_hz:
-            continue
-        last = t
-        rec.set_time(TIMELINE, duration=float(t))
-        c, s = math.cos(rpy_yaw(t)), math.sin(rpy_yaw(t))
-        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # heading frame -> the tip view's world axes
-        rec.log("tip/feeder/estimate", rr.Points3D(transform(pose_matrix(*res.pose[k]), pts_feeder) @ Rz.T, radii=0.08,
-                                                   colors=[[80, 200, 255]]))
-        if truth_pose is not None and np.all(np.isfinite(truth_pose[k])):
-            rec.log("tip/feeder/truth", rr.Points3D(transform(pose_matrix(*truth_pose[k]), pts_feeder) @ Rz.T, radii=0.05,
-                                                    colors=[[255, 255, 255, 80]]))
-
-
-def _log_feeder_mesh(rr, rec, timeline: str, t_s: np.ndarray, pose: np.ndarray, truth_pose: np.ndarray | None, rpy_yaw,
-                     mesh_feeder: tuple[np.ndarray, np.ndarray]) -> None:
-    """The mesh once (static), then only its transforms: the file grows by a pose per sample."""
-    from boomtip.data.poses import pose_matrix
-    from scipy.spatial.transform import Rotation
-
-    vertices, triangles = mesh_feeder
-    Rz = Rotation.from_euler("z", [[rpy_yaw(float(t))] for t in t_s]).as_matrix()  # heading -> tip view axes
-    for name, poses, colour in (("estimate", pose, [80, 200, 255, 255]), ("truth", truth_pose, [255, 255, 255, 70])):
-        if poses is None:
-            continue
-        ok = np.all(np.isfinite(poses), axis=1)
-        if not ok.any():
-            continue
-        rec.log(f"tip/feeder/{name}/mesh", rr.Mesh3D(vertex_positions=vertices.astype(np.float32), triangle_indices=triangles,
-                                                    albedo_factor=colour), static=True)
-        T = np.array([pose_matrix(*p) for p in poses[ok]])
-        R = Rz[ok] @ T[:, :3, :3]
-        p = np.einsum("tij,tj->ti", Rz[ok], T[:, :3, 3])
-        rec.send_columns(f"tip/feeder/{name}", indexes=[rr.TimeColumn(timeline, duration=t_s[ok])],
-                         columns=rr.Transform3D.columns(translation=p, mat3x3=R))

@@ -21,7 +21,7 @@ import numpy as np
 from boomtip.fusion.hook_run import HookRunChunk
 from boomtip.tools.report.hook_eval import world_hook_from_states
 
-__all__ = ["EstimateStore", "StoredSamples", "atomic_text_file", "P", "V", "P_REL", "V_REL"]
+__all__ = ["COV_P", "EstimateStore", "StoredSamples", "atomic_text_file", "P", "V", "P_REL", "V_REL"]
 
 # record layout: column slices
 T, P, V, P_REL, V_REL, COV_P = slice(0, 1), slice(1, 4), slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 22)

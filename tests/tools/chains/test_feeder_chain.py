@@ -206,10 +206,8 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
     model (registered returns) lies on it; the recording gets it once per pose and then only
     the two poses' transforms."""
     import open3d as o3d
-    import rerun as rr
-
     from boomtip.data.poses import inverse, transform
-    from boomtip.tools.report.feeder import log_feeder, truth_of
+    from boomtip.tools.report.feeder import truth_of
     from boomtip.tools.chains.runner import build_chain, processing_for
 
     res = short_run[1].result.feeder
@@ -224,25 +222,35 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
 
     logged = []
 
-    class Rec:
-        def log(self, path, item, static=False):
-            logged.append((path, type(item).__name__, static))
+    class Recording:
+        def mesh(self, path, vertices, triangles, cls, alpha=255):
+            logged.append((path, "mesh", cls))
 
-        def send_columns(self, path, indexes, columns):
-            logged.append((path, "columns", False))
+        def poses(self, path, t_s, R, p, scale=None):
+            logged.append((path, "poses", len(t_s)))
 
-        def set_time(self, *a, **k):
+        def series(self, panel, path, t_s, values, name, colour, sigma=None, width=1.2):
+            logged.append((path, "series", sigma is not None))
+
+        def points(self, path, points, cls, radius_m, labels=None):
+            logged.append((path, "points", cls))
+
+        def time(self, t_s):
             pass
 
     class Viz:
         def __init__(self):
-            self.rr, self.rec = rr, Rec()
+            self.recording = Recording()
+
+    from boomtip.tools.report.recording.feeder import log_feeder
 
     truth_pose = truth_of(res, sim.truth, chain.p_tip_crane_m)[0]
-    log_feeder(Viz(), res, res.model_points_map, res.T_map_feeder, truth_pose, lambda t: 0.0, mesh_feeder=(vertices, triangles))
-    assert ("tip/feeder/estimate/mesh", "Mesh3D", True) in logged and ("tip/feeder/truth/mesh", "Mesh3D", True) in logged
-    assert ("tip/feeder/estimate", "columns", False) in logged and ("tip/feeder/truth", "columns", False) in logged
-    assert not any(kind == "Points3D" for _, kind, _ in logged)
+    log_feeder(Viz(), res, truth_pose, lambda t: 0.0, mesh_feeder=(vertices, triangles))
+    assert ("estimates/feeder/mesh", "mesh", "feeder_vessel") in logged and ("truth/feeder/mesh", "mesh", "truth") in logged
+    n_10hz = len(np.unique(np.floor(res.t_s * 10.0)))  # the poses at 10 Hz
+    assert ("estimates/feeder", "poses", n_10hz) in logged and ("truth/feeder", "poses", n_10hz) in logged
+    assert ("estimates/feeder/pose/z", "series", True) in logged and ("truth/feeder/pose/z", "series", False) in logged
+    assert ("detections/feeder/model", "points", "feeder_model") in logged  # the registered model, mesh or not
     # a real recording has no mesh: the chain's model as points instead
     assert build_chain(sim, processing_for(sim))._visualised_feeder_mesh(None, res) is None
 

@@ -103,8 +103,9 @@ def test_boomtip_run_on_a_hook_scenario_writes_hook_kpis(tmp_path):
         listing = subprocess.run([str(rerun_cli), "rrd", "print", str(out / "boomtip.rrd")], capture_output=True,
                                  text=True, timeout=120, env={**os.environ, "RERUN_ANALYTICS": "0"})
         assert listing.returncode == 0, listing.stderr
-        for entity in ("/tip/cloud", "/tip/hook_points", "/tip/rope", "/tip/rope_fit/axis", "/tip/hook_estimate", "/tip/hook_estimate_trail",
-                       "/tip/hook_truth", "/tip/hook_truth_trail", "/hook/error_cm/x"):
+        for entity in ("/sensors/lidar", "/detections/hook/segment", "/detections/rope/axis", "/estimates/ekf_flexible/hook/rope",
+                       "/estimates/ekf_flexible/hook/position", "/estimates/ekf_flexible/hook/trail", "/truth/hook/position",
+                       "/truth/hook/trail", "/truth/error_cm/x"):
             assert entity in listing.stdout, entity
 
 

@@ -1,0 +1,1 @@
+"""The rerun recording (.rrd) of a run, in one convention for every chain (convention.py)."""
