@@ -24,6 +24,7 @@ import numpy as np
 from boomtip.data.frames import Frame, FrameSource
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.chains import workers
+from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.report.hook_rows import DiskTable
 
 __all__ = ["RunResources", "keep_freed_memory", "release_free_memory", "TRIM_EVERY_FRAMES"]
@@ -97,40 +98,48 @@ class RunResources:
             return workers.frames_in_child(source)
         return iter(source)
 
-    def processed(self, chain, source: FrameSource, keep_clouds: Callable[[Frame], bool]) -> Iterator[tuple[str, object]]:
+    def processed(self, chain, source: FrameSource, pictures: FramePictures, keep_clouds: bool) -> Iterator[tuple[str, object]]:
         """(sensor, chain's output) for each of the source's frames in order. A chain that splits
         its work per frame (`perceive` ahead, `fuse` in order) has its perception made in a
-        forked child when parallel, without the clouds but where `keep_clouds(frame)` (a
-        visualiser's, a picture's); the fusion runs here. The same calls in the same order
-        either way: the same outputs."""
+        forked child when parallel, and its outputs come without their clouds unless
+        `keep_clouds` (a visualiser) or `pictures` wants one; `pictures` considers every
+        frame's whole output where it is made. The same calls in the same order either way:
+        the same outputs."""
         frames = chain.frames(source)
         if self.parallel and hasattr(chain, "perceive"):
-            yield from self._perceived_in_child(chain, source, frames, keep_clouds)
+            yield from self._perceived_in_child(chain, source, frames, pictures, keep_clouds)
             return
         for frame in frames:
-            yield frame.sensor, chain.process(frame)
+            output = chain.process(frame)
+            pictures.consider(output)
+            yield frame.sensor, output
 
-    def _perceived_in_child(self, chain, source: FrameSource, frames: Iterator[Frame],
-                            keep_clouds: Callable[[Frame], bool]) -> Iterator[tuple[str, object]]:
+    def _perceived_in_child(self, chain, source: FrameSource, frames: Iterator[Frame], pictures: FramePictures,
+                            keep_clouds: bool) -> Iterator[tuple[str, object]]:
         made = itertools.count(1)
 
         def perceive(frame: Frame) -> tuple[str, object]:  # in the child: its heap trimmed as this one's
-            out = frame.sensor, chain.perceive(frame, keep_clouds(frame))
+            perceived = chain.perceive(frame)
+            pictures.consider(perceived)
+            if not (keep_clouds or pictures.wants(frame.sensor, frame.t_s)):
+                perceived = chain.without_clouds(perceived)
             self.frame_done(next(made))
-            return out
+            return frame.sensor, perceived
 
-        def at_end() -> tuple[None, tuple[list[str], object]]:
-            # what the child's copies gathered: the notes its reading added to the source, and what
-            # its pipeline still holds (frames held back by a warm-up longer than the run)
+        def at_end() -> tuple[None, tuple[list[str], object, object]]:
+            # what the child's copies gathered: the notes its reading added to the source, what
+            # its pipeline still holds (frames held back by a warm-up longer than the run), and
+            # the worst frame it saw
             held = chain.finish_perception() if hasattr(chain, "finish_perception") else None
-            return None, (list(source.meta.notes), held)
+            return None, (list(source.meta.notes), held, pictures.worst)
 
         for sensor, perceived in workers.mapped_in_child(frames, perceive, at_end):
             if sensor is not None:
                 yield sensor, chain.fuse(perceived)
                 continue
-            notes, held = perceived
+            notes, held, worst = perceived
             source.meta.notes[:] = notes  # the same list, grown in the child
+            pictures.adopt(worst)
             if held:
                 chain.finish_fusion(held)
 

@@ -22,6 +22,7 @@ from boomtip.data.keys import format_validation, leaf_keys, settings_dump
 from boomtip.tools.chains.chain import Chain, NullVisualiser
 from boomtip.tools.chains.heave import HeaveChain
 from boomtip.tools.chains.hook import HookChain
+from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.provenance import outage_windows, run_labels
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.chains.ship import ShipChain
@@ -37,29 +38,6 @@ class RunResult:
     result: object
     kpis: dict
     written: list[str]
-
-
-class PictureFrame:
-    """The frame a run's detections picture shows: the first LiDAR frame from the middle of the
-    run on. `wants` says so of a frame before it is processed (a worker keeps its cloud),
-    `offer` keeps the chain's output of it."""
-
-    def __init__(self, source: FrameSource) -> None:
-        self.t_mid_s = source.meta.t_start_s + max(source.duration_s, 0.0) / 2.0
-        self.output = None
-        self._wanted = False  # the frame has been chosen (in this process's view of the frames)
-
-    def wants(self, sensor: str, t_s: float) -> bool:
-        if self._wanted or sensor != "lidar" or t_s < self.t_mid_s:
-            return False
-        self._wanted = True
-        return True
-
-    def offer(self, sensor: str, output) -> None:
-        if self.output is None and output is not None and sensor == "lidar":
-            frame = getattr(output, "frame", None)
-            if frame is not None and frame.t_s >= self.t_mid_s:
-                self.output = output
 
 
 def processing_for(source: FrameSource, processing: Processing | None = None) -> Processing:
@@ -141,11 +119,12 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     chain = build_chain(source, processing, resources)
     viz = chain.visualiser(staging / "boomtip.rrd", source) if rerun else NullVisualiser()
     per_sensor = {"lidar": 0, "radar": 0}
-    pick = PictureFrame(source)
+    truth = source.truth
+    pictures = FramePictures(source, (lambda output: chain.frame_score(output, truth)) if hasattr(chain, "frame_score") else None)
     try:
-        for sensor, output in resources.processed(chain, source, keep_clouds=lambda f: rerun or pick.wants(f.sensor, f.t_s)):
+        for sensor, output in resources.processed(chain, source, pictures, keep_clouds=rerun):
             viz.log_frame(output)
-            pick.offer(sensor, output)
+            pictures.offer(sensor, output)
             per_sensor[sensor] = per_sensor.get(sensor, 0) + 1
             resources.frame_done(sum(per_sensor.values()))
             if progress:
@@ -177,7 +156,7 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     if report:
         written += chain.report(staging, kpis, result, source.truth)
         if hasattr(chain, "picture"):  # a chain that draws one frame's detections
-            written += [w for w in chain.picture(staging, pick.output, result) if w not in written]
+            written += [w for w in chain.picture(staging, pictures, result) if w not in written]
     chain.visualise_result(viz, result, source.truth)
     viz.close()
     if rerun:

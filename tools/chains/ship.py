@@ -11,7 +11,7 @@ OUT/feeder_calibration.csv        the feeder frame's definition over the run
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +23,8 @@ from boomtip.fusion.radar_offset import RadarOffsetConfig
 from boomtip.perception.feeder import FeederPerception, LidarObservation, RadarObservation
 from boomtip.perception.feeder_pipeline import FeederPipeline
 from boomtip.perception.pipeline import FrameResult
-from boomtip.tools.chains.heave import HeaveChain, HeaveResult, measurements_only
+from boomtip.tools.chains.heave import HeaveChain, HeaveResult
+from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.provenance import outage_windows
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.chains.workers import ForkExecutor
@@ -44,6 +45,11 @@ class ShipFrame:
     attitude: LevellingAttitude | None = None
     observations: list[LidarObservation | RadarObservation] = field(default_factory=list)  # ready to fuse, in time order
     missing: list[tuple[float, str, str]] = field(default_factory=list)  # what the feeder's stages could not measure
+
+
+def frame_result(output: ShipFrame | FrameResult) -> FrameResult:
+    """The heave pipeline's result of a frame: a perceived frame's, or `fuse`'s output itself."""
+    return output.heave if isinstance(output, ShipFrame) else output
 
 
 @dataclass
@@ -87,20 +93,25 @@ class ShipChain:
     def process(self, frame: Frame) -> FrameResult:
         return self.fuse(self.perceive(frame))
 
-    def perceive(self, frame: Frame, keep_cloud: bool = True) -> ShipFrame:
-        """The heave and feeder pipelines' per-frame stages. Reads the MRU log, not the estimator's
-        state: a worker may run it ahead of `fuse` (keep_cloud False: without the frame's points)."""
+    def perceive(self, frame: Frame) -> ShipFrame:
+        """The heave and feeder pipelines' per-frame stages; reads the MRU log, not the estimator's state."""
         heave = self.heave.perceive(frame)
-        kept = heave if keep_cloud else measurements_only(heave)
         if frame.error is not None or len(frame) == 0:
-            return ShipFrame(kept, frame.t_s, frame.sensor, frame.error or "empty frame")
+            return ShipFrame(heave, frame.t_s, frame.sensor, frame.error or "empty frame")
         att = self.estimator.levelling(frame.t_s)
         if att is None:
-            return ShipFrame(kept, frame.t_s, frame.sensor, "no MRU attitude")
+            return ShipFrame(heave, frame.t_s, frame.sensor, "no MRU attitude")
         known = len(self.pipeline.missing)
         observations = self.pipeline.observe(frame, heave, att)
         missing, self.pipeline.missing[known:] = self.pipeline.missing[known:], []  # to fuse, in order with its own
-        return ShipFrame(kept, frame.t_s, frame.sensor, None, att, observations, missing)
+        return ShipFrame(heave, frame.t_s, frame.sensor, None, att, observations, missing)
+
+    def without_clouds(self, p: ShipFrame) -> ShipFrame:
+        """What `fuse` needs: the heave stages' cloud and detections dropped, the feeder's observations kept."""
+        return replace(p, heave=self.heave.without_clouds(p.heave))
+
+    def frame_score(self, output: ShipFrame | FrameResult, truth: Truth | None) -> tuple[float, str] | None:
+        return self.heave.frame_score(frame_result(output), truth)
 
     def fuse(self, p: ShipFrame) -> FrameResult:
         """A perceived frame into the estimators, in time order."""
@@ -202,8 +213,8 @@ class ShipChain:
                          + (f"\n{plot_link(plot)}\n" if plot is not None else ""))
         return written + ([] if plot is None or "plots" in written else ["plots"])
 
-    def picture(self, out: Path, frame: FrameResult | None, result: ShipResult) -> list[str]:
-        return self.heave.picture(out, frame, result.heave)
+    def picture(self, out: Path, pictures: FramePictures, result: ShipResult) -> list[str]:
+        return self.heave.picture(out, pictures, result.heave, frame_result)
 
     def visualiser(self, path: Path, source: FrameSource):
         return self.heave.visualiser(path, source)
@@ -219,8 +230,9 @@ class ShipChain:
             att = mru.attitude(t)
             return float(att[0][2]) if att is not None else 0.0
 
-        feeder_outputs.log_feeder(viz, res, res.model_points_map, res.T_map_feeder, truth_pose, yaw,
-                                  mesh_feeder=self._visualised_feeder_mesh(truth, res))
+        from boomtip.tools.report.recording.feeder import log_feeder
+
+        log_feeder(viz, res, truth_pose, yaw, mesh_feeder=self._visualised_feeder_mesh(truth, res))
 
     def _visualised_feeder_mesh(self, truth: Truth | None, res: FeederResult) -> tuple[np.ndarray, np.ndarray] | None:
         """The simulated feeder's mesh in the feeder frame as the truth defines it (its body axes,

@@ -1,5 +1,6 @@
-"""plots/detections.png: what the heave pipeline found in one LiDAR frame, drawn over that frame's
-cloud from above and from the side (in the deck plane's axes: a picture that reads the same
+"""plots/detections.png: what the heave pipeline found in the pictured LiDAR frames (a
+representative one, and the worst: tools/chains/pictures.py), drawn over each frame's cloud from
+above and from the side (in the deck plane's axes: a picture that reads the same
 whatever the sensor's mount), and each method's status over the run. A look at the detections
 without a viewer; a run without a LiDAR frame, or a frame without a deck, says so in the title."""
 
@@ -10,16 +11,12 @@ from pathlib import Path
 import numpy as np
 
 from boomtip.perception.pipeline import FrameResult, Measurement
+from boomtip.tools.report.classes import by_name
 from boomtip.tools.report.plots import legend, plot_path, save
 
-__all__ = ["CLASSES", "DETECTIONS_PLOT", "deck_axes", "detections_figure", "detections_title", "write_detections",
-           "status_timeline"]
+__all__ = ["DETECTIONS_PLOT", "deck_axes", "detections_figure", "detections_title", "write_detections", "status_timeline"]
 
 DETECTIONS_PLOT = "detections"
-# one colour per class of detection, the legend's names
-CLASSES = {"cloud": ("0.8", "LiDAR returns"), "deck": ("#1f77b4", "deck plane inliers"),
-           "bright": ("#ff7f0e", "bright returns (reflector candidates)"), "markers": ("#d62728", "reflector markers"),
-           "tip": ("black", "boom tip")}
 MAX_CLOUD_POINTS = 40_000  # the faded cloud is drawn from at most this many returns (evenly picked)
 STATUS_OK = "#2ca02c"
 STATUS_COLOURS = ("#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf", "#ff7f0e")
@@ -63,10 +60,11 @@ def status_timeline(ax, rows: list[Measurement]) -> None:
     legend(ax, fontsize=8)
 
 
-def write_detections(out: Path, frame: FrameResult | None, rows: list[Measurement], p_tip_sensor: np.ndarray) -> Path:
-    """OUT/plots/detections.png: `frame` (a LiDAR frame's result with its cloud and detections;
-    None: the run had none) from above and from the side, and the status of every method."""
-    return save(detections_figure(frame, rows, p_tip_sensor), plot_path(out, DETECTIONS_PLOT))
+def write_detections(out: Path, frames: list[tuple[FrameResult, str]], rows: list[Measurement], p_tip_sensor: np.ndarray) -> Path:
+    """OUT/plots/detections.png: each of `frames` (a LiDAR frame's result with its cloud and
+    detections, and why it is pictured; none: the run had no LiDAR frame) from above and from the
+    side, and the status of every method."""
+    return save(detections_figure(frames, rows, p_tip_sensor), plot_path(out, DETECTIONS_PLOT))
 
 
 def detections_title(frame: FrameResult | None) -> str:
@@ -79,45 +77,52 @@ def detections_title(frame: FrameResult | None) -> str:
     return f"LiDAR frame {frame.frame.index} (t = {frame.frame.t_s:.2f} s) and its detections, in the deck plane's axes"
 
 
-def detections_figure(frame: FrameResult | None, rows: list[Measurement], p_tip_sensor: np.ndarray):
-    """The picture as a matplotlib figure: above, side, and the status timeline."""
+def detections_figure(frames: list[tuple[FrameResult, str]], rows: list[Measurement], p_tip_sensor: np.ndarray):
+    """The picture as a matplotlib figure: each frame from above and from the side, then the status timeline."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig = plt.figure(figsize=(13, 9))
-    grid = fig.add_gridspec(2, 2, height_ratios=[1.6, 1])
-    above, side, timeline = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, :])
-    deck = frame.deck_lidar if frame is not None else None
-    if deck is not None and deck.plane_sensor is not None:
-        R, origin = deck_axes(deck.plane_sensor)
-        pts = frame.frame.points_sensor
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        layers = {"cloud": pts[:: max(1, len(pts) // MAX_CLOUD_POINTS)]}
-        if deck.fit is not None:
-            layers["deck"] = deck.points_used[deck.fit.inlier_mask]
-        ref = frame.reflectors
-        if ref is not None:
-            layers["bright"], layers["markers"] = ref.bright_points, ref.marker_centroids
-        layers["tip"] = p_tip_sensor
-        for name, points in layers.items():
-            q = _in_deck(points, R, origin)
-            if len(q) == 0:
-                continue
-            colour, label = CLASSES[name]
-            style = ({"s": 2, "alpha": 0.3} if name == "cloud" else {"s": 4} if name in ("deck", "bright")
-                     else {"s": 40, "marker": "x" if name == "markers" else "^"})
-            above.scatter(q[:, 0], q[:, 1], color=colour, label=label, linewidths=1.5, **style)
-            side.scatter(q[:, 0], q[:, 2], color=colour, label=label, linewidths=1.5, **style)
-        above.set_aspect("equal", adjustable="datalim")
-        above.set_xlabel("u along the deck [m]")
-        above.set_ylabel("v along the deck [m]")
-        side.set_xlabel("u along the deck [m]")
-        side.set_ylabel("height above the deck [m]")
-        legend(side, fontsize=8)
-    above.set_title("from above")
-    side.set_title("from the side")
-    status_timeline(timeline, rows)
-    fig.suptitle(detections_title(frame))
+    n = max(len(frames), 1)
+    fig = plt.figure(figsize=(13, 4.5 + 4.5 * n), layout="constrained")
+    grid = fig.add_gridspec(n + 1, 2, height_ratios=[1.6] * n + [1])
+    for k, (frame, why) in enumerate(frames or [(None, "")]):
+        above, side = fig.add_subplot(grid[k, 0]), fig.add_subplot(grid[k, 1])
+        _draw_frame(above, side, frame, p_tip_sensor)
+        above.set_title(f"{detections_title(frame)}\n{why}: from above" if why else f"{detections_title(frame)}", loc="left", fontsize=9)
+        side.set_title("from the side", fontsize=9)
+    status_timeline(fig.add_subplot(grid[n, :]), rows)
+    fig.suptitle("What the heave pipeline detected" if frames else detections_title(None))
     return fig
+
+
+def _draw_frame(above, side, frame: FrameResult | None, p_tip_sensor: np.ndarray) -> None:
+    deck = frame.deck_lidar if frame is not None else None
+    if deck is None or deck.plane_sensor is None:
+        return
+    R, origin = deck_axes(deck.plane_sensor)
+    pts = frame.frame.points_sensor
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    layers = {"cloud": pts[:: max(1, len(pts) // MAX_CLOUD_POINTS)]}
+    if deck.fit is not None:
+        layers["deck"] = deck.points_used[deck.fit.inlier_mask]
+    ref = frame.reflectors
+    if ref is not None:
+        layers["bright"], layers["markers"] = ref.bright_points, ref.marker_centroids
+    layers["tip"] = p_tip_sensor
+    for name, points in layers.items():
+        q = _in_deck(points, R, origin)
+        if len(q) == 0:
+            continue
+        colour, label = by_name(name).colour, by_name(name).label  # the recording's class colours
+        style = ({"s": 2, "alpha": 0.3} if name == "cloud" else {"s": 4} if name in ("deck", "bright")
+                 else {"s": 40, "marker": "x" if name == "markers" else "^"})
+        above.scatter(q[:, 0], q[:, 1], color=colour, label=label, linewidths=1.5, **style)
+        side.scatter(q[:, 0], q[:, 2], color=colour, label=label, linewidths=1.5, **style)
+    above.set_aspect("equal", adjustable="datalim")
+    above.set_xlabel("u along the deck [m]")
+    above.set_ylabel("v along the deck [m]")
+    side.set_xlabel("u along the deck [m]")
+    side.set_ylabel("height above the deck [m]")
+    legend(side, fontsize=8)

@@ -40,7 +40,8 @@ def save(fig, path: Path) -> Path:
     """Laid out (legends beside the axes included), written and closed."""
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    if fig.get_layout_engine() is None:  # a figure may have its own (constrained)
+        fig.tight_layout()
+    fig.savefig(path, dpi=DPI, bbox_inches="tight")  # the legends beside the axes kept whole
     plt.close(fig)
     return path

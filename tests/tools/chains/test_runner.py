@@ -257,42 +257,33 @@ def test_a_lidar_outage_is_bridged_by_the_radar_deck_within_a_centimetre(tmp_pat
     assert bridged["updates"] > 150 and not bridged["flagged"]
 
 
-def test_the_picture_frame_is_the_first_lidar_frame_from_the_middle_of_the_run_on():
-    from types import SimpleNamespace
-
-    from boomtip.tools.chains.runner import PictureFrame
-
-    source = SimpleNamespace(meta=SimpleNamespace(t_start_s=10.0), duration_s=20.0)  # the middle: t = 20 s
-    pick = PictureFrame(source)
-    wanted = [pick.wants(s, t) for s, t in [("lidar", 19.9), ("radar", 20.0), ("lidar", 20.1), ("lidar", 20.2)]]
-    assert wanted == [False, False, True, False]
-    for s, t in [("lidar", 19.9), ("radar", 20.05), ("lidar", 20.1), ("lidar", 20.2)]:
-        pick.offer(s, SimpleNamespace(frame=SimpleNamespace(t_s=t)))
-    assert pick.output.frame.t_s == 20.1
-    pick.offer("lidar", None)  # a chain's nothing for a frame changes nothing
-    assert pick.output.frame.t_s == 20.1
-
-
 @pytest.mark.slow
-def test_a_run_on_two_processes_draws_its_detections_from_the_frame_kept_whole(tmp_path, monkeypatch):
+def test_a_run_on_two_processes_draws_the_same_frames_kept_whole_as_on_one(tmp_path, monkeypatch):
+    """The representative frame's cloud comes back from the worker, and the worst frame the
+    worker held is the one a run on one process picks."""
     from boomtip.tools.chains.resources import RunResources
     from boomtip.tools.chains.runner import run_into
     from boomtip.tools.report import detections
 
     drawn = []
     real = detections.write_detections
-    monkeypatch.setattr(detections, "write_detections", lambda out, frame, *a: drawn.append(frame) or real(out, frame, *a))
+    monkeypatch.setattr(detections, "write_detections", lambda out, frames, *a: drawn.append(frames) or real(out, frames, *a))
 
     from boomtip.data.sim.sources import simulation_for
 
-    sim = simulation_for(load_scenario("sts-loaded", ["duration_s=3"]))
-    run_into(sim, tmp_path, resources=RunResources(lean=True, workers=2))
-    assert "![detections](plots/detections.png)" in (tmp_path / "report.md").read_text()
-    (frame,) = drawn
-    assert frame.frame.t_s >= 1.5 and len(frame.frame.points_sensor) > 1000 and frame.deck_lidar.ok  # its cloud came back
+    for workers in (2, 1):
+        sim = simulation_for(load_scenario("sts-loaded", ["duration_s=3"]))
+        (tmp_path / str(workers)).mkdir()
+        run_into(sim, tmp_path / str(workers), resources=RunResources(lean=True, workers=workers))
+    assert "![detections](plots/detections.png)" in (tmp_path / "2" / "report.md").read_text()
+    two, one = drawn
+    (middle, _), (worst, why) = two
+    assert middle.frame.t_s >= 1.5 and len(middle.frame.points_sensor) > 1000 and middle.deck_lidar.ok  # its cloud came back
+    assert len(worst.frame.points_sensor) > 1000 and "of its sigmas" in why
+    assert [(f.frame.t_s, w) for f, w in one] == [(f.frame.t_s, w) for f, w in two]
     import matplotlib.image as mpimg
 
-    assert mpimg.imread(tmp_path / "plots" / "detections.png")[..., :3].std() > 0.05
+    assert mpimg.imread(tmp_path / "2" / "plots" / "detections.png")[..., :3].std() > 0.05
 
 
 def test_a_run_that_fails_closes_what_its_chain_runs_beside_the_frames(tmp_path, monkeypatch):

@@ -14,6 +14,7 @@ from boomtip.data.frames import Frame, FrameSource
 from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.sources import simulation_for
 from boomtip.tools.chains import workers
+from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.chains.runner import run_into
 
@@ -229,7 +230,7 @@ class _Noting(_Counting):
     def __init__(self, n: int) -> None:
         super().__init__(n)
         self.meta = type("Meta", (), {})()
-        self.meta.notes = ["known before the run"]
+        self.meta.notes, self.meta.t_start_s, self.meta.duration_s = ["known before the run"], 0.0, 0.4
 
     def __iter__(self):
         for frame in super().__iter__():
@@ -247,8 +248,11 @@ class _Chain:
     def frames(self, source):
         return iter(source)
 
-    def perceive(self, frame, keep_cloud):
+    def perceive(self, frame):
         return frame.index
+
+    def without_clouds(self, index):
+        return index
 
     def fuse(self, index):
         self.fused.append(index)
@@ -264,9 +268,11 @@ class _Chain:
 @pytest.mark.skipif(not workers.parallel_enabled(), reason="one core, or no fork: nothing runs in parallel")
 def test_what_the_worker_gathered_comes_back_at_the_end_the_sources_notes_and_the_held_frames():
     source, chain = _Noting(8), _Chain()
-    out = list(RunResources(workers=2).processed(chain, source, keep_clouds=lambda f: False))
+    pictures = FramePictures(source, lambda index: (float(index % 5), f"frame {index}"))
+    out = list(RunResources(workers=2).processed(chain, source, pictures, keep_clouds=False))
     assert out == [("lidar", k) for k in range(8)] and chain.fused == list(range(8))
     assert chain.held == ["held back"]
+    assert pictures.worst.why == "frame 4"  # the worst the worker saw (4 and 9 score alike: the first)
     assert source.meta.notes == ["known before the run", "frame 3 was read with a note"]
 
 

@@ -13,7 +13,8 @@ from boomtip.data.sim.sources import simulation_for
 from boomtip.perception.pipeline import Measurement
 from boomtip.tools.chains.runner import build_chain, processing_for
 from boomtip.tools.config.scenario import load_scenario
-from boomtip.tools.report.detections import CLASSES, deck_axes, detections_figure, detections_title, write_detections
+from boomtip.tools.report.classes import by_name
+from boomtip.tools.report.detections import deck_axes, detections_figure, detections_title, write_detections
 
 
 @pytest.fixture(scope="module")
@@ -41,11 +42,11 @@ def test_the_picture_draws_every_class_it_found_and_the_status_of_every_method(l
     res, rows, tip = lidar_frame
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        fig = detections_figure(res, rows, tip)
+        fig = detections_figure([(res, "a representative frame"), (res, "the worst")], rows, tip)
         labels = {t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()}
-        assert {CLASSES[c][1] for c in ("cloud", "deck", "markers", "tip")} <= labels
+        assert {by_name(c).label for c in ("cloud", "deck", "markers", "tip")} <= labels
         assert "ok" in labels
-        path = write_detections(tmp_path, res, rows, tip)
+        path = write_detections(tmp_path, [(res, "a representative frame")], rows, tip)
     import matplotlib.image as mpimg
 
     img = mpimg.imread(path)
@@ -60,6 +61,6 @@ def test_without_a_frame_or_a_deck_the_title_says_so_and_the_picture_is_still_wr
     assert detections_title(no_deck).endswith("no deck found (no plane found)")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert write_detections(tmp_path, None, [], tip).is_file()
+        assert write_detections(tmp_path, [], [], tip).is_file()
         bad = [Measurement(0.1 * k, "deck_lidar", "D", float("nan"), float("nan"), 1.0, "no plane found") for k in range(5)]
-        assert write_detections(tmp_path, no_deck, bad, tip).is_file()
+        assert write_detections(tmp_path, [(no_deck, "the worst")], bad, tip).is_file()
