@@ -29,6 +29,7 @@ run: setup
 	$(BIN)/boomtip run --scenario $(SCENARIO) --out $(OUT) --force --rerun
 
 test: setup
+	bash tools/install_system_deps.sh --test
 	$(BIN)/python -m pytest
 
 test-fast: setup

@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # Debian packages boomtip needs at run time: Open3D's shared libraries, and python3-venv
-# where the system Python lacks ensurepip. Installs only what is missing.
+# where the system Python lacks ensurepip; with --test also Chromium, in which the tests look at
+# rerun's web viewer. Installs only what is missing.
 set -euo pipefail
 need=()
-for pkg in libusb-1.0-0 libgl1 libegl1 libgomp1; do
+pkgs=(libusb-1.0-0 libgl1 libegl1 libgomp1)
+[ "${1:-}" = "--test" ] && pkgs+=(chromium)
+for pkg in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || need+=("$pkg")
 done
 PY="${PYTHON:-python3}"
