@@ -235,6 +235,9 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
         def points(self, path, points, cls, radius_m, labels=None):
             logged.append((path, "points", cls))
 
+        def ellipsoids(self, path, t_s, centers, half_sizes, cls, quaternions_xyzw=None):
+            logged.append((path, "ellipsoids", len(t_s)))
+
         def time(self, t_s):
             pass
 
@@ -251,6 +254,7 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
     assert ("estimates/feeder", "poses", n_10hz) in logged and ("truth/feeder", "poses", n_10hz) in logged
     assert ("estimates/feeder/pose/z", "series", True) in logged and ("truth/feeder/pose/z", "series", False) in logged
     assert ("detections/feeder/model", "points", "feeder_model") in logged  # the registered model, mesh or not
+    assert ("estimates/feeder/origin", "ellipsoids", n_10hz) in logged
     # a real recording has no mesh: the chain's model as points instead
     assert build_chain(sim, processing_for(sim))._visualised_feeder_mesh(None, res) is None
 

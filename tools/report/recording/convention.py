@@ -100,16 +100,19 @@ class Recording:
                              columns=rr.Scalars.columns(scalars=v[ok]))
         self.panels.setdefault(panel, []).append(f"+ /{path}/**" if sigma is not None else f"+ /{path}")
 
-    def ellipsoids(self, path: str, t_s: np.ndarray, centers: np.ndarray, half_sizes: np.ndarray, cls: str) -> None:
-        """One ellipsoid per time (axis-aligned in the tip frame): a position's 3-sigma."""
+    def ellipsoids(self, path: str, t_s: np.ndarray, centers: np.ndarray, half_sizes: np.ndarray, cls: str,
+                   quaternions_xyzw: np.ndarray | None = None) -> None:
+        """One ellipsoid per time: a position's 3-sigma, its axes the tip frame's or rotated by
+        `quaternions_xyzw` (T,4)."""
         rr = self.rr
         ok = np.all(np.isfinite(centers), axis=1) & np.all(np.isfinite(half_sizes), axis=1)
         if not ok.any():
             return
         self.rec.log(path, rr.Ellipsoids3D(half_sizes=[[0.0, 0.0, 0.0]], class_ids=[by_name(cls).id], show_labels=False,
                                            fill_mode=rr.components.FillMode.MajorWireframe), static=True)
+        extra = {} if quaternions_xyzw is None else {"quaternions": quaternions_xyzw[ok]}
         self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t_s[ok])],
-                              columns=rr.Ellipsoids3D.columns(centers=centers[ok], half_sizes=half_sizes[ok]))
+                              columns=rr.Ellipsoids3D.columns(centers=centers[ok], half_sizes=half_sizes[ok], **extra))
 
     def mesh(self, path: str, vertices: np.ndarray, triangles: np.ndarray, cls: str, alpha: int = 255) -> None:
         self.rec.log(path, self.rr.Mesh3D(vertex_positions=vertices.astype(np.float32), triangle_indices=triangles,

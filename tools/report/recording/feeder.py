@@ -38,8 +38,13 @@ def log_feeder(viz, res, truth_pose: np.ndarray | None, rpy_yaw,
         if truth_pose is not None:
             recording.series(panel, f"truth/feeder/pose/{name}", t_s, truth_pose[keep, i] * scale, f"{name} truth",
                              rgb(by_name("truth").colour), width=2.0)
+    yaw = np.array([rpy_yaw(float(t)) for t in t_s])
     Rz = np.array([[[math.cos(y), -math.sin(y), 0.0], [math.sin(y), math.cos(y), 0.0], [0.0, 0.0, 1.0]]
-                   for y in (rpy_yaw(float(t)) for t in t_s)])  # heading frame -> the tip view's axes
+                   for y in yaw])  # heading frame -> the tip view's axes
+    # the feeder frame's origin with its 3-sigma ellipsoid (axes: the heading frame's)
+    q_yaw = np.column_stack([np.zeros((len(yaw), 2)), np.sin(yaw / 2), np.cos(yaw / 2)])
+    recording.ellipsoids("estimates/feeder/origin", t_s, np.einsum("tij,tj->ti", Rz, pose[:, :3]), 3.0 * sd[:, :3],
+                         "estimate", q_yaw)
     if mesh_feeder is not None:
         vertices, triangles = mesh_feeder
         for root, poses, cls, alpha in (("estimates/feeder", pose, "feeder_vessel", 255),

@@ -73,7 +73,7 @@ def test_a_ship_run_draws_both_ships_every_stage_and_the_estimates(tmp_path):
     # the bodies move at WORLD_RATE_HZ over the frames' span; the deck point's ellipsoid at 10 Hz
     assert rows["/world/crane"] == rows["/world/feeder"] == pytest.approx((DURATION_S - 0.1) * WORLD_RATE_HZ, abs=2)
     assert 0 < n_D and "/estimates/fused/deck_point" in static
-    assert rows["/estimates/feeder"] > 0 and rows["/detections/feeder/model"] >= 1
+    assert rows["/estimates/feeder"] > 0 and rows["/detections/feeder/model"] >= 1 and "/estimates/feeder/origin" in static
 
 
 def test_a_radar_only_run_draws_its_deck_planes(tmp_path):
