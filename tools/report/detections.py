@@ -14,7 +14,8 @@ from boomtip.perception.pipeline import FrameResult, Measurement
 from boomtip.tools.report.classes import by_name
 from boomtip.tools.report.plots import legend, plot_path, save
 
-__all__ = ["DETECTIONS_PLOT", "deck_axes", "detections_figure", "detections_title", "write_detections", "status_timeline"]
+__all__ = ["DETECTIONS_PLOT", "deck_axes", "detections_figure", "detections_title", "frames_figure", "write_detections",
+           "status_timeline"]
 
 DETECTIONS_PLOT = "detections"
 MAX_CLOUD_POINTS = 40_000  # the faded cloud is drawn from at most this many returns (evenly picked)
@@ -79,6 +80,14 @@ def detections_title(frame: FrameResult | None) -> str:
 
 def detections_figure(frames: list[tuple[FrameResult, str]], rows: list[Measurement], p_tip_sensor: np.ndarray):
     """The picture as a matplotlib figure: each frame from above and from the side, then the status timeline."""
+    return frames_figure(frames, rows, lambda above, side, frame: _draw_frame(above, side, frame, p_tip_sensor),
+                         detections_title, "What the heave pipeline detected")
+
+
+def frames_figure(frames: list[tuple[object, str]], rows: list, draw, title_of, suptitle: str):
+    """Each pictured frame (a chain's output, why it is pictured) in a row, from above and from the
+    side (`draw(above, side, output)`), titled `title_of(output)`; then every stage's status per
+    frame (`rows`: .t_s, .method, .status, .ok). Without a frame, `title_of(None)` says why."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -87,20 +96,20 @@ def detections_figure(frames: list[tuple[FrameResult, str]], rows: list[Measurem
     n = max(len(frames), 1)
     fig = plt.figure(figsize=(13, 4.5 + 4.5 * n), layout="constrained")
     grid = fig.add_gridspec(n + 1, 2, height_ratios=[1.6] * n + [1])
-    for k, (frame, why) in enumerate(frames or [(None, "")]):
+    for k, (output, why) in enumerate(frames or [(None, "")]):
         above, side = fig.add_subplot(grid[k, 0]), fig.add_subplot(grid[k, 1])
-        _draw_frame(above, side, frame, p_tip_sensor)
-        above.set_title(f"{detections_title(frame)}\n{why}: from above" if why else f"{detections_title(frame)}", loc="left", fontsize=9)
+        draw(above, side, output)
+        above.set_title(f"{title_of(output)}\n{why}: from above" if why else title_of(output), loc="left", fontsize=9)
         side.set_title("from the side", fontsize=9)
     status_timeline(fig.add_subplot(grid[n, :]), rows)
-    fig.suptitle("What the heave pipeline detected" if frames else detections_title(None))
+    fig.suptitle(suptitle if frames else title_of(None))
     return fig
 
 
 def _draw_frame(above, side, frame: FrameResult | None, p_tip_sensor: np.ndarray) -> None:
     deck = frame.deck_lidar if frame is not None else None
     if deck is None or deck.plane_sensor is None:
-        return
+        return  # the title says why
     R, origin = deck_axes(deck.plane_sensor)
     pts = frame.frame.points_sensor
     pts = pts[np.all(np.isfinite(pts), axis=1)]

@@ -12,7 +12,7 @@ import numpy as np
 
 from boomtip.perception.hook_block import block_model
 from boomtip.tools.report.classes import by_name
-from boomtip.tools.report.detections import DETECTIONS_PLOT, status_timeline
+from boomtip.tools.report.detections import DETECTIONS_PLOT, frames_figure
 from boomtip.tools.report.plots import legend, plot_path, save
 
 __all__ = ["FrameStatus", "hook_detections_figure", "hook_frame_title", "write_hook_detections"]
@@ -56,22 +56,8 @@ def write_hook_detections(out: Path, frames: list, rows: list[FrameStatus], bloc
 
 def hook_detections_figure(frames: list, rows: list[FrameStatus], block_height_m: float):
     """`frames`: (the hook chain's frame result with its cloud, why it is pictured)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = max(len(frames), 1)
-    fig = plt.figure(figsize=(13, 4.5 + 4.5 * n), layout="constrained")
-    grid = fig.add_gridspec(n + 1, 2, height_ratios=[1.6] * n + [1])
-    for k, (res, why) in enumerate(frames or [(None, "")]):
-        above, side = fig.add_subplot(grid[k, 0]), fig.add_subplot(grid[k, 1])
-        _draw(above, side, res, block_height_m)
-        above.set_title(f"{hook_frame_title(res)}\n{why}: from above" if why else hook_frame_title(res), loc="left", fontsize=9)
-        side.set_title("from the side", fontsize=9)
-    status_timeline(fig.add_subplot(grid[n, :]), rows)
-    fig.suptitle("What the hook pipeline detected (levelled boom-tip frame)" if frames else hook_frame_title(None))
-    return fig
+    return frames_figure(frames, rows, lambda above, side, res: _draw(above, side, res, block_height_m), hook_frame_title,
+                         "What the hook pipeline detected (levelled boom-tip frame)")
 
 
 def _draw(above, side, res, block_height_m: float) -> None:
