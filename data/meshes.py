@@ -23,6 +23,8 @@ class Label(IntEnum):
     REFLECTOR = 13
     FALSE_BRIGHT = 14  # bright patch that is not a deck marker
     SPRAY = 15  # a weak return from spray in the air
+    PRECIPITATION = 16  # a return from rain, snow or fog near the sensor (backscatter)
+    MULTIPATH = 17  # a radar ghost: a surface's echo by way of the sea, seen mirrored below it
     CARGO = 20
     HOOK = 30
     ROPE = 31

@@ -235,6 +235,8 @@ def lidar_measure(
         r = np.where(hit, r_spray.astype(r.dtype), r)  # (the returns' own dtype, spray or not)
         intensity = np.where(hit, spray.reflectivity, intensity)  # (a droplet is no retro-reflector)
         label = np.where(hit, int(Label.SPRAY), label)
+    if cfg.backscatter_probability > 0:
+        idx, r, intensity, label, cos_inc = backscatter(cfg, r_all, hi, idx, r, intensity, label, cos_inc, rng)
     # Retro-reflectors send light back towards the source in a narrow lobe around normal
     # incidence. Only the few retro hits need the transcendental functions.
     retro_i = np.signbit(intensity).nonzero()[0]
@@ -280,6 +282,55 @@ def lidar_measure(
     return points, {"intensity": intensity.astype(np.float32, copy=False), "t": t_offset, "label": label}
 
 
+def backscatter(cfg: Lidar, r_all: np.ndarray, max_range_m: float, idx: np.ndarray, r: np.ndarray,
+                intensity: np.ndarray, label: np.ndarray, cos_inc: np.ndarray, rng: np.random.Generator):
+    """Rain, snow or fog: a ray, any ray (one that met nothing too), returns from a drop near the
+    sensor with `backscatter_probability`, at min_range_m plus an exponential distance, if that
+    comes before its surface. The returns kept (`idx`, sorted) gain the rays that met nothing;
+    those that had a surface lose it to the drop."""
+    drops = np.flatnonzero(random_words32(rng, len(r_all)) < word_threshold(cfg.backscatter_probability))
+    r_drop = cfg.min_range_m + rng.exponential(cfg.backscatter_scale_m, len(drops))
+    first = (r_drop < np.minimum(r_all.take(drops), max_range_m))
+    drops, r_drop = drops[first], r_drop[first].astype(r.dtype)
+    at = np.searchsorted(idx, drops)
+    had = at < len(idx)
+    had[had] = idx[at[had]] == drops[had]  # the ray had a surface in range: the drop replaces it
+    r[at[had]], intensity[at[had]], label[at[had]] = r_drop[had], cfg.backscatter_reflectivity, int(Label.PRECIPITATION)
+    new = ~had
+    idx = np.concatenate([idx, drops[new]])
+    order = np.argsort(idx, kind="stable")  # the returns in ray order, as without drops
+    n_new = len(idx) - len(r)
+    return (idx.take(order), np.concatenate([r, r_drop[new]]).take(order),
+            _appended(intensity, n_new, cfg.backscatter_reflectivity, order),
+            _appended(label, n_new, int(Label.PRECIPITATION), order), _appended(cos_inc, n_new, 1.0, order))
+
+
+def _appended(values: np.ndarray, n: int, value, order: np.ndarray) -> np.ndarray:
+    """`values` and n copies of `value`, in `order`."""
+    return np.concatenate([values, np.full(n, value, dtype=values.dtype)]).take(order)
+
+
+def multipath_ghosts(cfg: Radar, p_world: np.ndarray, v_world: np.ndarray, echoes: np.ndarray, origin_world: np.ndarray,
+                     v_sensor: np.ndarray, R_world_sensor: np.ndarray, rng: np.random.Generator):
+    """Radar echoes by way of the sea (the plane z = 0): of the surface points above it
+    (`echoes`: a mask over the beams' hits, world points and velocities), each with
+    `multipath_probability`, a ghost at its mirror image below the waterline, moving as the
+    image does (its vertical velocity reversed), where that image is in the field of view and
+    range. Returns (directions in the sensor frame, ranges, range rates)."""
+    cand = np.flatnonzero(echoes & (p_world[:, 2] > 0))
+    cand = cand[rng.random(len(cand)) < cfg.multipath_probability]
+    mirror = np.array([1.0, 1.0, -1.0])
+    to_image = p_world[cand] * mirror - origin_world
+    r = np.linalg.norm(to_image, axis=1)
+    u_world = to_image / np.maximum(r, 1e-9)[:, None]
+    rate = np.einsum("ij,ij->i", u_world, v_world[cand] * mirror - v_sensor)
+    u_sensor = u_world @ R_world_sensor  # R^T u, row by row
+    az, el = np.arctan2(u_sensor[:, 1], u_sensor[:, 0]), np.arcsin(np.clip(u_sensor[:, 2], -1, 1))
+    seen = ((np.abs(az) <= math.radians(cfg.fov_az_deg) / 2) & (np.abs(el) <= math.radians(cfg.fov_el_deg) / 2)
+            & (r >= cfg.min_range_m) & (r <= cfg.max_range_m))
+    return u_sensor[seen], r[seen], rate[seen]
+
+
 def radar_measure(
     cfg: Radar,
     hits: Hits,
@@ -289,9 +340,11 @@ def radar_measure(
     sea_body: int | None,
     sea_probability: float,
     rng: np.random.Generator,
+    ghosts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Turn radar beam hits into detections: x y z (sensor frame), range, azimuth, elevation,
-    range_rate (d range / dt, positive when the range grows) and label."""
+    range_rate (d range / dt, positive when the range grows) and label. `ghosts`: multipath
+    echoes (directions in the sensor frame, ranges, true range rates), measured alike."""
     keep = hits.hit & (hits.range_m >= cfg.min_range_m) & (hits.range_m <= cfg.max_range_m)
     f_all = np.zeros(len(keep), dtype=np.int64)
     f_all[keep] = faces.flat(hits, keep)
@@ -300,13 +353,16 @@ def radar_measure(
         p_det = np.where(hits.body == sea_body, sea_probability, p_det)
     keep &= rng.random(len(keep)) < p_det
     idx = np.flatnonzero(keep)
-    n = len(idx)
-    d = pattern.dirs_sensor[idx]
-    rng_m = hits.range_m[idx] + cfg.range_noise_m * rng.standard_normal(n)
+    d, r_true, rr_true = pattern.dirs_sensor[idx], hits.range_m[idx], range_rate_true_mps[idx]
+    label = faces.label[f_all[idx]]
+    if ghosts is not None and len(ghosts[1]):
+        d, r_true, rr_true = (np.concatenate([a, g]) for a, g in zip((d, r_true, rr_true), ghosts))
+        label = np.concatenate([label, np.full(len(ghosts[1]), int(Label.MULTIPATH), dtype=label.dtype)])
+    n = len(d)
+    rng_m = r_true + cfg.range_noise_m * rng.standard_normal(n)
     az = np.arctan2(d[:, 1], d[:, 0]) + np.deg2rad(cfg.azimuth_noise_deg) * rng.standard_normal(n)
     el = np.arcsin(np.clip(d[:, 2], -1, 1)) + np.deg2rad(cfg.elevation_noise_deg) * rng.standard_normal(n)
-    rr = range_rate_true_mps[idx] + cfg.range_rate_noise_mps * rng.standard_normal(n)
-    label = faces.label[f_all[idx]]
+    rr = rr_true + cfg.range_rate_noise_mps * rng.standard_normal(n)
     # False alarms: uniform in the field of view, range and range rate.
     n_fa = rng.poisson(cfg.false_alarms_per_scan) if cfg.false_alarms_per_scan > 0 else 0
     if n_fa:

@@ -17,7 +17,7 @@ from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
 from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
-from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, radar_measure, radar_pattern
+from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, multipath_ghosts, radar_measure, radar_pattern
 from boomtip.data.sim.truth import relative_heave, tip_states
 
 SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3, "feeder_mru": 4}
@@ -326,27 +326,30 @@ class Simulation(FrameSource):
         origins_w = np.broadcast_to(p_ws[0], dirs_w.shape)
         Rs, ps = w.poses(states, 1)
         hits = w.caster.cast(origins_w, dirs_w, Rs, ps)
-        range_rate = self._range_rate(hits, dirs_w, origins_w, states)
+        p_hit, v_hit, v_sensor = self._hit_motion(hits, dirs_w, origins_w, states)
+        range_rate = np.einsum("ij,ij->i", dirs_w, v_hit - v_sensor)
+        rng, ghosts = self._rng("radar", index), None
+        if cfg.multipath_probability > 0:
+            echoes = hits.hit & (hits.body != (-1 if w.sea_index is None else w.sea_index)) & (hits.range_m <= cfg.max_range_m)
+            ghosts = multipath_ghosts(cfg, p_hit, v_hit, echoes, origins_w[0], v_sensor, R_ws[0], rng)
         points, fields = radar_measure(
-            cfg, hits, pat, range_rate, w.faces, w.sea_index, self.scenario.world.sea.clutter_probability, self._rng("radar", index)
+            cfg, hits, pat, range_rate, w.faces, w.sea_index, self.scenario.world.sea.clutter_probability, rng, ghosts
         )
         return Frame("radar", index, t_s, points, fields)
 
-    def _range_rate(self, hits, dirs_w, origins_w, states) -> np.ndarray:
-        """d(range)/dt of each hit: the beam projection of the hit point's velocity relative
-        to the sensor, with both ships' translation and rotation."""
+    def _hit_motion(self, hits, dirs_w, origins_w, states) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The hit points (world), their velocities (the sensor's where a beam met nothing: no
+        range rate) and the sensor's, with both ships' translation and rotation."""
         crane = states[0]
         v_sensor = crane.point_velocity(origins_w[:1], 0)[0]
-        rr = np.zeros(len(dirs_w))
         ok = hits.hit
         p_hit = origins_w + dirs_w * np.where(ok, hits.range_m, 0.0)[:, None]
+        v_hit = np.broadcast_to(v_sensor, dirs_w.shape).copy()
         for b, st in enumerate(states):
             m = ok & (hits.body == b)
-            if not m.any():
-                continue
-            v_hit = np.zeros((m.sum(), 3)) if st is None else st.point_velocity(p_hit[m], 0)
-            rr[m] = np.einsum("ij,ij->i", dirs_w[m], v_hit - v_sensor)
-        return rr
+            if m.any():
+                v_hit[m] = 0.0 if st is None else st.point_velocity(p_hit[m], 0)
+        return p_hit, v_hit, v_sensor
 
     # -- MRU and truth -------------------------------------------------------------------
     def _mru_log(self) -> MruLog:

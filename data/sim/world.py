@@ -161,6 +161,10 @@ class Sea(StrictModel):
 class RadarBehaviour(_Outages):
     """How the radar really behaves beyond its spec sheet."""
 
+    multipath_probability: float = Field(0.0, ge=0, le=1, description="chance that a detection above the sea also "
+                                         "comes back by way of the sea: a ghost at its mirror image below the "
+                                         "waterline, with the mirror image's range rate")
+
 
 class MruBehaviour(_Outages):
     """How the MRU really behaves beyond its spec sheet (bias and lag: `mismatch`), and its
@@ -188,6 +192,12 @@ class LidarBehaviour(_Outages):
     retro_gain: float = Field(25.0, gt=0, description="retro-reflector peak gain over a white diffuse target")
     retro_lobe_deg: float = Field(25.0, gt=0, le=90)
     extinction_per_km: float = Field(0.0, ge=0, le=100, description="rain or fog: two-way attenuation exp(-2 alpha r)")
+    backscatter_probability: float = Field(0.0, ge=0, le=1, description="rain, snow or fog: chance that a ray returns "
+                                           "from a drop near the sensor first, whether or not it meets a surface")
+    backscatter_scale_m: float = Field(3.0, gt=0, le=100, description="such returns' distance beyond min_range_m: "
+                                       "exponential with this mean (the nearest drops return the most light)")
+    backscatter_reflectivity: float = Field(0.002, ge=0, le=1, description="a drop's return against a white target's at "
+                                            "the same range")
     detection_threshold: float = Field(0.002, ge=0, description="weaker returns (after attenuation) are not detected")
     motion_during_sweep: bool = Field(False, description="move the scene while the frame is scanned")
 
@@ -284,8 +294,8 @@ class Lidar(LidarSpec, LidarBehaviour):
     tip is `true_T_boomtip_sensor`)."""
 
 
-class Radar(RadarSpec):
-    """The true radar the simulator casts."""
+class Radar(RadarSpec, RadarBehaviour):
+    """The true radar the simulator casts: spec sheet + behaviour."""
 
 
 def true_lidar(spec: LidarSpec, world: World) -> Lidar:
@@ -296,10 +306,11 @@ def true_lidar(spec: LidarSpec, world: World) -> Lidar:
 
 
 def true_radar(spec: RadarSpec, world: World) -> Radar:
-    """The radar as it really is: its spec with every noise as the world scales it."""
+    """The radar as it really is: its spec, the world's behaviour, every noise as the world scales it."""
     k = world.mismatch.radar_noise_scale
     noises = ("range_noise_m", "azimuth_noise_deg", "elevation_noise_deg", "range_rate_noise_mps")
-    return Radar.model_validate(spec.model_dump()).model_copy(update={n: getattr(spec, n) * k for n in noises})
+    real = Radar.model_validate({**spec.model_dump(), **world.radar.model_dump()})
+    return real.model_copy(update={n: getattr(spec, n) * k for n in noises})
 
 
 def in_windows(t_s: np.ndarray, windows: Windows) -> np.ndarray:

@@ -1,0 +1,51 @@
+"""The world's rain and sea echoes: LiDAR returns from drops near the sensor (any ray, surface or
+not), and radar ghosts mirrored below the waterline with the mirror image's range rate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from boomtip.data.meshes import Label
+from boomtip.data.sim.simulator import Simulation
+from boomtip.tools.config.scenario import load_scenario
+
+
+def lidar(*keys: str):
+    return Simulation(load_scenario("sts-loaded", ["duration_s=0.2", *keys])).lidar_frame(1, 0.1)
+
+
+def test_drops_return_near_the_sensor_from_rays_with_a_surface_and_without():
+    clear, rain = lidar(), lidar("lidar.backscatter_probability=0.05", "lidar.backscatter_scale_m=2")
+    drops = rain.fields["label"] == int(Label.PRECIPITATION)
+    rays = len(Simulation(load_scenario("sts-loaded", ["duration_s=0.2"])).lidar_pattern.dirs_sensor)
+    assert drops.sum() == pytest.approx(0.05 * rays, rel=0.25)  # 5 % of every ray, not only of those with a surface
+    surface = len(rain) - drops.sum()
+    assert surface < len(clear) < len(rain)  # drops hide some surfaces and add points where rays met nothing
+    r = np.linalg.norm(rain.points_sensor[drops], axis=1)
+    assert r.min() >= 0.5 - 1e-6 and np.mean(r) == pytest.approx(0.5 + 2.0, rel=0.2)  # min range + exponential, mean 2 m
+    # a drop returns backscatter_reflectivity of a white target's light at its range (the measured
+    # range is noisy, a few cm on these weak returns: the ratio is 1 in the median)
+    ratio = rain.fields["intensity"][drops] / (0.002 * (50.0 / r) ** 2)
+    assert np.median(ratio) == pytest.approx(1.0, abs=0.03)
+
+
+def test_without_drops_the_frame_is_the_same():
+    a, b = lidar(), lidar("lidar.backscatter_scale_m=9")
+    np.testing.assert_array_equal(a.points_sensor, b.points_sensor)
+
+
+def test_radar_ghosts_lie_below_the_waterline_and_move_as_the_mirror_image():
+    sim = Simulation(load_scenario("sts-loaded", ["duration_s=0.5", "radar.multipath_probability=0.5"]))
+    f = sim.radar_frame(4, 0.2)
+    ghost = f.fields["label"] == int(Label.MULTIPATH)
+    assert ghost.sum() > 20 and (~ghost).sum() > 100
+    st = sim.world.crane_motion.states(np.array([0.2]))
+    R_ws, p_ws = sim.world.sensor_pose(st, "radar")
+    z_world = (f.points_sensor @ R_ws[0].T + p_ws[0])[:, 2]
+    assert np.all(z_world[ghost] < 0.5) and np.median(z_world[~ghost]) > 0  # below the sea (range noise aside)
+    # the deck heaves: its mirror image moves the other way, and the Doppler says so
+    deck = np.isin(f.fields["label"], [int(Label.FEEDER_DECK)])
+    assert np.sign(np.median(f.fields["range_rate"][ghost])) != np.sign(np.median(f.fields["range_rate"][deck]))
+    clean = Simulation(load_scenario("sts-loaded", ["duration_s=0.5"])).radar_frame(4, 0.2)
+    assert not np.any(clean.fields["label"] == int(Label.MULTIPATH))
