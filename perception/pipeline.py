@@ -261,7 +261,12 @@ class HeavePipeline:
                 results["deck_lidar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "lidar", R_ls)
         else:
             if "deck_radar" in wanted:
-                out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck")
+                # the latest deck of either sensor as the prior: the sea's echoes make a plane below the deck
+                # (its mirror image), and without a prior the lowest plane would be taken for it
+                decks = [d for d in (self.last_deck.get("lidar"), self.last_deck.get("radar")) if d is not None]
+                prior, tol = carried_deck_prior(self.cfg, frame.t_s, max(decks, key=lambda d: d[0]) if decks else None)
+                out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck",
+                                                    prior_D_m=prior, prior_tol_m=tol)
                 results["deck_radar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "radar", R_ls)
             if {"doppler_radar", "doppler_radar_rot"} & set(wanted):
                 results.update(self._doppler(frame, wanted, R_rows, rpy, rpy_rate, rng, times, out))
@@ -291,7 +296,8 @@ class HeavePipeline:
             out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_lidar, rng, times, "deck",
                                                 prior_D_m=prior, prior_tol_m=tol)
         else:
-            out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_radar, rng, times, "radar_deck")
+            out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_radar, rng, times, "radar_deck",
+                                                prior_D_m=prior, prior_tol_m=tol)
             inputs = doppler_inputs(frame, cfg.doppler_preprocess)
             if inputs is not None and len(inputs[0]) >= 3:
                 wraps = self.unambiguous_mps > 0
