@@ -7,9 +7,11 @@ through this protocol:
     result = chain.finish(); chain.outputs(out, result); chain.kpis(result, truth, windows)
     chain.report(out, kpis, result, truth); chain.visualise_result(viz, result, truth)
 
-A chain may also split `process` into `perceive(frame, keep_cloud)` (per-frame perception that
-may run ahead in another process) and `fuse(perceived)` (in order, here), and draw one frame's
-detections at the end with `picture(out, output, result)`.
+A chain may also split `process` into `perceive(frame)` (per-frame perception that may run
+ahead in another process; `without_clouds(perceived)` what crosses back when no cloud is
+wanted) and `fuse(perceived)` (in order, here); score how bad a frame's detection is with
+`frame_score(output, truth)`; and draw the pictured frames' detections at the end with
+`picture(out, pictures, result)` (tools/chains/pictures.py).
 """
 
 from __future__ import annotations
