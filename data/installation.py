@@ -92,6 +92,9 @@ class LidarSpec(StrictModel):
     max_range_m: float = Field(300.0, gt=0)
     range_noise_m: float = Field(0.0, ge=0, le=10, description="specified 1-sigma range noise, strong return")
     range_resolution_m: float = Field(0.0, ge=0, le=10, description="range quantisation step, 0 = off")
+    returns: Literal["strongest", "last", "first", "dual"] = Field(
+        "strongest", description="the return mode the sensor is configured with, where a ray meets more than one "
+        "target (a drop in the air, then a surface): the strongest, the last or the first return, or both (dual)")
     mount: Mount = Mount()
 
     @model_validator(mode="after")

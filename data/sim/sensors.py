@@ -286,17 +286,26 @@ def backscatter(cfg: Lidar, r_all: np.ndarray, max_range_m: float, idx: np.ndarr
                 intensity: np.ndarray, label: np.ndarray, cos_inc: np.ndarray, rng: np.random.Generator):
     """Rain, snow or fog: a ray, any ray (one that met nothing too), returns from a drop near the
     sensor with `backscatter_probability`, at min_range_m plus an exponential distance, if that
-    comes before its surface. The returns kept (`idx`, sorted) gain the rays that met nothing;
-    those that had a surface lose it to the drop."""
+    comes before its surface. A ray that met nothing reports the drop; one with a surface reports
+    what the sensor's return mode (`returns`) keeps of the two: the first (the drop), the last
+    (the surface), the stronger at the sensor, or both (dual: the drop as a point of its own).
+    Returns the returns kept, `idx` (the rays, in order) and their values."""
     drops = np.flatnonzero(random_words32(rng, len(r_all)) < word_threshold(cfg.backscatter_probability))
     r_drop = cfg.min_range_m + rng.exponential(cfg.backscatter_scale_m, len(drops))
-    first = (r_drop < np.minimum(r_all.take(drops), max_range_m))
+    first = r_drop < np.minimum(r_all.take(drops), max_range_m)
     drops, r_drop = drops[first], r_drop[first].astype(r.dtype)
     at = np.searchsorted(idx, drops)
     had = at < len(idx)
-    had[had] = idx[at[had]] == drops[had]  # the ray had a surface in range: the drop replaces it
-    r[at[had]], intensity[at[had]], label[at[had]] = r_drop[had], cfg.backscatter_reflectivity, int(Label.PRECIPITATION)
-    new = ~had
+    had[had] = idx[at[had]] == drops[had]  # the ray had a surface in range
+    if cfg.returns in ("first", "strongest"):
+        replace = had.copy()
+        if cfg.returns == "strongest":  # at the sensor: reflectivity over range squared (a retro-reflector: stronger)
+            surface = intensity[at[had]]
+            replace[had] = (~np.signbit(surface)) & (cfg.backscatter_reflectivity / r_drop[had] ** 2
+                                                   > surface / r[at[had]].astype(float) ** 2)
+        i = at[replace]
+        r[i], intensity[i], label[i] = r_drop[replace], cfg.backscatter_reflectivity, int(Label.PRECIPITATION)
+    new = ~had if cfg.returns != "dual" else np.ones(len(drops), bool)  # dual: every drop a point of its own
     idx = np.concatenate([idx, drops[new]])
     order = np.argsort(idx, kind="stable")  # the returns in ray order, as without drops
     n_new = len(idx) - len(r)

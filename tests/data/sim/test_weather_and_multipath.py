@@ -15,8 +15,11 @@ def lidar(*keys: str):
     return Simulation(load_scenario("sts-loaded", ["duration_s=0.2", *keys])).lidar_frame(1, 0.1)
 
 
+RAIN = ("lidar.backscatter_probability=0.05", "lidar.backscatter_scale_m=2")
+
+
 def test_drops_return_near_the_sensor_from_rays_with_a_surface_and_without():
-    clear, rain = lidar(), lidar("lidar.backscatter_probability=0.05", "lidar.backscatter_scale_m=2")
+    clear, rain = lidar(), lidar(*RAIN, "installation.lidar.returns=first")
     drops = rain.fields["label"] == int(Label.PRECIPITATION)
     rays = len(Simulation(load_scenario("sts-loaded", ["duration_s=0.2"])).lidar_pattern.dirs_sensor)
     assert drops.sum() == pytest.approx(0.05 * rays, rel=0.25)  # 5 % of every ray, not only of those with a surface
@@ -28,6 +31,20 @@ def test_drops_return_near_the_sensor_from_rays_with_a_surface_and_without():
     # range is noisy, a few cm on these weak returns: the ratio is 1 in the median)
     ratio = rain.fields["intensity"][drops] / (0.002 * (50.0 / r) ** 2)
     assert np.median(ratio) == pytest.approx(1.0, abs=0.03)
+
+
+def test_the_return_mode_keeps_the_drop_the_surface_the_stronger_or_both():
+    clear = len(lidar())
+    n = {}
+    for mode in ("first", "last", "strongest", "dual"):
+        f = lidar(*RAIN, f"installation.lidar.returns={mode}")
+        drops = int(np.count_nonzero(f.fields["label"] == int(Label.PRECIPITATION)))
+        n[mode] = (drops, len(f) - drops)  # (drops, surfaces)
+    # last: every surface stays, drops only where a ray met nothing; dual: every surface and every drop
+    assert n["last"][1] == n["dual"][1] == clear and n["dual"][0] == n["first"][0]
+    assert n["first"][0] + n["first"][1] == n["last"][0] + n["last"][1]  # a point per ray that returned
+    # strongest: the drops nearer than a surface's strength allows, between first and last
+    assert n["last"][0] < n["strongest"][0] < n["first"][0] and n["strongest"][1] + n["strongest"][0] == n["first"][1] + n["first"][0]
 
 
 def test_without_drops_the_frame_is_the_same():
