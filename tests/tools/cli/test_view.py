@@ -4,7 +4,6 @@ without a display says so in one line."""
 from __future__ import annotations
 
 import signal
-import subprocess
 import sys
 import time
 import urllib.error
@@ -14,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from boomtip.tools.cli import app
-from boomtip.tools.cli.view import URL_LINE, has_display
+from boomtip.tools.cli.view import has_display
 
 
 def _recording(folder):
@@ -46,23 +45,14 @@ def test_spawn_without_a_display_says_so_in_one_line_and_points_to_web(tmp_path,
     assert len(lines) == 1 and "no display here" in lines[0] and "--web" in lines[0]
 
 
-def test_web_serves_the_viewer_page_and_stops_on_sigterm(tmp_path):
-    out = _recording(tmp_path / "run with spaces é")
-    cmd = [sys.executable, "-c", "from boomtip.tools.cli import main; main()", "view", str(out), "--web", "--port", "0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()
-        url = URL_LINE.search("connect at " + line.split(": ", 1)[-1])
-        assert url, f"no URL in {line!r}"
-        page = url.group(1).split("?")[0]
-        with urllib.request.urlopen(page, timeout=10) as resp:
-            assert resp.status == 200
-            assert "rerun" in resp.read().decode("utf-8", "replace").lower()
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=15) == 130
-        time.sleep(0.5)
-        with pytest.raises(urllib.error.URLError):  # the server went with it
-            urllib.request.urlopen(page, timeout=2)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+def test_web_serves_the_viewer_page_and_stops_on_sigterm(tmp_path, web_viewer):
+    proc, url = web_viewer(_recording(tmp_path / "run with spaces é"))
+    page = url.split("?")[0]
+    with urllib.request.urlopen(page, timeout=10) as resp:
+        assert resp.status == 200
+        assert "rerun" in resp.read().decode("utf-8", "replace").lower()
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=15) == 130
+    time.sleep(0.5)
+    with pytest.raises(urllib.error.URLError):  # the server went with it
+        urllib.request.urlopen(page, timeout=2)

@@ -7,9 +7,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -18,7 +15,6 @@ import pytest
 from typer.testing import CliRunner
 
 from boomtip.tools.cli import app
-from boomtip.tools.cli.view import URL_LINE
 from boomtip.tools.report.classes import by_name, rgb
 from boomtip.tools.report.heave import COLORS
 
@@ -51,21 +47,12 @@ def drawn(png: Path) -> tuple[float, float]:
     return (_share_near(left, rgb(by_name("crane_vessel").colour), 30), _share_near(right, rgb(COLORS["fused"]), 40))
 
 
-@pytest.fixture(scope="module")
-def served_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("browser") / "run é"
+@pytest.fixture
+def served_run(tmp_path, web_viewer) -> str:
+    out = tmp_path / "run é"
     res = CliRunner().invoke(app, ["run", "-s", "sts-loaded", "--duration", "4", "--rerun", "--workers", "1", "-o", str(out)])
     assert res.exit_code == 0, res.output
-    cmd = [sys.executable, "-c", "from boomtip.tools.cli import main; main()", "view", str(out), "--web", "--port", "0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()
-        url = URL_LINE.search("connect at " + line.split(": ", 1)[-1])
-        assert url, f"no URL in {line!r}"
-        yield url.group(1)
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=30)
+    return web_viewer(out)[1]
 
 
 def test_the_viewer_draws_the_3d_view_and_the_series_in_headless_chromium(served_run, tmp_path):
