@@ -290,7 +290,8 @@ class HeavePipeline:
         rng = self.frame_rng(frame)
         out = FrameResult(frame, [], times)
         cfg = self.cfg
-        decks = [d for d in (last_deck.get(frame.sensor), self.last_deck.get(frame.sensor)) if d is not None]
+        sensors = ("lidar", "radar") if frame.sensor == "radar" else ("lidar",)  # the radar's, as in process
+        decks = [d for s in sensors for d in (last_deck.get(s), self.last_deck.get(s)) if d is not None]
         prior, tol = carried_deck_prior(cfg, frame.t_s, max(decks, key=lambda d: d[0]) if decks else None)  # the latest
         if frame.sensor == "lidar":
             out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_lidar, rng, times, "deck",

@@ -291,12 +291,14 @@ def backscatter(cfg: Lidar, r_all: np.ndarray, max_range_m: float, idx: np.ndarr
     (the surface), the stronger at the sensor, or both (dual: the drop as a point of its own).
     Returns the returns kept, `idx` (the rays, in order) and their values."""
     drops = np.flatnonzero(random_words32(rng, len(r_all)) < word_threshold(cfg.backscatter_probability))
-    r_drop = cfg.min_range_m + rng.exponential(cfg.backscatter_scale_m, len(drops))
-    first = r_drop < np.minimum(r_all.take(drops), max_range_m)
-    drops, r_drop = drops[first], r_drop[first].astype(r.dtype)
+    r_drop = (cfg.min_range_m + rng.exponential(cfg.backscatter_scale_m, len(drops))).astype(r.dtype)
     at = np.searchsorted(idx, drops)
     had = at < len(idx)
-    had[had] = idx[at[had]] == drops[had]  # the ray had a surface in range
+    had[had] = idx[at[had]] == drops[had]  # the ray had a return in range (a surface, or spray)
+    kept_r = np.full(len(drops), max_range_m)
+    kept_r[had] = r[at[had]]
+    first = r_drop < kept_r  # the drop comes before it (or before the range's end)
+    drops, r_drop, at, had = drops[first], r_drop[first], at[first], had[first]
     if cfg.returns in ("first", "strongest"):
         replace = had.copy()
         if cfg.returns == "strongest":  # at the sensor: reflectivity over range squared (a retro-reflector: stronger)

@@ -161,9 +161,10 @@ class Sea(StrictModel):
 class RadarBehaviour(_Outages):
     """How the radar really behaves beyond its spec sheet."""
 
-    multipath_probability: float = Field(0.0, ge=0, le=1, description="chance that a detection above the sea also "
-                                         "comes back by way of the sea: a ghost at its mirror image below the "
-                                         "waterline, with the mirror image's range rate")
+    multipath_probability: float = Field(0.0, ge=0, le=1, description="chance that a beam's hit above the sea (whether "
+                                         "or not its direct echo is detected) also comes back by way of the sea: a "
+                                         "ghost at its mirror image below the waterline, with the image's range rate, "
+                                         "detected where that image is in the field of view and range")
 
 
 class MruBehaviour(_Outages):

@@ -106,7 +106,7 @@ class HeaveChain:
         """How bad a LiDAR frame's deck measurement is, for the pictures' worst frame (None: not
         a candidate): with truth, its D error in its stated sigmas; without, a failed deck stage
         (the first of them wins) or else its stated sigma."""
-        if res.frame.sensor != "lidar":
+        if res.frame.sensor != "lidar" or res.deck_lidar is None:  # the deck stage ran (no attitude, an empty frame: not)
             return None
         row = next((r for r in res.measurements if r.method == "deck_lidar"), None)
         if row is None:

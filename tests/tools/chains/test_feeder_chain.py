@@ -249,9 +249,9 @@ def test_the_recording_shows_the_feeder_mesh_at_the_estimate_and_the_truth(short
 
     truth_pose = truth_of(res, sim.truth, chain.p_tip_crane_m)[0]
     log_feeder(Viz(), res, truth_pose, lambda t: 0.0, mesh_feeder=(vertices, triangles))
-    assert ("estimates/feeder/mesh", "mesh", "feeder_vessel") in logged and ("truth/feeder/mesh", "mesh", "truth") in logged
+    assert ("estimates/feeder/body/mesh", "mesh", "feeder_vessel") in logged and ("truth/feeder/body/mesh", "mesh", "truth") in logged
     n_10hz = len(np.unique(np.floor(res.t_s * 10.0)))  # the poses at 10 Hz
-    assert ("estimates/feeder", "poses", n_10hz) in logged and ("truth/feeder", "poses", n_10hz) in logged
+    assert ("estimates/feeder/body", "poses", n_10hz) in logged and ("truth/feeder/body", "poses", n_10hz) in logged
     assert ("estimates/feeder/pose/z", "series", True) in logged and ("truth/feeder/pose/z", "series", False) in logged
     assert ("detections/feeder/model", "points", "feeder_model") in logged  # the registered model, mesh or not
     assert ("estimates/feeder/origin", "ellipsoids", n_10hz) in logged

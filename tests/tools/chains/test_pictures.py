@@ -50,3 +50,30 @@ def test_the_pictures_frames_are_the_middle_and_the_worst_unless_they_are_one():
     converted = FramePictures(SOURCE)
     converted.adopt(Picked(SimpleNamespace(inner=output(25.0), t_s=25.0), "held by a worker"))
     assert converted.frames(lambda o: o.inner)[0].output.frame.t_s == 25.0
+
+
+def test_without_truth_the_worst_heave_frame_is_a_failed_deck_stage_not_a_frame_it_never_saw():
+    import numpy as np
+
+    from boomtip.data.frames import Frame
+    from boomtip.data.sim.sources import simulation_for
+    from boomtip.perception.deck import DeckResult
+    from boomtip.perception.pipeline import FrameResult, Measurement
+    from boomtip.perception.timing import StageTimes
+    from boomtip.tools.chains.runner import build_chain, processing_for
+    from boomtip.tools.config.scenario import load_scenario
+
+    sim = simulation_for(load_scenario("sts-loaded", ["duration_s=0.2"]))
+    chain = build_chain(sim, processing_for(sim)).heave
+    frame = Frame("lidar", 0, 0.0, np.zeros((5, 3)))
+
+    def result(status: str, deck: DeckResult | None) -> FrameResult:
+        value = 30.0 if status == "ok" else float("nan")
+        return FrameResult(frame, [Measurement(0.0, "deck_lidar", "D", value, 0.002, 1.0, status)], StageTimes(), deck_lidar=deck)
+
+    no_attitude = result("no MRU attitude at t=0.000 s (outside the log or in a gap)", None)
+    no_plane = result("no deck plane", DeckResult(float("nan"), None, None, np.zeros((5, 3)), "no deck plane"))
+    found = result("ok", DeckResult(30.0, np.array([0.0, 0.0, 1.0, 30.0]), None, np.zeros((5, 3)), "ok", 0.002))
+    assert chain.frame_score(no_attitude, None) is None  # the deck stage never saw it
+    assert chain.frame_score(no_plane, None)[0] == math.inf and "no deck plane" in chain.frame_score(no_plane, None)[1]
+    assert chain.frame_score(found, None)[0] == 0.002  # else the least certain: its stated sigma

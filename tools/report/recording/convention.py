@@ -22,12 +22,12 @@ import numpy as np
 
 from boomtip.tools.report.classes import CLASSES, by_name, rgb
 
-__all__ = ["BAND_ALPHA", "ROOTS", "TIMELINE", "Recording", "colormap"]
+__all__ = ["BAND_ALPHA", "BAND_SIGMAS", "ROOTS", "TIMELINE", "Recording", "colormap"]
 
 TIMELINE = "sensor_time"
 ROOTS = ("world", "sensors", "detections", "estimates", "truth")
 BAND_ALPHA = 90  # the 3-sigma band's lines: the series' colour, faded
-BAND_SIGMAS = 3.0
+BAND_SIGMAS = 3.0  # the bands' and the ellipsoids' half width, in sigmas
 
 
 def colormap(values: np.ndarray, lo: float, hi: float, name: str) -> np.ndarray:

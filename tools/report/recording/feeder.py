@@ -10,6 +10,7 @@ import numpy as np
 
 from boomtip.data.poses import inverse, pose_matrix, transform
 from boomtip.tools.report.classes import by_name, rgb
+from boomtip.tools.report.recording.convention import BAND_SIGMAS
 from boomtip.tools.report.feeder_truth import POSE
 
 __all__ = ["FEEDER_SERIES_HZ", "log_feeder"]
@@ -43,7 +44,7 @@ def log_feeder(viz, res, truth_pose: np.ndarray | None, rpy_yaw,
                    for y in yaw])  # heading frame -> the tip view's axes
     # the feeder frame's origin with its 3-sigma ellipsoid (axes: the heading frame's)
     q_yaw = np.column_stack([np.zeros((len(yaw), 2)), np.sin(yaw / 2), np.cos(yaw / 2)])
-    recording.ellipsoids("estimates/feeder/origin", t_s, np.einsum("tij,tj->ti", Rz, pose[:, :3]), 3.0 * sd[:, :3],
+    recording.ellipsoids("estimates/feeder/origin", t_s, np.einsum("tij,tj->ti", Rz, pose[:, :3]), BAND_SIGMAS * sd[:, :3],
                          "estimate", q_yaw)
     if mesh_feeder is not None:
         vertices, triangles = mesh_feeder
@@ -51,9 +52,10 @@ def log_feeder(viz, res, truth_pose: np.ndarray | None, rpy_yaw,
                                         ("truth/feeder", None if truth_pose is None else truth_pose[keep], "truth", 70)):
             if poses is None:
                 continue
-            recording.mesh(f"{root}/mesh", vertices, triangles, cls, alpha)
+            # the transform on the body alone: the series and the origin's ellipsoid beside it are in the tip view's axes
+            recording.mesh(f"{root}/body/mesh", vertices, triangles, cls, alpha)
             T = np.array([pose_matrix(*p) if np.all(np.isfinite(p)) else np.full((4, 4), np.nan) for p in poses])
-            recording.poses(root, t_s, Rz @ T[:, :3, :3], np.einsum("tij,tj->ti", Rz, T[:, :3, 3]))
+            recording.poses(f"{root}/body", t_s, Rz @ T[:, :3, :3], np.einsum("tij,tj->ti", Rz, T[:, :3, 3]))
     _log_model(recording, res, t_s, pose, Rz)
 
 

@@ -14,16 +14,17 @@ from boomtip.perception.geometry import tip_in_sensor
 from boomtip.perception.pipeline import FrameResult
 from boomtip.tools.report.classes import by_name, rgb
 from boomtip.tools.report.heave import COLORS
-from boomtip.tools.report.recording.convention import Recording, colormap
+from boomtip.tools.report.recording.convention import BAND_SIGMAS, Recording, colormap
 from boomtip.tools.report.recording.world import log_world
 
 __all__ = ["DECK_HALF_SIZE_M", "ELLIPSOID_RATE_HZ", "MAX_INLIERS_DRAWN", "RerunLogger"]
 
-DECK_HALF_SIZE_M = (45.0, 12.0)
+DECK_HALF_SIZE_M = (45.0, 12.0)  # the drawn deck plane's half extent along and across
 # a deck stage's inliers drawn per frame, evenly picked: the plane is drawn whole, and the
 # recording stays within 30 MB a minute
-MAX_INLIERS_DRAWN = {"deck_lidar": 600, "deck_radar": 100}  # the drawn deck plane's half extent along and across
+MAX_INLIERS_DRAWN = {"deck_lidar": 600, "deck_radar": 100}
 ELLIPSOID_RATE_HZ = 10.0  # the deck point's 3-sigma ellipsoid, per solution
+DECK_POINT_HALF_WIDTH_M = 0.5  # the deck point's ellipsoid across the wire: D has no horizontal sigma
 BANDED = ("fused",)  # the solutions drawn with their 3-sigma bands and ellipsoid (the others' would hide them)
 PANELS = {"D": "D [m] and its 3 sigma", "D_dot": "D-dot [m/s] and its 3 sigma", "error_D_mm": "D error [mm] (estimate - truth)"}
 
@@ -127,7 +128,7 @@ class RerunLogger:
         keep = np.r_[True, np.diff(np.floor(t_s * ELLIPSOID_RATE_HZ)) > 0]
         D, sd = D[keep], sd_D[keep]
         centers = np.column_stack([np.zeros_like(D), np.zeros_like(D), -D])
-        half = np.column_stack([np.full_like(D, 0.5), np.full_like(D, 0.5), 3.0 * sd])
+        half = np.column_stack([np.full_like(D, DECK_POINT_HALF_WIDTH_M), np.full_like(D, DECK_POINT_HALF_WIDTH_M), BAND_SIGMAS * sd])
         self.recording.ellipsoids(f"estimates/{name}/deck_point", t_s[keep], centers, half, "estimate")
 
     def log_world(self) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 from boomtip.data.frames import FrameSource
 from boomtip.perception.hook_block import block_model
 from boomtip.tools.report.classes import by_name, rgb
-from boomtip.tools.report.recording.convention import Recording
+from boomtip.tools.report.recording.convention import BAND_SIGMAS, Recording
 from boomtip.tools.report.recording.world import log_world
 
 __all__ = ["AXIS_COLOURS", "BLOCK_MODEL_POINTS", "HookRerunLogger"]
@@ -96,7 +96,7 @@ class HookRerunLogger:
         sd = None
         if cov_m2 is not None:
             sd = np.sqrt(np.maximum(np.diagonal(cov_m2, axis1=1, axis2=2), 0.0))
-            recording.ellipsoids(f"{est}/sigma3", t_s, p_est_rel, 3.0 * sd, "estimate")
+            recording.ellipsoids(f"{est}/sigma3", t_s, p_est_rel, BAND_SIGMAS * sd, "estimate")
         if p_true_rel is not None:
             err_cm = (p_est_rel - p_true_rel) * 100.0
             for i, axis in enumerate("xyz"):
