@@ -14,8 +14,9 @@ def test_the_ratio_is_the_default_runs_real_time_factor_and_every_figure_is_ther
     assert r["recording_s"] == pytest.approx(6.0, abs=0.1) and r["lidar_frames"] == 120  # 20 Hz
     for key in ("default", "workers_1", "kiss_icp"):
         k = r[key]
-        assert k["min_s"] <= k["wall_s"] <= k["max_s"] and k["realtime_factor"] == pytest.approx(r["recording_s"] / k["wall_s"], rel=1e-3)
+        # the figures are rounded to 3 decimals: half the last digit, whatever the machine's speed
+        assert k["min_s"] <= k["wall_s"] <= k["max_s"] and k["realtime_factor"] == pytest.approx(r["recording_s"] / k["wall_s"], abs=5e-4)
     assert r["ratio"] == r["default"]["realtime_factor"]
-    assert r["speedup_workers"] == pytest.approx(r["workers_1"]["wall_s"] / r["default"]["wall_s"], rel=1e-3)
+    assert r["speedup_workers"] == pytest.approx(r["workers_1"]["wall_s"] / r["default"]["wall_s"], abs=5e-4)
     assert r["feeder_apt_ms"] > 0
     assert 0 < r["accuracy"]["fused_mae_D_m"] < 0.01  # scored against the simulated truth
