@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -17,6 +18,7 @@ __all__ = ["has_display", "no_display_message", "serve_web", "ViewerError", "web
 URL_LINE = re.compile(r"connect at (http://\S+\?url=\S+)")
 ANSI = re.compile(r"\x1b\[[0-9;]*m")
 STOP_WAIT_S = 5.0
+GROUP_POLL_S = 0.05
 
 
 class ViewerError(RuntimeError):
@@ -70,15 +72,24 @@ def serve_web(rrd: Path, port: int, grpc_port: int | None, on_url: Callable[[str
 
 
 def _stop_group(proc: subprocess.Popen) -> None:
-    """SIGTERM to the server's process group, SIGKILL if it is still there after STOP_WAIT_S."""
-    for sig in (signal.SIGTERM, signal.SIGKILL):
-        try:
-            os.killpg(proc.pid, sig)
-        except ProcessLookupError:  # the group is gone
+    """SIGTERM to the server's process group, then SIGKILL to whatever of the group is still
+    there after STOP_WAIT_S: rerun's viewer binary may outlive its Python wrapper (`proc`)."""
+    group = proc.pid
+    _signal_group(group, signal.SIGTERM)
+    deadline = time.monotonic() + STOP_WAIT_S
+    while time.monotonic() < deadline:
+        proc.poll()  # reaped: a zombie wrapper would keep the group alive
+        if not _signal_group(group, 0):
             break
-        try:
-            proc.wait(STOP_WAIT_S)
-            break
-        except subprocess.TimeoutExpired:
-            continue
+        time.sleep(GROUP_POLL_S)
+    _signal_group(group, signal.SIGKILL)
     proc.wait()
+
+
+def _signal_group(group: int, sig: int) -> bool:
+    """Send `sig` to the process group; False when no process of it is left."""
+    try:
+        os.killpg(group, sig)
+    except ProcessLookupError:
+        return False
+    return True

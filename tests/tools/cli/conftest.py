@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ from boomtip.tools.cli.view import URL_LINE
 @pytest.fixture
 def web_viewer():
     """start(folder) -> (the server's process, the viewer page's URL with `?url=`); every server
-    started is stopped (killed if it still runs) after the test."""
+    started is stopped after the test as a user stops it (SIGTERM; killed if it does not stop)."""
     started: list[subprocess.Popen] = []
 
     def start(folder: Path) -> tuple[subprocess.Popen, str]:
@@ -29,5 +30,10 @@ def web_viewer():
     yield start
     for proc in started:
         if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=30)
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=30)
+

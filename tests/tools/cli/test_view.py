@@ -8,6 +8,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -45,14 +46,29 @@ def test_spawn_without_a_display_says_so_in_one_line_and_points_to_web(tmp_path,
     assert len(lines) == 1 and "no display here" in lines[0] and "--web" in lines[0]
 
 
+def processes_with(text: str) -> list[int]:
+    """The processes whose command line holds `text` (e.g. a recording's folder)."""
+    found = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if text.encode() in cmdline.read_bytes():
+                found.append(int(cmdline.parent.name))
+        except OSError:  # gone meanwhile
+            continue
+    return found
+
+
 def test_web_serves_the_viewer_page_and_stops_on_sigterm(tmp_path, web_viewer):
     proc, url = web_viewer(_recording(tmp_path / "run with spaces é"))
     page = url.split("?")[0]
     with urllib.request.urlopen(page, timeout=10) as resp:
         assert resp.status == 200
         assert "rerun" in resp.read().decode("utf-8", "replace").lower()
+    folder = tmp_path / "run with spaces é"
+    assert processes_with(str(folder))  # rerun's server, its viewer binary among them
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=15) == 130
     time.sleep(0.5)
     with pytest.raises(urllib.error.URLError):  # the server went with it
         urllib.request.urlopen(page, timeout=2)
+    assert processes_with(str(folder)) == []  # every process of it: none outlives the command
