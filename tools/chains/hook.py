@@ -288,8 +288,8 @@ class HookChain:
         if not result.runs or isinstance(viz, NullVisualiser):
             return
         name = "ekf_flexible" if "ekf_flexible" in result.runs else next(iter(result.runs))
-        t_run, p_rel = result.stores[name].columns(P_REL)
-        _, cov = result.stores[name].columns(COV_P)
+        t_run, rel_to_cov = result.stores[name].columns(slice(P_REL.start, COV_P.stop))  # one pass over the store
+        p_rel, cov = rel_to_cov[:, : P_REL.stop - P_REL.start], rel_to_cov[:, COV_P.start - P_REL.start :]
         t_l = result.rows["t"]
         t_l = t_l[(t_l >= t_run[0]) & (t_l <= t_run[-1])]
         p_est = np.column_stack([np.interp(t_l, t_run, p_rel[:, k]) for k in range(3)])
