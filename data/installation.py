@@ -95,6 +95,12 @@ class LidarSpec(StrictModel):
     returns: Literal["strongest", "last", "first", "dual"] = Field(
         "strongest", description="the return mode the sensor is configured with, where a ray meets more than one "
         "target (a drop in the air, then a surface): the strongest, the last or the first return, or both (dual)")
+    beam_divergence_mrad: float = Field(0.0, ge=0, le=50, description="the beam's full divergence at 1/e^2 (data "
+                                        "sheet; an OS1's is about 2.2 mrad): near a depth edge its footprint spans two "
+                                        "surfaces and the return mixes them; 0 = a line")
+    return_separation_m: float = Field(0.75, gt=0, le=20, description="the least range between two returns of one "
+                                       "beam the sensor tells apart (its pulse's extent): nearer, they merge into one "
+                                       "at a range between them")
     mount: Mount = Mount()
 
     @model_validator(mode="after")

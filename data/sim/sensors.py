@@ -195,6 +195,7 @@ def lidar_measure(
     rng: np.random.Generator,
     spray=None,
     origin_z_world: np.ndarray | float = 0.0,
+    second_returns: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label. With `spray`
     (world.sea.spray) some rays return early from droplets in its height band (world z), given
@@ -225,6 +226,9 @@ def lidar_measure(
     intensity = faces.reflectivity_signed.take(f)  # negative on retro-reflectors, made positive below
     intensity *= cos_inc  # diffuse (Lambert)
     label = faces.label.take(f)
+    if second_returns is not None and len(second_returns[0]):  # a dual-return sensor's farther surface
+        idx, r, cos_inc, intensity, label = _with_second_returns(cfg, idx, r, cos_inc, intensity, label,
+                                                                  second_returns, faces, lo, hi)
     if spray is not None and spray.probability > 0 and len(idx):
         # a droplet at a height z in the band, met by a downward ray before its surface
         z0 = np.broadcast_to(np.asarray(origin_z_world, dtype=float), r_all.shape)[idx]
@@ -314,6 +318,19 @@ def backscatter(cfg: Lidar, r_all: np.ndarray, max_range_m: float, idx: np.ndarr
     return (idx.take(order), np.concatenate([r, r_drop[new]]).take(order),
             _appended(intensity, n_new, cfg.backscatter_reflectivity, order),
             _appended(label, n_new, int(Label.PRECIPITATION), order), _appended(cos_inc, n_new, 1.0, order))
+
+
+def _with_second_returns(cfg: Lidar, idx, r, cos_inc, intensity, label, second, faces: FaceLookup, lo, hi):
+    """The returns and a dual-return footprint's second returns (ray index, range, flat face,
+    cos incidence) in range, in ray order (a ray's two in range order)."""
+    rays, r2, f2, c2 = second
+    ok = (r2 >= lo) & (r2 <= hi)
+    rays, r2, f2, c2 = rays[ok], r2[ok], f2[ok], c2[ok]
+    order = np.lexsort((np.concatenate([r, r2]), np.concatenate([idx, rays])))
+    return (np.concatenate([idx, rays]).take(order), np.concatenate([r, r2.astype(r.dtype)]).take(order),
+            np.concatenate([cos_inc, np.maximum(c2, 1e-3).astype(cos_inc.dtype)]).take(order),
+            np.concatenate([intensity, (faces.reflectivity_signed[f2] * c2).astype(intensity.dtype)]).take(order),
+            np.concatenate([label, faces.label[f2]]).take(order))
 
 
 def _appended(values: np.ndarray, n: int, value, order: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ from typing import Iterator
 import numpy as np
 
 from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.sim.footprint import cast_footprints
 from boomtip.data.sim.motion import BodyStates, ShiftedSines, ShipMotion, rpy_matrices
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.sim.run import SimulatedRun
@@ -289,7 +290,8 @@ class Simulation(FrameSource):
 
     def _lidar_hits(self, t_s: float, scene_poses, fixed_hits=None):
         """The LiDAR's hits at true time t_s and the sensor's world pose (R (M,3,3), p (M,3)):
-        M = 1, or one pose per column when the scene moves during the sweep."""
+        M = 1, or one pose per column when the scene moves during the sweep; and, with a diverging
+        beam, the dual mode's second returns (see `cast_footprints`) or None."""
         w, pat = self.world, self.lidar_pattern
         if w.lidar.motion_during_sweep and getattr(scene_poses, "__func__", None) is Simulation._scene_poses:
             # The ships' closed-form motion: the columns' poses as offsets from t_s.
@@ -298,12 +300,17 @@ class Simulation(FrameSource):
             times = t_s + pat.column_time_s if w.lidar.motion_during_sweep else np.array([t_s])
             R_ws, p_ws, Rs, ps, scales = scene_poses(times, "lidar")
         hits = w.caster.cast_fans(pat.fans, R_ws, p_ws, Rs, ps, scales, fixed_hits)
-        return hits, R_ws, p_ws
+        second = None
+        if w.lidar.beam_divergence_mrad > 0:  # the edge rays' footprints mixed; dual: their second returns
+            hits, second = cast_footprints(
+                w.caster, w.faces, pat.fans, hits, R_ws, p_ws, Rs, ps, scales, w.lidar.beam_divergence_mrad,
+                w.lidar.return_separation_m, w.lidar.returns, w.lidar.retro_gain, w.lidar.pattern == "spinning")
+        return hits, R_ws, p_ws, second
 
     def _lidar_frame_from(self, index: int, t_s: float, scene_poses, fixed_hits=None) -> Frame:
         w = self.world
         cfg, pat = w.lidar, self.lidar_pattern
-        hits, R_ws, p_ws = self._lidar_hits(t_s, scene_poses, fixed_hits)
+        hits, R_ws, p_ws, second = self._lidar_hits(t_s, scene_poses, fixed_hits)
         sea = self.scenario.world.sea
         dirs_w = origin_z = None
         if sea.spray.probability > 0:  # only the spray needs the rays in world axes
@@ -313,7 +320,7 @@ class Simulation(FrameSource):
                 dirs_w, origin_z = np.einsum("kij,kj->ki", R_ws[pat.column], pat.dirs_sensor), p_ws[pat.column, 2]
         points, fields = lidar_measure(
             cfg, hits, pat, dirs_w, w.faces, w.sea_index, sea.clutter_probability, self._rng("lidar", index),
-            spray=sea.spray, origin_z_world=origin_z,
+            spray=sea.spray, origin_z_world=origin_z, second_returns=second,
         )
         return Frame("lidar", index, t_s, points, fields)
 
