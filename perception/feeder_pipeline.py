@@ -81,7 +81,9 @@ class FeederPipeline:
         self.rng = np.random.default_rng([seed, FEEDER_SEED_SALT])
         self.heave = heave
         self.forecast_decks: dict[str, tuple[float, float]] = {}  # the decks found with a forecast levelling
-        self.detection_sigma = (installation.radar.range_noise_m, math.radians(installation.radar.azimuth_noise_deg),
+        radar = installation.radar  # a range bin's uniform error, bin / sqrt(12), beside the noise
+        self.detection_sigma = (math.hypot(radar.range_noise_m, radar.range_resolution_m / math.sqrt(12.0)),
+                                math.radians(installation.radar.azimuth_noise_deg),
                                 math.radians(installation.radar.elevation_noise_deg))
         self.queue: list[LidarObservation | RadarObservation] = []
         self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck

@@ -338,6 +338,11 @@ def _appended(values: np.ndarray, n: int, value, order: np.ndarray) -> np.ndarra
     return np.concatenate([values, np.full(n, value, dtype=values.dtype)]).take(order)
 
 
+def quantised(values: np.ndarray, step: float) -> np.ndarray:
+    """Values on a grid of `step` (the nearest bin's centre); as they are for a step of 0."""
+    return np.rint(values / step) * step if step > 0 else values
+
+
 def multipath_ghosts(cfg: Radar, p_world: np.ndarray, v_world: np.ndarray, echoes: np.ndarray, origin_world: np.ndarray,
                      v_sensor: np.ndarray, R_world_sensor: np.ndarray, rng: np.random.Generator):
     """Radar echoes by way of the sea (the plane z = 0): of the surface points above it
@@ -402,6 +407,8 @@ def radar_measure(
     if cfg.unambiguous_range_rate_mps > 0:  # an FMCW radar's Doppler ambiguity: rates wrap into [-v, v)
         v = cfg.unambiguous_range_rate_mps
         rr = np.mod(rr + v, 2.0 * v) - v
+    # An FMCW radar's detections, false ones too, sit in its range and Doppler FFTs' bins (data sheet widths).
+    rng_m, rr = quantised(rng_m, cfg.range_resolution_m), quantised(rr, cfg.range_rate_resolution_mps)
     points = spherical_dirs(az, el) * rng_m[:, None]
     fields = {
         "range": rng_m.astype(np.float32),

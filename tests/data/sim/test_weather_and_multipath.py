@@ -66,3 +66,17 @@ def test_radar_ghosts_lie_below_the_waterline_and_move_as_the_mirror_image():
     assert np.sign(np.median(f.fields["range_rate"][ghost])) != np.sign(np.median(f.fields["range_rate"][deck]))
     clean = Simulation(load_scenario("sts-loaded", ["duration_s=0.5"])).radar_frame(4, 0.2)
     assert not np.any(clean.fields["label"] == int(Label.MULTIPATH))
+
+
+def test_radar_ranges_and_range_rates_sit_in_their_bins():
+    keys = ["duration_s=0.2", "installation.radar.range_noise_m=0.01", "installation.radar.range_rate_noise_mps=0.01"]
+    plain = Simulation(load_scenario("sts-loaded", keys)).radar_frame(3, 0.15)
+    binned = Simulation(load_scenario("sts-loaded", [*keys, "installation.radar.range_resolution_m=0.04",
+                                                     "installation.radar.range_rate_resolution_mps=0.05"])).radar_frame(3, 0.15)
+    for field, step in (("range", 0.04), ("range_rate", 0.05)):
+        v = binned.fields[field].astype(float)
+        np.testing.assert_allclose(v / step, np.rint(v / step), atol=1e-4)  # on the bins (float32 fields)
+        assert not np.allclose(plain.fields[field] / step, np.rint(plain.fields[field] / step), atol=1e-4)
+        # the same draws: each detection moves to its nearest bin, at most half a bin
+        np.testing.assert_array_less(np.abs(v - plain.fields[field]), step / 2 + 1e-5)
+    np.testing.assert_allclose(np.linalg.norm(binned.points_sensor, axis=1), binned.fields["range"], rtol=1e-6)
