@@ -8,7 +8,8 @@ add, each off by default:
 * rope stretch: the reeving's axial stiffness EA lengthens the pendulum quasi-statically under
   the hook's weight, ``l_true = l_hoist (1 + m g / EA)`` (and l', l'' by the same factor), while
   the hoist encoder reads the programme's ``l_hoist``;
-* wind drag on the block: a steady horizontal wind ``w`` (world x, y) gives
+* wind drag on the block: a horizontal wind ``w`` (world x, y; steady, or with gusts from the
+  offshore gust spectrum, :mod:`boomtip.data.sim.wind`) gives
   ``F = 0.5 rho Cd A |w - v_h| (w - v_h)`` with ``v_h`` the hook's horizontal velocity, which
   enters a'' and b'' as a specific force projected on the tangent directions, like gravity.
   Its component along the rope (which would change the tension, hence the boom's drive) is
@@ -36,6 +37,7 @@ from boomtip.data.crane_model import (
 )
 from boomtip.data.sim.crane_truth_stream import dop853_chunks, rhs_and_pieces
 from boomtip.data.sim.vessel_waves import as_vessel_motion
+from boomtip.data.sim.wind import GustyWind
 
 __all__ = ["CraneTruth", "crane_truth_chunks", "simulate_crane"]
 
@@ -99,13 +101,14 @@ class _StretchedRope:
         return JointStates(nu, nud, nudd, mu, mud, mudd, l * s, ld * s, ldd * s)
 
 
-def _accelerations_with_drag(k_drag_per_m: float, wind_x: float, wind_y: float):
+def _accelerations_with_drag(k_drag_per_m: float, wind_x, wind_y, gusts: GustyWind | None = None):
     """:func:`pendulum_accelerations_core` plus the wind drag on the hook, same signature and
     elementwise like it (floats in the RK4 loop, arrays elsewhere). ``k_drag_per_m`` is
-    0.5 rho Cd A / m (1/m): the drag's specific force per squared relative air speed."""
+    0.5 rho Cd A / m (1/m): the drag's specific force per squared relative air speed. With
+    ``gusts`` the wind is theirs at the keyword ``t`` (s), and ``accel.time_varying`` is true."""
 
     def accel(sin, cos, prm, flexible, a, ad, b, bd, nu, nud, nudd, mu, mud, mudd, l, ld, ldd,
-              roll, rolld, rolldd, pitch, pitchd, pitchdd, f, fd):
+              roll, rolld, rolldd, pitch, pitchd, pitchdd, f, fd, t=0.0):
         add, bdd, fdd = pendulum_accelerations_core(sin, cos, prm, flexible, a, ad, b, bd, nu, nud, nudd,
                                                     mu, mud, mudd, l, ld, ldd, roll, rolld, rolldd,
                                                     pitch, pitchd, pitchdd, f, fd)
@@ -129,6 +132,7 @@ def _accelerations_with_drag(k_drag_per_m: float, wind_x: float, wind_y: float):
         v_tip_y = cr * vvy - sr * vvz
         # the air's horizontal velocity relative to the hook, w - (v_tip + l' u + l (a' e_a + cos a b' e_b))
         sa, ca, sb, cb = sin(a), cos(a), sin(b), cos(b)
+        wind_x, wind_y = steady if gusts is None else gusts(t)
         rx = wind_x - (v_tip_x - ld * sa - l * ad * ca)
         ry = wind_y - (v_tip_y + ld * ca * sb + l * (ca * bd * cb - ad * sa * sb))
         k = k_drag_per_m * (rx * rx + ry * ry) ** 0.5
@@ -136,6 +140,8 @@ def _accelerations_with_drag(k_drag_per_m: float, wind_x: float, wind_y: float):
         # projected on e_a = (-cos a, -sin a sin b, sin a cos b) and e_b = (0, cos b, sin b)
         return add - (fx * ca + fy * sa * sb) / l, bdd + fy * cb / (l * ca), fdd
 
+    steady = (wind_x, wind_y)
+    accel.time_varying = gusts is not None
     return accel
 
 
@@ -231,7 +237,7 @@ def _dop853(prm, flex, joints, vessel, y0, duration_s, t_rec, rtol, accel):
 
 
 def _setup(params, joints, vessel_motion, initial_state, rope_ea_n, wind_mps, drag_area_m2, drag_coefficient,
-           air_density_kgpm3):
+           air_density_kgpm3, gust_seed=None):
     """The integration's inputs: the stretched rope's programme, the accelerations (with the
     drag), the vessel, the parameters as a tuple, the flexibility and the initial state."""
     if rope_ea_n is not None and not rope_ea_n > 0:
@@ -242,7 +248,8 @@ def _setup(params, joints, vessel_motion, initial_state, rope_ea_n, wind_mps, dr
     accel = pendulum_accelerations_core
     if drag_area_m2 > 0:
         k_drag = 0.5 * air_density_kgpm3 * drag_coefficient * drag_area_m2 / params.m
-        accel = _accelerations_with_drag(k_drag, float(wind_mps[0]), float(wind_mps[1]))
+        gusts = None if gust_seed is None else GustyWind.draw((float(wind_mps[0]), float(wind_mps[1])), gust_seed)
+        accel = _accelerations_with_drag(k_drag, float(wind_mps[0]), float(wind_mps[1]), gusts)
     vessel = as_vessel_motion(vessel_motion)
     flex = bool(params.flexible)
     y0 = np.array(initial_state, float)
@@ -290,12 +297,13 @@ def crane_truth_chunks(
     drag_area_m2: float = 0.0,
     drag_coefficient: float = 1.2,
     air_density_kgpm3: float = 1.225,
+    gust_seed: int | None = None,
 ) -> Iterator[CraneTruth]:
     """:func:`simulate_crane` (DOP853) a chunk of ``chunk_s`` seconds of records at a time, in
     order: the same numbers, with a memory that does not grow with ``duration_s`` (a 700 s run's
     whole truth is 46 MB, and its derivation several times that)."""
     rope, accel, vessel, prm, flex, y0 = _setup(params, joints, vessel_motion, initial_state, rope_ea_n, wind_mps,
-                                                drag_area_m2, drag_coefficient, air_density_kgpm3)
+                                                drag_area_m2, drag_coefficient, air_density_kgpm3, gust_seed)
     n_rec = int(round(duration_s * record_rate_hz)) + 1
     t_rec = np.arange(n_rec) / record_rate_hz
     chunk_n = max(1, int(round(chunk_s * record_rate_hz)))
@@ -319,6 +327,7 @@ def simulate_crane(
     drag_area_m2: float = 0.0,
     drag_coefficient: float = 1.2,
     air_density_kgpm3: float = 1.225,
+    gust_seed: int | None = None,
 ) -> CraneTruth:
     """Integrate the hook pendulum and (if ``params.flexible``) the boom deflection.
 
@@ -335,10 +344,14 @@ def simulate_crane(
     Beyond the nominal model (module docstring): ``rope_ea_n``, the reeving's axial stiffness
     EA in N (None: rigid rope); ``wind_mps``, a steady wind (world x, y) acting on the block's
     drag area ``drag_area_m2`` (0: no drag) with ``drag_coefficient`` and ``air_density_kgpm3``.
+    ``gust_seed``: gusts on the steady wind (:mod:`boomtip.data.sim.wind`, drawn with this seed;
+    None: steady; dop853 only).
     The truth's ``l`` is the hoist programme's (the encoder's), ``l_rope`` the stretched length.
     """
     rope, accel, vessel, prm, flex, y0 = _setup(params, joints, vessel_motion, initial_state, rope_ea_n, wind_mps,
-                                                drag_area_m2, drag_coefficient, air_density_kgpm3)
+                                                drag_area_m2, drag_coefficient, air_density_kgpm3, gust_seed)
+    if method == "rk4" and getattr(accel, "time_varying", False):
+        raise ValueError("simulate_crane: gusts (gust_seed) need method='dop853'; rk4 takes a steady wind")
     rec_every = int(round(1.0 / (record_rate_hz * dt_s)))
     if method == "rk4" and abs(rec_every * dt_s * record_rate_hz - 1.0) > 1e-9:
         raise ValueError("dt_s must divide the record period")

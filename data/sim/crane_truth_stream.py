@@ -22,9 +22,16 @@ def rhs_and_pieces(prm, flex, joints, vessel, duration_s, accel):
         add, bdd, fdd = accel(sin, cos, prm, flex, a, ad, b, bd, *J, *V, f, fd)
         return [ad, add, bd, bdd, fd, fdd]
 
+    def rhs_in_time(t, y):  # the accelerations depend on time beyond the inputs (gusts)
+        J = joints.evaluate(t)
+        V = vessel.evaluate(t)
+        a, ad, b, bd, f, fd = y
+        add, bdd, fdd = accel(sin, cos, prm, flex, a, ad, b, bd, *J, *V, f, fd, t=t)
+        return [ad, add, bd, bdd, fd, fdd]
+
     bps = getattr(joints, "breakpoints", lambda: [])()
     edges = sorted({0.0, duration_s, *[t for t in bps if 0.0 < t < duration_s]})
-    return rhs, [(t0, t1) for t0, t1 in zip(edges[:-1], edges[1:]) if t1 - t0 >= 1e-12]
+    return rhs_in_time if getattr(accel, "time_varying", False) else rhs, [(t0, t1) for t0, t1 in zip(edges[:-1], edges[1:]) if t1 - t0 >= 1e-12]
 
 
 def dop853_chunks(prm, flex, joints, vessel, y0, duration_s, t_rec, rtol, accel, chunk_n):

@@ -244,6 +244,7 @@ class HookSimulation(Simulation):
             # richer than the filter's model: an elastic reeving and the wind on block and load
             rope_ea_n=scenario.world.mismatch.rope_ea_n, wind_mps=scenario.world.mismatch.wind_mps,
             drag_area_m2=scenario.world.hook.drag_area_m2,
+            gust_seed=scenario.seed if scenario.world.mismatch.wind_gusts else None,
         ):
             t_crane.append(crane.t)
             for name in KEPT_TRACKS:

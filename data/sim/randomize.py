@@ -8,7 +8,8 @@ Distributions at `scale` 1 (each one's width times `scale`; 0 is the nominal wor
 - each sensor's clock offset: normal, 1-sigma its stated time-stamp accuracy (`installation.<sensor>.clock_sigma_s`);
 - boom stiffness, boom damping, hook and load mass, boom mass: nominal x uniform 0.9-1.1;
 - the reeving's axial stiffness EA: log-uniform 1e10-1e11 N;
-- steady wind on block and load: speed uniform 0-15 m/s, direction uniform;
+- wind on block and load: mean speed uniform 0-15 m/s, direction uniform, with the offshore gust
+  spectrum's gusts (`data/sim/wind.py`);
 - encoder biases (slew, luff): normal, 1-sigma 0.005 deg;
 - the true noise of the LiDAR and of the radar: stated x uniform 0.7-1.5.
 The draws are the run's (`world.randomize.seed`, by default the run's own seed): the same seed,
@@ -54,7 +55,7 @@ def draw_mismatch(installation: Installation, seed: int, scale: float) -> Mismat
         radar_clock_offset_s=float(np.clip(rng.normal(0.0, inst.radar.clock_sigma_s * scale), -1.0, 1.0)),
         boom_stiffness=factor(), boom_damping=factor(), hook_mass=factor(), boom_mass=factor(),
         rope_ea_n=float(10.0 ** (EA_LOG10_N[1] - scale * (EA_LOG10_N[1] - EA_LOG10_N[0]) * rng.uniform())),
-        wind_mps=(float(wind_speed * math.cos(wind_dir)), float(wind_speed * math.sin(wind_dir))),
+        wind_mps=(float(wind_speed * math.cos(wind_dir)), float(wind_speed * math.sin(wind_dir))), wind_gusts=True,
         encoder_bias_deg=EncoderBias(slew=float(rng.normal(0.0, ENCODER_BIAS_SIGMA_DEG * scale)),
                                      luff=float(rng.normal(0.0, ENCODER_BIAS_SIGMA_DEG * scale))),
         lidar_noise_scale=noise(), radar_noise_scale=noise(),

@@ -241,6 +241,8 @@ class Mismatch(StrictModel):
         None, gt=0, description="axial stiffness EA of the whole reeving, N (stretch m g l / EA); null = rigid"
     )
     wind_mps: tuple[float, float] = Field((0.0, 0.0), description="steady wind on block and load, world x, y")
+    wind_gusts: bool = Field(False, description="gusts on that wind along its direction: the offshore (NPD, ISO "
+                             "19901-1) gust spectrum of its mean speed, drawn with the run's seed")
     encoder_bias_deg: EncoderBias = EncoderBias()
     lidar_noise_scale: float = Field(1.0, ge=0, le=100, description="true LiDAR range noise = stated x this")
     radar_noise_scale: float = Field(1.0, ge=0, le=100, description="true radar range, angle and range-rate noise = "
