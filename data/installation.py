@@ -140,6 +140,8 @@ class RadarSpec(StrictModel):
     range_resolution_m: float = Field(0.0, ge=0, le=10, description="range bin width (data sheet: c / 2B, about "
                                       "4 cm for 4 GHz of sweep): each detection's range is a bin's; 0 = not quantised")
     range_rate_resolution_mps: float = Field(0.0, ge=0, le=10, description="Doppler bin width (data sheet), 0 = not quantised")
+    angle_resolution_deg: float = Field(0.0, ge=0, le=45, description="angle bin width, azimuth and elevation alike (the "
+                                        "angle FFT's grid): each detection's angles are a bin's; 0 = not quantised")
     unambiguous_range_rate_mps: float = Field(0.0, ge=0, le=100, description="the radar's unambiguous range rate (data "
                                               "sheet): it reports a rate beyond it wrapped into [-v, v), as FMCW radars do; "
                                               "0 = never wraps")

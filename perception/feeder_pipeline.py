@@ -81,10 +81,11 @@ class FeederPipeline:
         self.rng = np.random.default_rng([seed, FEEDER_SEED_SALT])
         self.heave = heave
         self.forecast_decks: dict[str, tuple[float, float]] = {}  # the decks found with a forecast levelling
-        radar = installation.radar  # a range bin's uniform error, bin / sqrt(12), beside the noise
+        radar = installation.radar  # a bin's uniform error, bin / sqrt(12), beside the noise
+        angle_bin = math.radians(radar.angle_resolution_deg) / math.sqrt(12.0)
         self.detection_sigma = (math.hypot(radar.range_noise_m, radar.range_resolution_m / math.sqrt(12.0)),
-                                math.radians(installation.radar.azimuth_noise_deg),
-                                math.radians(installation.radar.elevation_noise_deg))
+                                math.hypot(math.radians(radar.azimuth_noise_deg), angle_bin),
+                                math.hypot(math.radians(radar.elevation_noise_deg), angle_bin))
         self.queue: list[LidarObservation | RadarObservation] = []
         self.footprint: Footprint | None = None  # the deck's outline in the map frame, from the first deck
         self.failed_registrations = 0  # in a row: after rekey_after_failures a new keyframe is taken

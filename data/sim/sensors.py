@@ -407,8 +407,9 @@ def radar_measure(
     if cfg.unambiguous_range_rate_mps > 0:  # an FMCW radar's Doppler ambiguity: rates wrap into [-v, v)
         v = cfg.unambiguous_range_rate_mps
         rr = np.mod(rr + v, 2.0 * v) - v
-    # An FMCW radar's detections, false ones too, sit in its range and Doppler FFTs' bins (data sheet widths).
+    # An FMCW radar's detections, false ones too, sit in its range, Doppler and angle FFTs' bins (data sheet widths).
     rng_m, rr = quantised(rng_m, cfg.range_resolution_m), quantised(rr, cfg.range_rate_resolution_mps)
+    az, el = (quantised(a, math.radians(cfg.angle_resolution_deg)) for a in (az, el))
     points = spherical_dirs(az, el) * rng_m[:, None]
     fields = {
         "range": rng_m.astype(np.float32),

@@ -68,12 +68,14 @@ def test_radar_ghosts_lie_below_the_waterline_and_move_as_the_mirror_image():
     assert not np.any(clean.fields["label"] == int(Label.MULTIPATH))
 
 
-def test_radar_ranges_and_range_rates_sit_in_their_bins():
+def test_radar_ranges_range_rates_and_angles_sit_in_their_bins():
     keys = ["duration_s=0.2", "installation.radar.range_noise_m=0.01", "installation.radar.range_rate_noise_mps=0.01"]
     plain = Simulation(load_scenario("sts-loaded", keys)).radar_frame(3, 0.15)
     binned = Simulation(load_scenario("sts-loaded", [*keys, "installation.radar.range_resolution_m=0.04",
-                                                     "installation.radar.range_rate_resolution_mps=0.05"])).radar_frame(3, 0.15)
-    for field, step in (("range", 0.04), ("range_rate", 0.05)):
+                                                     "installation.radar.range_rate_resolution_mps=0.05",
+                                                     "installation.radar.angle_resolution_deg=0.5"])).radar_frame(3, 0.15)
+    half_deg = np.deg2rad(0.5)
+    for field, step in (("range", 0.04), ("range_rate", 0.05), ("azimuth", half_deg), ("elevation", half_deg)):
         v = binned.fields[field].astype(float)
         np.testing.assert_allclose(v / step, np.rint(v / step), atol=1e-4)  # on the bins (float32 fields)
         assert not np.allclose(plain.fields[field] / step, np.rint(plain.fields[field] / step), atol=1e-4)
