@@ -1,0 +1,25 @@
+"""The Doppler fit's detections: those on or above the deck. A radar detection beyond the deck
+plane, seen from the sensor, is not of the deck nor of anything it carries: it is the sea beside
+the hull, or an echo by way of the sea (a ghost at the deck's mirror image below the waterline,
+moving as the image does: its vertical velocity reversed). Either would pull the rigid-deck
+velocity fit; the deck plane the same scan gave separates them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+BEYOND_DECK_SIGMAS = 4.0  # of the radar's stated range noise: farther beyond the deck plane is not the deck
+MIN_BEYOND_DECK_M = 1.0  # never nearer the plane than this (its own tilt and fit error across the scan)
+
+
+def beyond_deck_margin_m(range_noise_m: float) -> float:
+    """How far beyond the deck plane a detection may lie and still be the deck's."""
+    return max(MIN_BEYOND_DECK_M, BEYOND_DECK_SIGMAS * range_noise_m)
+
+
+def on_or_above_deck(points_sensor: np.ndarray, plane_sensor: np.ndarray | None, margin_m: float) -> np.ndarray:
+    """(N,) which detections lie no more than `margin_m` beyond the deck plane [a, b, c, d] (unit
+    normal towards the sensor, sensor frame): all of them without a plane."""
+    if plane_sensor is None or not np.all(np.isfinite(plane_sensor)):
+        return np.ones(len(points_sensor), bool)
+    return points_sensor @ plane_sensor[:3] + plane_sensor[3] >= -margin_m
