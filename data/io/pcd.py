@@ -10,11 +10,11 @@ reader aborts the whole process on the padding fields `pcl_ros` writes).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from boomtip.data.io.atomic import atomic_write_bytes
 
 _TYPES = {("F", 4): np.float32, ("F", 8): np.float64, ("I", 1): np.int8, ("I", 2): np.int16, ("I", 4): np.int32,
           ("I", 8): np.int64, ("U", 1): np.uint8, ("U", 2): np.uint16, ("U", 4): np.uint32, ("U", 8): np.uint64}
@@ -22,8 +22,6 @@ _CODES = {np.dtype(v): k for k, v in _TYPES.items()}
 _HEADER_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
 
 
-_UMASK = os.umask(0)
-os.umask(_UMASK)
 
 
 class PcdError(ValueError):
@@ -67,19 +65,6 @@ def write_pcd(path: str | Path, points: np.ndarray, fields: dict[str, np.ndarray
         ]
     )
     atomic_write_bytes(Path(path), header.encode() + b"\n" + rec.tobytes())
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write via a temporary file in the same folder and rename, so a reader never sees half a file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs get the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 MAX_POINTS = 50_000_000  # a frame of a 128 x 2048 LiDAR at 2 returns is 0.5 M; beyond this is a corrupt header

@@ -24,7 +24,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from boomtip.data.frames import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
-from boomtip.data.io.pcd import PcdError, atomic_write_bytes, read_pcd, write_pcd
+from boomtip.data.io.atomic import atomic_write_bytes
+from boomtip.data.io.pcd import PcdError, read_pcd, write_pcd
 from boomtip.data.installation import Installation
 from boomtip.data.io.errors import RecordingError  # noqa: F401 - this module's error, where callers import it
 from boomtip.data.io.output_folder import check_output_folder, output_folder  # noqa: F401 - check_output_folder: the studies'

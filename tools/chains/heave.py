@@ -10,7 +10,6 @@ OUT/report.md + plots  Table 5.4 layout beside document 000 (tools/report.py)
 from __future__ import annotations
 
 import csv
-import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, Truth
-from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.io.atomic import atomic_text_file
 from boomtip.tools.config.processing import Processing
 from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
 from boomtip.fusion.consistency import consistency_block, flagged_notes
@@ -224,20 +223,23 @@ class HeaveChain:
 
 
 def write_measurements(path: Path, rows: list[Measurement]) -> None:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(MEASUREMENT_COLUMNS)
-    for r in rows:
-        w.writerow([f"{r.t_s:.6f}", r.method, r.quantity, "" if not np.isfinite(r.value) else f"{r.value:.6f}",
-                    f"{r.time_ms:.4f}", r.status, "" if not np.isfinite(r.sigma) else f"{r.sigma:.6g}"])
-    atomic_write_bytes(path, buf.getvalue().encode())
+    with atomic_text_file(path) as fh:  # written as it goes: a long run's file is never whole in memory
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(MEASUREMENT_COLUMNS)
+        for r in rows:
+            w.writerow([f"{r.t_s:.6f}", r.method, r.quantity, "" if not np.isfinite(r.value) else f"{r.value:.6f}",
+                        f"{r.time_ms:.4f}", r.status, "" if not np.isfinite(r.sigma) else f"{r.sigma:.6g}"])
 
 
 def write_estimates(path: Path, estimates: dict[str, Estimates]) -> None:
     """estimates.csv: every solution's estimates at the output rate. A lost D or D-dot
     (fusion.solutions.lost_estimates) is left empty and `status` says why: never a number to
     use; `status` is ok otherwise. The variances stay: they show why."""
-    buf = io.StringIO()
+    with atomic_text_file(path) as fh:
+        _write_estimate_rows(fh, estimates)
+
+
+def _write_estimate_rows(buf, estimates: dict[str, Estimates]) -> None:
     buf.write("t,solution,D,D_dot,D_ddot,var_D,var_D_dot,status,consistent\n")
     for name, e in estimates.items():
         ok = np.isfinite(e.x[:, 0])
@@ -251,4 +253,3 @@ def write_estimates(path: Path, estimates: dict[str, Estimates]) -> None:
             V = "" if no_V else f"{x[1]:.6f}"
             A = "" if no_D or no_V else f"{x[2]:.6f}"
             buf.write(f"{t:.4f},{name},{D},{V},{A},{v[0]:.6g},{v[1]:.6g},{w or 'ok'},{int(c)}\n")
-    atomic_write_bytes(path, buf.getvalue().encode())

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from boomtip.data.frames import MruLog
-from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.io.atomic import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import SENSOR_OF, Measurement
 from boomtip.tools.report.heave import COLORS

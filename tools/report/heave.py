@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from boomtip.data.frames import Truth
-from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.io.atomic import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import Measurement
 from boomtip.tools.report.kpis import WARMUP_S, consistency_table

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from boomtip.data.frames import Truth
-from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.io.atomic import atomic_text_file, atomic_write_bytes
 from boomtip.fusion.hook_run import HookFilterRun
 from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
-from boomtip.tools.report.hook_store import P, EstimateStore, atomic_text_file
+from boomtip.tools.report.hook_store import P, EstimateStore
 from boomtip.tools.report.kpis import consistency_table
 from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path, save
 

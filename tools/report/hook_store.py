@@ -9,9 +9,7 @@ its position and velocity relative to the tip and that position's covariance (wo
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import os
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
@@ -21,14 +19,12 @@ import numpy as np
 from boomtip.fusion.hook_run import HookRunChunk
 from boomtip.tools.report.hook_eval import world_hook_from_states
 
-__all__ = ["COV_P", "EstimateStore", "StoredSamples", "atomic_text_file", "P", "V", "P_REL", "V_REL"]
+__all__ = ["COV_P", "EstimateStore", "StoredSamples", "P", "V", "P_REL", "V_REL"]
 
 # record layout: column slices
 T, P, V, P_REL, V_REL, COV_P = slice(0, 1), slice(1, 4), slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 22)
 RECORD = 22
 READ_CHUNK = 8192  # samples read back at a time
-_UMASK = os.umask(0)  # read once: outputs get the usual permissions
-os.umask(_UMASK)
 
 
 class StoredSamples:
@@ -108,18 +104,3 @@ class EstimateStore:
 
     def close(self) -> None:
         self._file.close()
-
-
-@contextlib.contextmanager
-def atomic_text_file(path: Path) -> Iterator[IO[str]]:
-    """A text file written in pieces via a temporary file in the same folder, renamed into place
-    at the end (a reader never sees half a file; a failure leaves none)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            yield fh
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs get the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
-from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.io.atomic import atomic_write_bytes
 import json
 
 from boomtip.data.io.recording import RecordingError, check_output_folder, write_json

@@ -21,7 +21,8 @@ from boomtip.tools.report import hook as hook_outputs
 from boomtip.tools.report import hook_store
 from boomtip.tools.report.hook_eval import world_hook_from_states
 from boomtip.tools.report.hook_rows import COLUMNS, FrameRows
-from boomtip.tools.report.hook_store import EstimateStore, atomic_text_file
+from boomtip.data.io.atomic import atomic_text_file
+from boomtip.tools.report.hook_store import EstimateStore
 
 DEG = math.pi / 180
 
