@@ -73,6 +73,7 @@ class LidarObservation:
     tip_level: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the tip's place and velocity in the vessel's heading frame (MRU)
     tip_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ms: float = 0.0  # time spent on it so far (the chain adds its own)
+    stage_ms: dict[str, float] = field(default_factory=dict)  # those ms by stage
     sample_returns_sensor: np.ndarray | None = None  # the measured return each sample stands for (its voxel's first): beams for the static test
     static_keys: tuple | None = None  # those returns' keys in the static test, computed once when counted
     static_mask: np.ndarray | None = None  # which of those returns are static, as the test said when the frame was handed over

@@ -20,7 +20,6 @@ carries the forecast's noise.
 from __future__ import annotations
 
 import math
-import time
 from concurrent.futures import Executor
 
 import numpy as np
@@ -35,6 +34,7 @@ from boomtip.perception.feeder_radar import RadarRegistration, RadarRegistration
 from boomtip.perception.feeder_registration import FeederModel, Registration6
 from boomtip.perception.pipeline import FrameResult, HeavePipeline
 from boomtip.perception.static_returns import StaticReturns
+from boomtip.perception.timing import StageTimes
 
 __all__ = ["FeederPipelineConfig", "FeederPipeline", "DECK_STAGES"]
 
@@ -100,15 +100,18 @@ class FeederPipeline:
         in time order (none during the warm-up, then all those held back)."""
         if att.forecast_var is not None and self.heave is not None:
             heave = self.heave.levelled_stages(frame, att.rpy_rad, self.forecast_decks)
-        t0 = time.perf_counter()
         if frame.sensor == "lidar":
-            obs = self.stages.lidar(frame.t_s, frame.points_sensor, att.rpy_rad, att.rpy_rate_radps,
-                                    heave.deck_lidar if heave is not None else None, frame.fields.get("t"), att.noise)
-            obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
+            times = StageTimes()
+            with times.stage("feeder.returns"):  # sampled, levelled, the deck plane taken over
+                obs = self.stages.lidar(frame.t_s, frame.points_sensor, att.rpy_rad, att.rpy_rate_radps,
+                                        heave.deck_lidar if heave is not None else None, frame.fields.get("t"), att.noise)
+            with times.stage("feeder.static_count"):
+                obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
             if obs.plane is None:
                 self.missing.append((obs.t_s, "lidar", obs.status))
             # the feeder's time per LiDAR frame: this, the fusion's, and the deck stage it reuses
-            obs.ms = (time.perf_counter() - t0) * 1e3 + (heave.times.total(*DECK_STAGES) if heave is not None else 0.0)
+            times.ms["deck (the heave chain's)"] = heave.times.total(*DECK_STAGES) if heave is not None else 0.0
+            obs.stage_ms, obs.ms = dict(times.ms), times.total()
         else:
             obs = self.stages.radar(frame.t_s, att.rpy_rad, att.rpy_rate_radps, heave.doppler if heave is not None else None,
                                     heave.deck_radar if heave is not None else None, frame.points_sensor, att.noise)
@@ -122,7 +125,11 @@ class FeederPipeline:
         out, self.queue = self.queue, []
         for obs in out:
             if isinstance(obs, LidarObservation):
-                obs.static_mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
+                times = StageTimes()
+                with times.stage("feeder.static_mask"):
+                    obs.static_mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
+                obs.stage_ms.update(times.ms)
+                obs.ms += times.total()
                 obs.static_keys = obs.sample_returns_sensor = None  # the test's inputs: not needed past here
         return out
 
@@ -169,19 +176,31 @@ class FeederPipeline:
         return self.model.model_frames < self.xy_after_frames
 
     def keep(self, obs: LidarObservation, structure: np.ndarray, reg: Registration6 | None, T_map_level: np.ndarray,
-             sigma_x_m: float) -> None:
+             sigma_x_m: float, times: StageTimes | None = None) -> None:
         """After the estimate's update (T_map_level, its x sigma): a registered frame grows the
         model (collected for its merges, the keyframe filled or renewed); every few frames the
-        feeder's centre line and the own hull's edge are looked for."""
+        feeder's centre line and the own hull's edge are looked for. `times`: their stages' ms."""
+        times = times if times is not None else StageTimes()
         if reg is not None:
-            if self.model.collect(structure, T_map_level):
-                self.merges.start()
-            if self.model.keyframe_size < self.model.cfg.keyframe_frames:
-                self.model.extend_keyframe(structure, T_map_level)
-                self.model.keyframe_size += 1
-            elif reg.fitness < self.model.cfg.min_fitness and sigma_x_m < REKEY_MAX_SIGMA_M:
-                self.model.set_keyframe(structure, T_map_level)
+            with times.stage("feeder.model"):
+                due = self.model.collect(structure, T_map_level)
+            if due:
+                with times.stage("feeder.merges"):  # inline without an executor, else only started
+                    self.merges.start()
+            with times.stage("feeder.model"):
+                if self.model.keyframe_size < self.model.cfg.keyframe_frames:
+                    self.model.extend_keyframe(structure, T_map_level)
+                    self.model.keyframe_size += 1
+                elif reg.fitness < self.model.cfg.min_fitness and sigma_x_m < REKEY_MAX_SIGMA_M:
+                    self.model.set_keyframe(structure, T_map_level)
             self.failed_registrations = 0
+        with times.stage("feeder.lines"):
+            self._lines(obs, structure, T_map_level)
+        obs.static_keys = obs.static_mask = None
+        self.lidar_frames += 1
+
+    def _lines(self, obs: LidarObservation, structure: np.ndarray, T_map_level: np.ndarray) -> None:
+        """Every few frames: the feeder's centre line (map frame) and the own hull's edge (level frame)."""
         if self.lidar_frames % self.cfg.centre_line_every == 0 and len(structure):
             line = centre_line_yaw(transform(T_map_level, structure), self.rng)  # in the map frame, at the estimate's pose
             if line is not None:
@@ -193,8 +212,6 @@ class FeederPipeline:
                 hull = centre_line_yaw(static_level, self.rng, band_m=(-np.inf, np.inf))
                 if hull is not None and hull[1] >= self.cfg.hull_edge_min_points:
                     self.hull_yaws.append(hull[0])
-        obs.static_keys = obs.static_mask = None
-        self.lidar_frames += 1
 
     @property
     def edges_known(self) -> tuple[int, int]:

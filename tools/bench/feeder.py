@@ -93,6 +93,7 @@ def bench_feeder(scenario: str = "sts-loaded", duration_s: float = 60.0, overrid
         "chain": {"rmse_pos_m": chain_pos.tolist(), "rmse_rpy_deg": chain_rpy.tolist(), "max_pos_m": kp["max_pos_m"],
                   "max_rpy_deg": kp["max_rpy_deg"], "rmse_vel_mps": kp["rmse_vel_mps"], "nees_mean": kp["nees_mean"],
                   "ms_per_lidar_frame": kp["apt_ms"], "ms_worst_lidar_frame": kp["apt_ms_max"],
+                  "ms_per_lidar_frame_by_stage": kp["apt_ms_by_stage"],
                   "merge_wait_ms": kp["merge_wait_ms"], "model_merges": kp["model_merges"],
                   "wall_s_all_frames": round(chain_wall, 3)},
         "kiss_icp": {"rmse_pos_m": kiss_pos.round(5).tolist(), "rmse_rpy_deg": kiss_rpy.round(5).tolist(),

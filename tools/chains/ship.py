@@ -10,7 +10,6 @@ OUT/feeder_calibration.csv        the feeder frame's definition over the run
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from boomtip.fusion.radar_offset import RadarOffsetConfig
 from boomtip.perception.feeder import FeederPerception, LidarObservation, RadarObservation
 from boomtip.perception.feeder_pipeline import FeederPipeline
 from boomtip.perception.pipeline import FrameResult
+from boomtip.perception.timing import StageTimes
 from boomtip.tools.chains.heave import HeaveChain, HeaveResult
 from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.provenance import outage_windows
@@ -85,6 +85,7 @@ class ShipChain:
         self.p_tip_crane_m = inst.T_crane_boomtip()[:3, 3]
         self.missing: list[tuple[float, str, str]] = []  # frames the feeder could not use: (t, sensor, why)
         self.frame_ms: list[float] = []
+        self.stage_ms: dict[str, float] = {}  # the LiDAR frames' time by stage, summed over the run
 
     def frames(self, source: FrameSource):
         return iter(source)
@@ -127,26 +128,35 @@ class ShipChain:
 
     def _fuse(self, obs: LidarObservation | RadarObservation) -> None:
         if isinstance(obs, LidarObservation):
-            t0 = time.perf_counter()
-            self._lidar(obs)
-            self.frame_ms.append(obs.ms + (time.perf_counter() - t0) * 1e3)
+            times = StageTimes()
+            self._lidar(obs, times)
+            self.frame_ms.append(obs.ms + times.total())
+            for name, ms in (*obs.stage_ms.items(), *times.ms.items()):
+                self.stage_ms[name] = self.stage_ms.get(name, 0.0) + ms
         elif self.estimator.started:
             self._radar(obs)
 
-    def _lidar(self, obs: LidarObservation) -> None:
+    def _lidar(self, obs: LidarObservation, times: StageTimes) -> None:
         est, pipe = self.estimator, self.pipeline
-        pipe.next_lidar_frame()
-        if not est.lidar_deck(obs.t_s, obs.tip_level, obs.tip_velocity, obs.t_level_sensor, obs.noise, deck_measurement(obs)):
-            if est.started:  # a frame without a deck: its structure has nothing to stand on
-                est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
-            return
-        T_map_level = est.map_pose()
-        structure = pipe.structure(obs, T_map_level, est.deck_plane())
-        reg = pipe.register(obs, structure, T_map_level, est.registration_sigma_m())
-        if reg is not None:
-            est.update_registration(obs.t_s, pose_vector(inverse(reg.T_map_level)), reg.info6, pipe.young_model, obs.noise)
-        pipe.keep(obs, structure, reg, est.map_pose(), est.position_sigma_x_m())
-        est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
+        with times.stage("feeder.merges"):  # a merge due now: inline, or waited for
+            pipe.next_lidar_frame()
+        with times.stage("feeder.filter"):
+            deck = est.lidar_deck(obs.t_s, obs.tip_level, obs.tip_velocity, obs.t_level_sensor, obs.noise, deck_measurement(obs))
+            if not deck:
+                if est.started:  # a frame without a deck: its structure has nothing to stand on
+                    est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
+                return
+            T_map_level = est.map_pose()
+        with times.stage("feeder.structure"):
+            structure = pipe.structure(obs, T_map_level, est.deck_plane())
+        with times.stage("feeder.registration"):
+            reg = pipe.register(obs, structure, T_map_level, est.registration_sigma_m())
+        with times.stage("feeder.filter"):
+            if reg is not None:
+                est.update_registration(obs.t_s, pose_vector(inverse(reg.T_map_level)), reg.info6, pipe.young_model, obs.noise)
+        pipe.keep(obs, structure, reg, est.map_pose(), est.position_sigma_x_m(), times)
+        with times.stage("feeder.filter"):
+            est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
 
     def _radar(self, obs: RadarObservation) -> None:
         est = self.estimator
@@ -179,7 +189,7 @@ class ShipChain:
         model_points = self.pipeline.finish()
         est = self.estimator.finish(self.pipeline.lines, self.pipeline.hull_yaws)
         started = np.isfinite(est.t_definition_s)
-        feeder = FeederResult(**vars(est), frame_ms=self.frame_ms, missing=self.missing + self.pipeline.missing,
+        feeder = FeederResult(**vars(est), frame_ms=self.frame_ms, stage_ms=self.stage_ms, missing=self.missing + self.pipeline.missing,
                               model_points_map=model_points if started else None, merges=self.pipeline.merges.records)
         return ShipResult(self.heave.finish(), feeder)
 

@@ -358,4 +358,6 @@ def bench_feeder_cmd(
               f"{c['merge_wait_ms']['max']:.0f} ms at most" if beside else
               "its model's merges ran inline: " + ", ".join(f"{m['frames']} frames {m['worker_s']:.2f} s" for m in c["model_merges"]))
     print(f"  chain: worst LiDAR frame {c['ms_worst_lidar_frame']:.1f} ms; {merges}; everything in its ms/frame")
+    stages = sorted(c["ms_per_lidar_frame_by_stage"].items(), key=lambda kv: -kv[1])
+    print("  chain's ms/frame by stage: " + ", ".join(f"{name} {ms:.2f}" for name, ms in stages))
     print(f"  ratio {r['ratio']:.2f} (smallest over the six axes; above 1 the chain is better on every one)")

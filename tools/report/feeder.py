@@ -7,14 +7,13 @@ OUT/feeder_estimates.csv   t, x, y, z, roll, pitch, yaw, their rates, the 12 var
 
 from __future__ import annotations
 
-import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from boomtip.data.frames import Truth
-from boomtip.data.io.pcd import atomic_write_bytes
+from boomtip.data.io.atomic import atomic_text_file
 from boomtip.data.sim.world import in_windows  # the scored windows, from the world's provenance
 from boomtip.fusion.models.relative_motion import deck_plane
 from boomtip.fusion.feeder_estimator import FeederEstimate
@@ -44,17 +43,17 @@ class FeederResult(FeederEstimate):
     """The feeder's estimate and what its pipeline reports of the run."""
 
     frame_ms: list[float] = field(default_factory=list)  # wall time per LiDAR frame (feeder stages, the deck stage it reuses, merge waits)
+    stage_ms: dict[str, float] = field(default_factory=dict)  # the same by stage, summed over the run's LiDAR frames
     missing: list[tuple[float, str, str]] = field(default_factory=list)  # (t, sensor, why)
     model_points_map: np.ndarray | None = None  # the model's points, for the display
     merges: list[MergeRecord] = field(default_factory=list)  # the model's merges (inline, or beside the frames)
 
 
 def write_feeder_estimates(path: Path, res: FeederResult | CausalEstimates) -> None:
-    buf = io.StringIO()
-    buf.write(",".join(COLUMNS) + "\n")
-    for t, p, r, v in zip(res.t_s, res.pose, res.rates, res.var):
-        buf.write(f"{t:.4f}," + ",".join(f"{x:.7g}" for x in (*p, *r)) + "," + ",".join(f"{x:.4g}" for x in v) + "\n")
-    atomic_write_bytes(path, buf.getvalue().encode())
+    with atomic_text_file(path) as fh:  # row by row: a long run's table is never whole in memory
+        fh.write(",".join(COLUMNS) + "\n")
+        for t, p, r, v in zip(res.t_s, res.pose, res.rates, res.var):
+            fh.write(f"{t:.4f}," + ",".join(f"{x:.7g}" for x in (*p, *r)) + "," + ",".join(f"{x:.4g}" for x in v) + "\n")
 
 
 def write_feeder_online(out: Path, res: FeederResult) -> list[str]:
@@ -63,11 +62,10 @@ def write_feeder_online(out: Path, res: FeederResult) -> list[str]:
     if res.online is None:
         return []
     write_feeder_estimates(out / "feeder_estimates_online.csv", res.online)
-    buf = io.StringIO()
-    buf.write(",".join(HISTORY_COLUMNS) + "\n")
-    for row in res.online.history:
-        buf.write(f"{row[0]:.4f}," + ",".join(f"{x:.7g}" for x in row[1:]) + "\n")
-    atomic_write_bytes(out / "feeder_calibration.csv", buf.getvalue().encode())
+    with atomic_text_file(out / "feeder_calibration.csv") as fh:
+        fh.write(",".join(HISTORY_COLUMNS) + "\n")
+        for row in res.online.history:
+            fh.write(f"{row[0]:.4f}," + ",".join(f"{x:.7g}" for x in row[1:]) + "\n")
     return ["feeder_estimates_online.csv", "feeder_calibration.csv"]
 
 
@@ -102,6 +100,8 @@ def feeder_kpis(res: FeederResult, truth: Truth | None, p_tip_crane_m: np.ndarra
     waits = [m.wait_s for m in res.merges]
     out: dict = {"apt_ms": round(apt, 3), "apt_ms_p95": round(float(np.percentile(res.frame_ms, 95)), 3) if res.frame_ms else None,
                  "apt_ms_max": round(float(np.max(res.frame_ms)), 3) if res.frame_ms else None,
+                 # where a LiDAR frame's milliseconds go (means over the frames; they sum to apt_ms)
+                 "apt_ms_by_stage": {k: round(v / len(res.frame_ms), 3) for k, v in res.stage_ms.items()} if res.frame_ms else {},
                  "merge_wait_ms": {"total": round(1e3 * sum(waits), 3), "max": round(1e3 * max(waits, default=0.0), 3)},
                  "model_merges": [{"frames": m.frames, "started_frame": m.started_frame, "taken_frame": m.taken_frame,
                                    "worker_s": round(m.worker_s, 3), "wait_s": round(m.wait_s, 3), "status": m.status}

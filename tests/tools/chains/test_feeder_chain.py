@@ -33,6 +33,11 @@ def test_outputs_and_kpis(short_run):
     k = json.loads((out / "kpis.json").read_text())["feeder"]
     for key in ("rmse_pos_m", "max_pos_m", "rmse_rpy_deg", "max_rpy_deg", "rmse_vel_mps", "apt_ms", "nees_mean"):
         assert key in k
+    # where a LiDAR frame's milliseconds go: every stage's mean, summing to the frame's
+    by_stage = k["apt_ms_by_stage"]
+    assert {"feeder.returns", "feeder.static_count", "feeder.static_mask", "feeder.structure", "feeder.registration",
+            "feeder.filter", "feeder.model", "feeder.lines", "deck (the heave chain's)"} <= set(by_stage)
+    assert sum(by_stage.values()) == pytest.approx(k["apt_ms"], abs=0.01 * len(by_stage))
     assert "Feeder 6-DOF" in (out / "report.md").read_text()
     assert (out / "plots" / "feeder_pose.png").exists()
     # the estimates as a live controller had them: the same rows; 14 s is under the calibration's 30 s
