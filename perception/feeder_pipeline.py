@@ -133,18 +133,21 @@ class FeederPipeline:
                 obs.static_keys = obs.sample_returns_sensor = None  # the test's inputs: not needed past here
         return out
 
-    def next_lidar_frame(self) -> None:
+    def next_lidar_frame(self, times: StageTimes | None = None) -> None:
         """At the start of each LiDAR frame's fusion: a merge of the model due now becomes it."""
-        self.merges.next_frame()
+        with (times or StageTimes()).stage("feeder.merges"):  # waited for, when it runs beside the frames
+            self.merges.next_frame()
 
-    def structure(self, obs: LidarObservation, T_map_level: np.ndarray, deck_abc: np.ndarray) -> np.ndarray:
+    def structure(self, obs: LidarObservation, T_map_level: np.ndarray, deck_abc: np.ndarray,
+                  times: StageTimes | None = None) -> np.ndarray:
         """The frame's structure (level frame) off the deck plane `deck_abc`, over the feeder's
         footprint (taken from the first deck, placed in the map by T_map_level), static returns
         removed."""
         if self.footprint is None and obs.plane is not None and obs.plane.points_level is not None:
             deck_map = transform(T_map_level, obs.plane.points_level)
             self.footprint = Footprint(deck_map[:, :2], self.cfg.perception.footprint_margin_m)
-        return self.stages.structure(obs, deck_abc, self.footprint, T_map_level, is_static=lambda rows: self.static_of(obs)[rows])
+        with (times or StageTimes()).stage("feeder.structure"):
+            return self.stages.structure(obs, deck_abc, self.footprint, T_map_level, is_static=lambda rows: self.static_of(obs)[rows])
 
     def static_of(self, obs: LidarObservation) -> np.ndarray:
         """Which of the frame's returns are static: as `ready` handed it over, else as the test says now."""
@@ -153,7 +156,7 @@ class FeederPipeline:
         return obs.static_mask
 
     def register(self, obs: LidarObservation, structure: np.ndarray, T_map_level_guess: np.ndarray,
-                 prior_sigma_m: float) -> Registration6 | None:
+                 prior_sigma_m: float, times: StageTimes | None = None) -> Registration6 | None:
         """The structure registered to the model from the guess; None when there is nothing to
         register to (the frame becomes the first keyframe, or a new one after
         `rekey_after_failures` failures) or the registration failed (counted as missing)."""
@@ -162,7 +165,8 @@ class FeederPipeline:
                 self.model.set_keyframe(structure, T_map_level_guess)
                 self.failed_registrations = 0
             return None
-        reg = self.model.register(structure, T_map_level_guess, prior_sigma_m)
+        with (times or StageTimes()).stage("feeder.registration"):
+            reg = self.model.register(structure, T_map_level_guess, prior_sigma_m)
         if reg.status != "ok":
             self.failed_registrations += 1
             self.missing.append((obs.t_s, "lidar", f"registration: {reg.status}"))

@@ -180,3 +180,16 @@ def cast_footprints(caster, faces, fans, hits, R_world_sensor: np.ndarray, p_wor
     mixed = Hits(range_m, None, None, cos_inc, flat_face=flat.astype(np.int32), face_offset=caster.face_offset)
     f2, c2 = surface(row[dual], r2[dual], j2[dual], e2[dual])
     return mixed, (rays[dual], r2[dual], f2, c2)
+
+
+def with_second_returns(idx, r, cos_inc, intensity, label, second, faces, lo, hi):
+    """The returns and a dual-return footprint's second returns (ray index, range, flat face,
+    cos incidence) in range, in ray order (a ray's two in range order)."""
+    rays, r2, f2, c2 = second
+    ok = (r2 >= lo) & (r2 <= hi)
+    rays, r2, f2, c2 = rays[ok], r2[ok], f2[ok], c2[ok]
+    order = np.lexsort((np.concatenate([r, r2]), np.concatenate([idx, rays])))
+    return (np.concatenate([idx, rays]).take(order), np.concatenate([r, r2.astype(r.dtype)]).take(order),
+            np.concatenate([cos_inc, np.maximum(c2, 1e-3).astype(cos_inc.dtype)]).take(order),
+            np.concatenate([intensity, (faces.reflectivity_signed[f2] * c2).astype(intensity.dtype)]).take(order),
+            np.concatenate([label, faces.label[f2]]).take(order))

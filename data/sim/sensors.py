@@ -18,6 +18,7 @@ import numpy as np
 
 from boomtip.data.io.beams import beam_angles_deg
 from boomtip.data.sim.fans import Fans
+from boomtip.data.sim.footprint import with_second_returns
 from boomtip.data.sim.raycast import Hits, face_offsets
 from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
@@ -227,8 +228,7 @@ def lidar_measure(
     intensity *= cos_inc  # diffuse (Lambert)
     label = faces.label.take(f)
     if second_returns is not None and len(second_returns[0]):  # a dual-return sensor's farther surface
-        idx, r, cos_inc, intensity, label = _with_second_returns(cfg, idx, r, cos_inc, intensity, label,
-                                                                  second_returns, faces, lo, hi)
+        idx, r, cos_inc, intensity, label = with_second_returns(idx, r, cos_inc, intensity, label, second_returns, faces, lo, hi)
     if spray is not None and spray.probability > 0 and len(idx):
         # a droplet at a height z in the band, met by a downward ray before its surface
         z0 = np.broadcast_to(np.asarray(origin_z_world, dtype=float), r_all.shape)[idx]
@@ -318,19 +318,6 @@ def backscatter(cfg: Lidar, r_all: np.ndarray, max_range_m: float, idx: np.ndarr
     return (idx.take(order), np.concatenate([r, r_drop[new]]).take(order),
             _appended(intensity, n_new, cfg.backscatter_reflectivity, order),
             _appended(label, n_new, int(Label.PRECIPITATION), order), _appended(cos_inc, n_new, 1.0, order))
-
-
-def _with_second_returns(cfg: Lidar, idx, r, cos_inc, intensity, label, second, faces: FaceLookup, lo, hi):
-    """The returns and a dual-return footprint's second returns (ray index, range, flat face,
-    cos incidence) in range, in ray order (a ray's two in range order)."""
-    rays, r2, f2, c2 = second
-    ok = (r2 >= lo) & (r2 <= hi)
-    rays, r2, f2, c2 = rays[ok], r2[ok], f2[ok], c2[ok]
-    order = np.lexsort((np.concatenate([r, r2]), np.concatenate([idx, rays])))
-    return (np.concatenate([idx, rays]).take(order), np.concatenate([r, r2.astype(r.dtype)]).take(order),
-            np.concatenate([cos_inc, np.maximum(c2, 1e-3).astype(cos_inc.dtype)]).take(order),
-            np.concatenate([intensity, (faces.reflectivity_signed[f2] * c2).astype(intensity.dtype)]).take(order),
-            np.concatenate([label, faces.label[f2]]).take(order))
 
 
 def _appended(values: np.ndarray, n: int, value, order: np.ndarray) -> np.ndarray:

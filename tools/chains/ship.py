@@ -10,8 +10,10 @@ OUT/feeder_calibration.csv        the feeder frame's definition over the run
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -128,35 +130,24 @@ class ShipChain:
 
     def _fuse(self, obs: LidarObservation | RadarObservation) -> None:
         if isinstance(obs, LidarObservation):
-            times = StageTimes()
-            self._lidar(obs, times)
-            self.frame_ms.append(obs.ms + times.total())
-            for name, ms in (*obs.stage_ms.items(), *times.ms.items()):
-                self.stage_ms[name] = self.stage_ms.get(name, 0.0) + ms
+            self.frame_ms.append(timed_fusion(self._lidar, obs, self.stage_ms))
         elif self.estimator.started:
             self._radar(obs)
 
     def _lidar(self, obs: LidarObservation, times: StageTimes) -> None:
         est, pipe = self.estimator, self.pipeline
-        with times.stage("feeder.merges"):  # a merge due now: inline, or waited for
-            pipe.next_lidar_frame()
-        with times.stage("feeder.filter"):
-            deck = est.lidar_deck(obs.t_s, obs.tip_level, obs.tip_velocity, obs.t_level_sensor, obs.noise, deck_measurement(obs))
-            if not deck:
-                if est.started:  # a frame without a deck: its structure has nothing to stand on
-                    est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
-                return
-            T_map_level = est.map_pose()
-        with times.stage("feeder.structure"):
-            structure = pipe.structure(obs, T_map_level, est.deck_plane())
-        with times.stage("feeder.registration"):
-            reg = pipe.register(obs, structure, T_map_level, est.registration_sigma_m())
-        with times.stage("feeder.filter"):
-            if reg is not None:
-                est.update_registration(obs.t_s, pose_vector(inverse(reg.T_map_level)), reg.info6, pipe.young_model, obs.noise)
+        pipe.next_lidar_frame(times)
+        if not est.lidar_deck(obs.t_s, obs.tip_level, obs.tip_velocity, obs.t_level_sensor, obs.noise, deck_measurement(obs)):
+            if est.started:  # a frame without a deck: its structure has nothing to stand on
+                est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
+            return
+        T_map_level = est.map_pose()
+        structure = pipe.structure(obs, T_map_level, est.deck_plane(), times)
+        reg = pipe.register(obs, structure, T_map_level, est.registration_sigma_m(), times)
+        if reg is not None:
+            est.update_registration(obs.t_s, pose_vector(inverse(reg.T_map_level)), reg.info6, pipe.young_model, obs.noise)
         pipe.keep(obs, structure, reg, est.map_pose(), est.position_sigma_x_m(), times)
-        with times.stage("feeder.filter"):
-            est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
+        est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
 
     def _radar(self, obs: RadarObservation) -> None:
         est = self.estimator
@@ -256,3 +247,15 @@ class ShipChain:
             return None
         origin = feeder_origin_body(truth, res.t_definition_s, self.p_tip_crane_m)
         return feeder.vertices - origin, feeder.triangles
+
+
+def timed_fusion(fuse: Callable[[LidarObservation, StageTimes], None], obs: LidarObservation,
+                 totals: dict[str, float]) -> float:
+    """`fuse(obs, times)` timed: what its stages do not claim is the estimator's ("feeder.filter").
+    The frame's stages (its perception's too) are summed into `totals`; returns the frame's ms."""
+    times, t0 = StageTimes(), time.perf_counter()
+    fuse(obs, times)
+    times.ms["feeder.filter"] = (time.perf_counter() - t0) * 1e3 - times.total()
+    for name, ms in (*obs.stage_ms.items(), *times.ms.items()):
+        totals[name] = totals.get(name, 0.0) + ms
+    return obs.ms + times.total()
