@@ -185,6 +185,9 @@ class CraneGeometry(StrictModel):
     boom_tip_m: tuple[float, float, float] = Field(
         (10.0, -40.0, 52.0), description="boom tip in the crane-vessel body frame (fixed-tip runs)"
     )
+    waterline_z_m: float | None = Field(0.0, description="the calm waterline's height in the crane-vessel body frame "
+                                        "(boomtip's body frame has its origin on it: 0); the tip's height above the sea "
+                                        "follows, and no plane below the sea is taken for the deck. null: not known")
     boom_length_m: float = Field(150.0, gt=0, description="L")
     boom_foot_offset_m: float = Field(10.0, description="b: boom foot from the slewing axis")
     boom_foot_height_m: float = Field(40.0, description="h: boom foot above the crane base")

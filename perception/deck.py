@@ -94,6 +94,7 @@ def detect_deck(
     prefix: str = "deck",
     prior_D_m: float | None = None,
     prior_tol_m: float = 0.5,
+    max_D_m: float | None = None,
 ) -> DeckResult:
     """The feeder deck plane in one frame and D, the distance from the tip down the wire to it.
 
@@ -109,6 +110,8 @@ def detect_deck(
         within prior_tol_m, is the deck; none within it is no measurement. Without a prior, the
         lowest deck-like plane. A sea that returns echoes is a large plane below the deck: the
         prior is what keeps the deck from being taken for it.
+    max_D_m: no deck lies farther down the wire (the sea's calm surface below the tip): planes
+        beyond it (the sea, the deck's mirror image in a radar's echoes) are never the deck.
     Returns a :class:`DeckResult`; without a measurement D_m is NaN and status says why.
     """
     points_sensor = as_points(points_sensor)
@@ -119,6 +122,9 @@ def detect_deck(
     times = times if times is not None else StageTimes()
     with times.stage(f"{prefix}.preprocess"):
         pts, _, _ = preprocess(points_sensor, None, cfg.preprocess, rng)
+        if max_D_m is not None:  # below the sea nothing is searched (a tilted deck reaches the band's depth)
+            depth = pts @ wire_dir_sensor
+            pts = pts[depth <= float(wire_dir_sensor @ p_tip_sensor) + max_D_m + cfg.prior_band_m]
         # (3, N), one contiguous row per axis, for every pass below (no copy after a range crop)
         cols = np.ascontiguousarray(pts.T)
     if len(pts) < cfg.min_points:
@@ -129,6 +135,8 @@ def detect_deck(
             deck = result.deck if result is not None else None
         else:
             candidates = _deck_like_planes_cols(cols, -wire_dir_sensor, cfg, rng)
+            if max_D_m is not None:  # above the sea
+                candidates = [c for c in candidates if heave_distance(c.plane, wire_dir_sensor, p_tip_sensor) <= max_D_m]
             deck = candidates[-1] if candidates else None  # the lowest
             if prior_D_m is not None:
                 deck = _nearest_the_prior(cols, candidates, wire_dir_sensor, p_tip_sensor, prior_D_m, prior_tol_m, cfg, rng)
@@ -136,7 +144,8 @@ def detect_deck(
                     return DeckResult(float("nan"), None, None, pts, f"no deck plane within {prior_tol_m:.2f} m of the "
                                       f"expected D = {prior_D_m:.2f} m")
     if deck is None:
-        return DeckResult(float("nan"), None, None, pts, "no deck plane")
+        above = "" if max_D_m is None else f" above the sea (D <= {max_D_m:.2f} m, the calm waterline below the tip)"
+        return DeckResult(float("nan"), None, None, pts, "no deck plane" + above)
     x_in = None  # the deck inliers' columns, once gathered
     if cfg.biweight_iterations:
         with times.stage(f"{prefix}.refine"):
@@ -152,6 +161,9 @@ def detect_deck(
         D = heave_distance(deck.plane, wire_dir_sensor, p_tip_sensor)
         if not math.isfinite(D) or D <= 0:  # D is a Python float
             return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
+        if max_D_m is not None and D > max_D_m:  # the prior's band found a plane below the sea
+            return DeckResult(float("nan"), deck.plane, deck, pts, f"the plane found lies below the sea (D = {D:.2f} m "
+                              f"beyond the calm waterline's {max_D_m:.2f} m)")
         if x_in is None:
             x_in = cols.take(deck.inlier_mask.nonzero()[0], axis=1)
         if deck.centroid is None:

@@ -1,10 +1,12 @@
-"""The Doppler fit's detections: those on or above the deck. A radar detection beyond the deck
+"""The Doppler fit's detections: those on or above the deck, within its band of range rates. A radar detection beyond the deck
 plane, seen from the sensor, is not of the deck nor of anything it carries: it is the sea beside
 the hull, or an echo by way of the sea (a ghost at the deck's mirror image below the waterline,
 moving as the image does: its vertical velocity reversed). Either would pull the rigid-deck
 velocity fit; the deck plane the same scan gave separates them."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -23,3 +25,11 @@ def on_or_above_deck(points_sensor: np.ndarray, plane_sensor: np.ndarray | None,
     if plane_sensor is None or not np.all(np.isfinite(plane_sensor)):
         return np.ones(len(points_sensor), bool)
     return points_sensor @ plane_sensor[:3] + plane_sensor[3] >= -margin_m
+
+
+def doppler_band_mps(radar, sigmas: float, floor_mps: float) -> float:
+    """Half-width of the Doppler inlier band from the radar's data sheet: `sigmas` times its
+    range-rate noise and Doppler bin (a uniform error of bin / sqrt(12)), never below `floor_mps`
+    (what the rigid-deck model leaves unexplained)."""
+    sigma = math.hypot(radar.range_rate_noise_mps, radar.range_rate_resolution_mps / math.sqrt(12.0))
+    return max(floor_mps, sigmas * sigma)

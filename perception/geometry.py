@@ -406,3 +406,12 @@ def sym3_eigvals_floats(a00: float, a01: float, a02: float, a11: float, a12: flo
     e_max = q + 2.0 * p * math.cos(phi)
     e_min = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
     return e_min, 3.0 * q - e_max - e_min, e_max
+
+
+def tip_above_waterline_m(rpy_rad, boom_tip_body_m, waterline_z_m: float) -> float:
+    """The boom tip's height above the calm waterline (m): the tip in the crane-vessel body frame
+    tilted by the vessel's roll and pitch (its yaw moves nothing up or down) about the point of
+    the waterline below the body origin. The vessel's own heave is not in it (the MRU gives none)."""
+    r, p = float(rpy_rad[0]), float(rpy_rad[1])
+    x, y, z = boom_tip_body_m
+    return -math.sin(p) * x + math.cos(p) * math.sin(r) * y + math.cos(p) * math.cos(r) * (z - waterline_z_m)

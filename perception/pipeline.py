@@ -25,7 +25,7 @@ from boomtip.data.installation import Installation
 from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck, status_ok
 from boomtip.perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
 from boomtip.perception.doppler_alias import WAIT_S, alias_prior_level, unwrap_range_rates
-from boomtip.perception.doppler_gate import beyond_deck_margin_m, on_or_above_deck
+from boomtip.perception.doppler_gate import beyond_deck_margin_m, doppler_band_mps, on_or_above_deck
 from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
@@ -36,6 +36,7 @@ from boomtip.perception.geometry import (
     mount_rotation,
     omega_from_euler_rates_floats,
     quad3,
+    tip_above_waterline_m,
     tip_in_sensor,
 )
 from boomtip.perception.preprocess import PreprocessConfig
@@ -76,13 +77,9 @@ class PipelineConfig(BaseModel):
     max_deck_age_s: float = Field(0.5, gt=0, description="the rotation-aware Doppler uses a deck plane at most this old")
     max_abs_D_dot_mps: float = Field(15.0, gt=0, description="no sea moves a deck faster: beyond it a D-dot is implausible")
     deck_prior_tol_m: float = Field(0.5, gt=0, description="a deck plane must lie this near its prior (the reflectors' D)")
-
-
-def doppler_band_mps(radar, cfg: PipelineConfig) -> float:
-    """Half-width of the Doppler inlier band from the radar's data sheet: its range-rate noise
-    and Doppler bin (a uniform error of bin / sqrt(12)), never below the model's own floor."""
-    sigma = math.hypot(radar.range_rate_noise_mps, radar.range_rate_resolution_mps / math.sqrt(12.0))
-    return max(cfg.doppler_band_floor_mps, cfg.doppler_band_sigmas * sigma)
+    beyond_waterline_m: float = Field(0.0, ge=0, description="a deck's D may pass the tip's height above the calm "
+                                      "waterline by this much (the crane vessel's heave, which the MRU does not give): "
+                                      "a feeder's deck stands higher above the sea than the crane vessel heaves")
 
 
 def carried_deck_prior(cfg: PipelineConfig, t_s: float, last: tuple[float, float] | None) -> tuple[float | None, float]:
@@ -183,7 +180,8 @@ class HeavePipeline:
         self.bias_sigma_rad = {s: installation.levelling_bias_sigma_rad(s) for s in ("lidar", "radar")}
         if "inlier_threshold_mps" not in self.cfg.doppler.model_fields_set:
             self.cfg = self.cfg.model_copy(update={"doppler": self.cfg.doppler.model_copy(
-                update={"inlier_threshold_mps": doppler_band_mps(installation.radar, self.cfg)})})
+                update={"inlier_threshold_mps": doppler_band_mps(installation.radar, self.cfg.doppler_band_sigmas,
+                                                                 self.cfg.doppler_band_floor_mps)})})
         if "marker_height_m" not in self.cfg.reflectors.model_fields_set:  # the markers as the crew laid them
             self.cfg = self.cfg.model_copy(update={"reflectors": self.cfg.reflectors.model_copy(
                 update={"marker_height_m": installation.markers.height_m})})
@@ -259,7 +257,7 @@ class HeavePipeline:
             if "deck_lidar" in wanted:
                 prior, tol = self._deck_prior(frame.t_s, "lidar", out.reflectors)
                 out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_lidar, rng, times, "deck",
-                                                    prior_D_m=prior, prior_tol_m=tol)
+                                                    prior_D_m=prior, prior_tol_m=tol, max_D_m=self.max_deck_D(rpy))
                 results["deck_lidar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "lidar", R_ls)
         else:
             if "deck_radar" in wanted:
@@ -268,7 +266,7 @@ class HeavePipeline:
                 decks = [d for d in (self.last_deck.get("lidar"), self.last_deck.get("radar")) if d is not None]
                 prior, tol = carried_deck_prior(self.cfg, frame.t_s, max(decks, key=lambda d: d[0]) if decks else None)
                 out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, self.cfg.deck_radar, rng, times, "radar_deck",
-                                                    prior_D_m=prior, prior_tol_m=tol)
+                                                    prior_D_m=prior, prior_tol_m=tol, max_D_m=self.max_deck_D(rpy))
                 results["deck_radar"] = self._deck_row(deck, wire, p_tip, frame.t_s, "radar", R_ls)
             if {"doppler_radar", "doppler_radar_rot"} & set(wanted):
                 results.update(self._doppler(frame, wanted, R_rows, rpy, rpy_rate, rng, times, out))
@@ -297,10 +295,10 @@ class HeavePipeline:
         prior, tol = carried_deck_prior(cfg, frame.t_s, max(decks, key=lambda d: d[0]) if decks else None)  # the latest
         if frame.sensor == "lidar":
             out.deck_lidar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_lidar, rng, times, "deck",
-                                                prior_D_m=prior, prior_tol_m=tol)
+                                                prior_D_m=prior, prior_tol_m=tol, max_D_m=self.max_deck_D(rpy_rad))
         else:
             out.deck_radar = deck = detect_deck(frame.points_sensor, wire, p_tip, cfg.deck_radar, rng, times, "radar_deck",
-                                                prior_D_m=prior, prior_tol_m=tol)
+                                                prior_D_m=prior, prior_tol_m=tol, max_D_m=self.max_deck_D(rpy_rad))
             inputs = doppler_inputs(frame, cfg.doppler_preprocess)
             if inputs is not None:  # as in process: what lies beyond this scan's deck is no deck
                 keep = on_or_above_deck(inputs[0], deck.plane_sensor if deck.ok else None, self.beyond_deck_m)
@@ -332,6 +330,13 @@ class HeavePipeline:
     def frame_rng(self, frame: Frame) -> np.random.Generator:
         """The frame's random draws (RANSAC), from the run's seed, the sensor and the frame's index."""
         return np.random.default_rng([self.seed, SENSOR_IDS[frame.sensor], frame.index])
+
+    def max_deck_D(self, rpy_rad) -> float | None:
+        """How far down the wire a deck can lie: to the calm sea below the tip (None: the waterline unknown)."""
+        geometry = self.installation.crane.geometry
+        if geometry.waterline_z_m is None:
+            return None
+        return tip_above_waterline_m(rpy_rad, geometry.boom_tip_m, geometry.waterline_z_m) + self.cfg.beyond_waterline_m
 
     def _deck_prior(self, t_s: float, sensor: str, reflectors: ReflectorResult | None) -> tuple[float | None, float]:
         """Where the deck is expected: this frame's reflector D, else the last deck of this

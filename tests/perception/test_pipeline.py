@@ -26,6 +26,7 @@ from boomtip.perception.geometry import (
     quad3,
     rotation_level_sensor,
     rpy_matrix,
+    tip_above_waterline_m,
     tip_in_sensor,
 )
 from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline
@@ -61,6 +62,35 @@ def test_deck_under_cargo_is_found_not_a_cargo_top():
     assert res.status == "ok"
     assert res.D_m == pytest.approx(depth, abs=0.005)
     assert np.degrees(np.arccos(abs(res.plane_sensor[:3] @ n_up))) < 0.1
+
+
+def test_no_plane_below_the_sea_is_the_deck():
+    """A deck and, farther down, a larger plane (the deck's mirror image in a radar's sea echoes):
+    without a prior the lowest would be taken; beyond the calm waterline it never is."""
+    rng = np.random.default_rng(3)
+    pts, _, depth = _deck_scene(rng, cargo=False)
+    mirror = pts[pts[:, 2] < -depth + 1] * [1.0, 1.0, 1.0] + [0.0, 0.0, -8.0]  # 8 m lower, as many points
+    both = np.vstack([pts, mirror, mirror + rng.normal(0, 0.01, mirror.shape)])
+    wire = np.array([0, 0, -1.0])
+    lowest = detect_deck(both, wire, np.zeros(3), LIDAR_DECK, np.random.default_rng(1), StageTimes())
+    assert lowest.D_m == pytest.approx(depth + 8.0, abs=0.01)  # the search's own choice: the lowest
+    above = detect_deck(both, wire, np.zeros(3), LIDAR_DECK, np.random.default_rng(1), StageTimes(), max_D_m=depth + 4.0)
+    assert above.status == "ok" and above.D_m == pytest.approx(depth, abs=0.005)
+    none = detect_deck(both, wire, np.zeros(3), LIDAR_DECK, np.random.default_rng(1), StageTimes(), max_D_m=depth - 1.0)
+    assert np.isnan(none.D_m) and "above the sea" in none.status
+    # a prior near the mirror image (a deck lost to it earlier) still finds nothing below the sea
+    held = detect_deck(both, wire, np.zeros(3), LIDAR_DECK, np.random.default_rng(1), StageTimes(),
+                       prior_D_m=depth + 8.0, prior_tol_m=0.5, max_D_m=depth + 4.0)
+    assert np.isnan(held.D_m)
+
+
+def test_the_tip_above_the_waterline_tilts_with_the_vessel():
+    tip = (10.0, -40.0, 52.0)
+    assert tip_above_waterline_m(np.zeros(3), tip, 0.0) == pytest.approx(52.0)
+    assert tip_above_waterline_m(np.zeros(3), tip, 2.0) == pytest.approx(50.0)  # the body origin 2 m below the sea
+    rpy = np.radians([1.0, 2.5, 30.0])  # the yaw moves nothing up or down
+    z = (rpy_matrix(rpy) @ np.array(tip))[2]
+    assert tip_above_waterline_m(rpy, tip, 0.0) == pytest.approx(z, abs=1e-12)
 
 
 def test_deck_with_too_few_points_reports_why():

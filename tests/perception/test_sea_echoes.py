@@ -1,8 +1,7 @@
 """The radar's deck among the sea's echoes: the ghosts mirrored below the waterline make a plane
 below the deck, and the deck stage takes the deck (the latest deck of either sensor is its prior),
-not the lowest plane. A radar alone has no prior at its first frame: where the echoes are strong
-enough for their plane to look like a deck (half the detections echoed), it may take the mirror
-image from the start; at a tenth it finds the deck first and keeps it."""
+not the lowest plane. A radar alone has no prior at its first frame: the mirror image lies below
+the sea, beyond the tip's height above the calm waterline, and is never taken for the deck."""
 
 from __future__ import annotations
 
@@ -15,7 +14,7 @@ from boomtip.tools.config.processing import Processing
 from boomtip.tools.config.scenario import load_scenario
 
 
-@pytest.mark.parametrize("lidar, echoed", [(True, 0.5), (False, 0.1)])
+@pytest.mark.parametrize("lidar, echoed", [(True, 0.5), (False, 0.1), (False, 0.5)])
 def test_the_radar_deck_is_the_deck_not_its_mirror_image(lidar, echoed):
     keys = ["duration_s=4", f"radar.multipath_probability={echoed}", f"installation.lidar.enabled={str(lidar).lower()}"]
     sim = Simulation(load_scenario("sts-loaded", keys))
