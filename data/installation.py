@@ -107,7 +107,17 @@ class LidarSpec(StrictModel):
     def _ranges(self) -> "LidarSpec":
         if self.min_range_m >= self.max_range_m:
             raise ValueError("lidar.min_range_m must be below lidar.max_range_m")
+        if self.beam_divergence_mrad > 1e3 * self.finest_step_rad:  # a footprint spanning rays is no beam of this scan
+            raise ValueError(f"lidar.beam_divergence_mrad = {self.beam_divergence_mrad:g}: expected below the scan's finest "
+                             f"spacing, {1e3 * self.finest_step_rad:.2f} mrad")
         return self
+
+    @property
+    def finest_step_rad(self) -> float:
+        """The smaller of the two beam spacings."""
+        if self.pattern == "spinning":
+            return min(2 * math.pi / self.columns, math.radians(self.channel_fov_deg) / max(self.channels - 1, 1))
+        return math.radians(min(self.res_h_deg, self.res_v_deg))
 
     @property
     def angular_step_rad(self) -> float:
@@ -185,9 +195,10 @@ class CraneGeometry(StrictModel):
     boom_tip_m: tuple[float, float, float] = Field(
         (10.0, -40.0, 52.0), description="boom tip in the crane-vessel body frame (fixed-tip runs)"
     )
-    waterline_z_m: float | None = Field(0.0, description="the calm waterline's height in the crane-vessel body frame "
-                                        "(boomtip's body frame has its origin on it: 0); the tip's height above the sea "
-                                        "follows, and no plane below the sea is taken for the deck. null: not known")
+    waterline_z_m: float | None = Field(None, description="the calm waterline's height in the crane-vessel body frame, "
+                                        "as surveyed (the built-in scenarios' body frame has its origin on it: 0): the "
+                                        "tip's height above the sea follows, and no plane below the sea is taken for the "
+                                        "deck. null: not surveyed, no such bound")
     boom_length_m: float = Field(150.0, gt=0, description="L")
     boom_foot_offset_m: float = Field(10.0, description="b: boom foot from the slewing axis")
     boom_foot_height_m: float = Field(40.0, description="h: boom foot above the crane base")
@@ -197,6 +208,13 @@ class CraneGeometry(StrictModel):
     @classmethod
     def _is_finite(cls, v):
         return require_finite(v, "a crane position")
+
+    @model_validator(mode="after")
+    def _tip_above_the_sea(self) -> "CraneGeometry":
+        if self.waterline_z_m is not None and not self.boom_tip_m[2] > self.waterline_z_m:
+            raise ValueError(f"crane.geometry.waterline_z_m = {self.waterline_z_m:g} m: the waterline must lie below the "
+                             f"boom tip (boom_tip_m z = {self.boom_tip_m[2]:g} m)")
+        return self
 
 
 class CraneDynamics(StrictModel):

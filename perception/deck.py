@@ -122,16 +122,19 @@ def detect_deck(
     times = times if times is not None else StageTimes()
     with times.stage(f"{prefix}.preprocess"):
         pts, _, _ = preprocess(points_sensor, None, cfg.preprocess, rng)
+        searched, rows = pts, None  # rows: the searched points' rows of pts, when the sea's are left out
         if max_D_m is not None:  # below the sea nothing is searched (a tilted deck reaches the band's depth)
-            depth = pts @ wire_dir_sensor
-            pts = pts[depth <= float(wire_dir_sensor @ p_tip_sensor) + max_D_m + cfg.prior_band_m]
+            above = pts @ wire_dir_sensor <= float(wire_dir_sensor @ p_tip_sensor) + max_D_m + cfg.prior_band_m
+            if not above.all():
+                rows = above.nonzero()[0]
+                searched = pts[rows]
         # (3, N), one contiguous row per axis, for every pass below (no copy after a range crop)
-        cols = np.ascontiguousarray(pts.T)
-    if len(pts) < cfg.min_points:
-        return DeckResult(float("nan"), None, None, pts, f"too few points ({len(pts)} < {cfg.min_points})")
+        cols = np.ascontiguousarray(searched.T)
+    if len(searched) < cfg.min_points:
+        return DeckResult(float("nan"), None, None, pts, f"too few points ({len(searched)} < {cfg.min_points})")
     with times.stage(f"{prefix}.planes"):
         if cfg.search == "all":
-            result = multi_plane_deck(pts, -wire_dir_sensor, cfg.multi_plane, rng)
+            result = multi_plane_deck(searched, -wire_dir_sensor, cfg.multi_plane, rng)
             deck = result.deck if result is not None else None
         else:
             candidates = _deck_like_planes_cols(cols, -wire_dir_sensor, cfg, rng)
@@ -160,10 +163,10 @@ def detect_deck(
     with times.stage(f"{prefix}.intersect"):
         D = heave_distance(deck.plane, wire_dir_sensor, p_tip_sensor)
         if not math.isfinite(D) or D <= 0:  # D is a Python float
-            return DeckResult(float("nan"), deck.plane, deck, pts, "wire does not meet the deck plane")
+            return DeckResult(float("nan"), deck.plane, _on_rows(deck, rows, len(pts)), pts, "wire does not meet the deck plane")
         if max_D_m is not None and D > max_D_m:  # the prior's band found a plane below the sea
-            return DeckResult(float("nan"), deck.plane, deck, pts, f"the plane found lies below the sea (D = {D:.2f} m "
-                              f"beyond the calm waterline's {max_D_m:.2f} m)")
+            return DeckResult(float("nan"), deck.plane, _on_rows(deck, rows, len(pts)), pts, f"the plane found lies below "
+                              f"the sea (D = {D:.2f} m beyond the calm waterline's {max_D_m:.2f} m)")
         if x_in is None:
             x_in = cols.take(deck.inlier_mask.nonzero()[0], axis=1)
         if deck.centroid is None:
@@ -175,7 +178,16 @@ def detect_deck(
     status = "ok"
     if deck.capped:  # still a measurement, but the search did not reach its confidence
         status = f"ok (RANSAC capped at {deck.iterations} of {min(deck.needed, 1e9):.0f} hypotheses)"
-    return DeckResult(D, deck.plane, deck, pts, status, sigma)
+    return DeckResult(D, deck.plane, _on_rows(deck, rows, len(pts)), pts, status, sigma)
+
+
+def _on_rows(fit: PlaneFit, rows: np.ndarray | None, n: int) -> PlaneFit:
+    """The fit with its inlier mask over all n preprocessed points, from the rows it searched."""
+    if rows is None:
+        return fit
+    mask = np.zeros(n, dtype=bool)
+    mask[rows[fit.inlier_mask]] = True
+    return replace(fit, inlier_mask=mask)
 
 
 def _inlier_moments(x_in: np.ndarray) -> dict:

@@ -159,7 +159,7 @@ class HeavePipeline:
     def __init__(self, installation: Installation, mru: MruLog, cfg: PipelineConfig | None = None, seed: int = 0) -> None:
         self.installation, self.mru = installation, mru
         self.unambiguous_mps = installation.radar.unambiguous_range_rate_mps  # 0: the radar's rates never wrap
-        self.beyond_deck_m = beyond_deck_margin_m(installation.radar.range_noise_m)
+        self.beyond_deck_m = beyond_deck_margin_m(installation.radar.range_noise_m, installation.radar.range_resolution_m)
         self.cfg = cfg or PipelineConfig()
         self.seed = seed
         T_crane_boomtip, T_boomtip_sensor = installation.T_crane_boomtip(), installation.T_boomtip_sensor()

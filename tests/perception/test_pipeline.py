@@ -9,6 +9,7 @@ from boomtip.data.frames import Frame, MruLog
 from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.simulator import Simulation
 from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, detect_deck
+from boomtip.perception.deck_spin import deck_point_times
 from boomtip.perception.doppler import doppler_velocity
 from boomtip.perception.geometry import (
     NormalRate,
@@ -29,7 +30,7 @@ from boomtip.perception.geometry import (
     tip_above_waterline_m,
     tip_in_sensor,
 )
-from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline
+from boomtip.perception.pipeline import FRAME_STAGES, STAGES, HeavePipeline, PipelineConfig
 from boomtip.perception.reflectors import ReflectorConfig, detect_reflectors
 from boomtip.perception.timing import StageTimes
 
@@ -69,7 +70,7 @@ def test_no_plane_below_the_sea_is_the_deck():
     without a prior the lowest would be taken; beyond the calm waterline it never is."""
     rng = np.random.default_rng(3)
     pts, _, depth = _deck_scene(rng, cargo=False)
-    mirror = pts[pts[:, 2] < -depth + 1] * [1.0, 1.0, 1.0] + [0.0, 0.0, -8.0]  # 8 m lower, as many points
+    mirror = pts[pts[:, 2] < -depth + 1] + [0.0, 0.0, -8.0]  # the deck's points again, 8 m lower
     both = np.vstack([pts, mirror, mirror + rng.normal(0, 0.01, mirror.shape)])
     wire = np.array([0, 0, -1.0])
     lowest = detect_deck(both, wire, np.zeros(3), LIDAR_DECK, np.random.default_rng(1), StageTimes())
@@ -82,6 +83,14 @@ def test_no_plane_below_the_sea_is_the_deck():
     held = detect_deck(both, wire, np.zeros(3), LIDAR_DECK, np.random.default_rng(1), StageTimes(),
                        prior_D_m=depth + 8.0, prior_tol_m=0.5, max_D_m=depth + 4.0)
     assert np.isnan(held.D_m)
+    # what lies below the sea is not searched but stays among the points used, so that the
+    # inliers still map to the frame's rows (their times: the deck's spin)
+    assert len(above.points_used) == len(lowest.points_used) and len(above.fit.inlier_mask) == len(above.points_used)
+    inliers = above.points_used[above.fit.inlier_mask]
+    times = np.arange(len(both), dtype=float)  # each point's time: its row
+    t = deck_point_times(both, times, above.points_used, above.fit.inlier_mask)
+    assert t is not None and np.array_equal(both[t.astype(int)], inliers)
+    assert len(t) > 1000 and t.max() < len(pts)  # the deck's rows, none of the lower copy's
 
 
 def test_the_tip_above_the_waterline_tilts_with_the_vessel():
@@ -89,8 +98,22 @@ def test_the_tip_above_the_waterline_tilts_with_the_vessel():
     assert tip_above_waterline_m(np.zeros(3), tip, 0.0) == pytest.approx(52.0)
     assert tip_above_waterline_m(np.zeros(3), tip, 2.0) == pytest.approx(50.0)  # the body origin 2 m below the sea
     rpy = np.radians([1.0, 2.5, 30.0])  # the yaw moves nothing up or down
-    z = (rpy_matrix(rpy) @ np.array(tip))[2]
-    assert tip_above_waterline_m(rpy, tip, 0.0) == pytest.approx(z, abs=1e-12)
+    for waterline in (0.0, -3.0):  # tilted about the waterline's point below the body origin
+        z = (rpy_matrix(rpy) @ (np.array(tip) - [0.0, 0.0, waterline]))[2]
+        assert tip_above_waterline_m(rpy, tip, waterline) == pytest.approx(z, abs=1e-12)
+
+
+def test_the_deck_search_is_bounded_by_the_sea_only_where_the_waterline_is_surveyed():
+    from boomtip.data.installation import Installation
+
+    inst = Installation()
+    assert inst.crane.geometry.waterline_z_m is None  # not surveyed by default: no bound
+    assert HeavePipeline(inst, None).max_deck_D(np.zeros(3)) is None
+    surveyed = Installation.model_validate({"crane": {"geometry": {"waterline_z_m": 1.0}}})
+    pipe = HeavePipeline(surveyed, None, PipelineConfig(beyond_waterline_m=0.5))
+    assert pipe.max_deck_D(np.zeros(3)) == pytest.approx(52.0 - 1.0 + 0.5)
+    with pytest.raises(ValueError, match="waterline_z_m"):
+        Installation.model_validate({"crane": {"geometry": {"waterline_z_m": 60.0}}})
 
 
 def test_deck_with_too_few_points_reports_why():

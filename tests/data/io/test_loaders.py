@@ -41,7 +41,8 @@ def test_a_folder_of_pcds_reads_like_its_recording(rec, tmp_path):
         shutil.copy(p, clouds / p.name)
     shutil.copy(rec / "mru.csv", clouds / "mru.csv")
     inst = tmp_path / "inst.yaml"
-    inst.write_text(installation_template())  # the defaults are the recording's LiDAR and mount
+    # the defaults are the recording's LiDAR and mount; its survey has the waterline too
+    inst.write_text(installation_template().replace("waterline_z_m: null", "waterline_z_m: 0.0"))
     assert guess_format(clouds) == "folder" and guess_format(rec) == "boomtip"
     r = runner.invoke(app, ["process", str(clouds), "--installation", str(inst), "--out", str(tmp_path / "f")])
     assert r.exit_code == 0, r.output
