@@ -14,9 +14,10 @@ BEYOND_DECK_SIGMAS = 4.0  # of the radar's stated range noise: farther beyond th
 MIN_BEYOND_DECK_M = 1.0  # never nearer the plane than this (its own tilt and fit error across the scan)
 
 
-def beyond_deck_margin_m(range_noise_m: float) -> float:
-    """How far beyond the deck plane a detection may lie and still be the deck's."""
-    return max(MIN_BEYOND_DECK_M, BEYOND_DECK_SIGMAS * range_noise_m)
+def beyond_deck_margin_m(range_noise_m: float, range_bin_m: float = 0.0) -> float:
+    """How far beyond the deck plane a detection may lie and still be the deck's: a number of
+    its range sigmas (the noise and the bin's uniform error, bin / sqrt(12))."""
+    return max(MIN_BEYOND_DECK_M, BEYOND_DECK_SIGMAS * math.hypot(range_noise_m, range_bin_m / math.sqrt(12.0)))
 
 
 def on_or_above_deck(points_sensor: np.ndarray, plane_sensor: np.ndarray | None, margin_m: float) -> np.ndarray:

@@ -110,7 +110,7 @@ class FeederPipeline:
             if obs.plane is None:
                 self.missing.append((obs.t_s, "lidar", obs.status))
             # the feeder's time per LiDAR frame: this, the fusion's, and the deck stage it reuses
-            times.ms["deck (the heave chain's)"] = heave.times.total(*DECK_STAGES) if heave is not None else 0.0
+            times.ms["feeder.deck_reused"] = heave.times.total(*DECK_STAGES) if heave is not None else 0.0  # the heave chain's deck stage
             obs.stage_ms, obs.ms = dict(times.ms), times.total()
         else:
             obs = self.stages.radar(frame.t_s, att.rpy_rad, att.rpy_rate_radps, heave.doppler if heave is not None else None,

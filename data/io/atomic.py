@@ -24,15 +24,15 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 @contextlib.contextmanager
 def atomic_text_file(path: Path) -> Iterator[IO[str]]:
     """A text file written in pieces (a long run's table is never whole in memory), atomically."""
-    with _atomic(Path(path), "w") as fh:
+    with _atomic(Path(path), "w", encoding="utf-8", newline="") as fh:  # UTF-8 and "\n" whatever the locale
         yield fh
 
 
 @contextlib.contextmanager
-def _atomic(path: Path, mode: str) -> Iterator[IO]:
+def _atomic(path: Path, mode: str, **text) -> Iterator[IO]:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, mode) as fh:
+        with os.fdopen(fd, mode, **text) as fh:
             yield fh
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)

@@ -22,8 +22,6 @@ _CODES = {np.dtype(v): k for k, v in _TYPES.items()}
 _HEADER_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
 
 
-
-
 class PcdError(ValueError):
     """A PCD file is unreadable; the message names the file and the problem."""
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from boomtip.data.io.beams import beam_angles_deg
 from boomtip.data.sim.fans import Fans
-from boomtip.data.sim.footprint import with_second_returns
+from boomtip.data.sim.footprint import thinned_returns, with_second_returns
 from boomtip.data.sim.raycast import Hits, face_offsets
 from boomtip.data.sim.world import Lidar, Radar
 from boomtip.data.meshes import RCS_DETECTION_FACTOR, Body, Label
@@ -198,7 +198,8 @@ def lidar_measure(
     origin_z_world: np.ndarray | float = 0.0,
     second_returns: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label. With `spray`
+    """Turn LiDAR hits into points (sensor frame) and fields intensity, t, label; a dual-return
+    footprint's `second_returns` (data/sim/footprint.py) join them, thinned alike. With `spray`
     (world.sea.spray) some rays return early from droplets in its height band (world z), given
     the rays' directions `dirs_world` and origin heights `origin_z_world` (needed only then).
     The arithmetic runs in place on the returns kept, in float32 for the fans' ranges (Embree's
@@ -228,6 +229,7 @@ def lidar_measure(
     intensity *= cos_inc  # diffuse (Lambert)
     label = faces.label.take(f)
     if second_returns is not None and len(second_returns[0]):  # a dual-return sensor's farther surface
+        second_returns = thinned_returns(second_returns, faces.offset, sea_body, sea_probability, cfg.dropout_probability, rng)
         idx, r, cos_inc, intensity, label = with_second_returns(idx, r, cos_inc, intensity, label, second_returns, faces, lo, hi)
     if spray is not None and spray.probability > 0 and len(idx):
         # a droplet at a height z in the band, met by a downward ray before its surface
@@ -391,12 +393,12 @@ def radar_measure(
         rng_m = np.concatenate([rng_m, rng.uniform(cfg.min_range_m, cfg.max_range_m, n_fa)])
         rr = np.concatenate([rr, rng.uniform(-cfg.max_abs_range_rate_mps, cfg.max_abs_range_rate_mps, n_fa)])
         label = np.concatenate([label, np.full(n_fa, int(Label.NONE), dtype=np.int32)])
-    if cfg.unambiguous_range_rate_mps > 0:  # an FMCW radar's Doppler ambiguity: rates wrap into [-v, v)
-        v = cfg.unambiguous_range_rate_mps
-        rr = np.mod(rr + v, 2.0 * v) - v
     # An FMCW radar's detections, false ones too, sit in its range, Doppler and angle FFTs' bins (data sheet widths).
     rng_m, rr = quantised(rng_m, cfg.range_resolution_m), quantised(rr, cfg.range_rate_resolution_mps)
     az, el = (quantised(a, math.radians(cfg.angle_resolution_deg)) for a in (az, el))
+    if cfg.unambiguous_range_rate_mps > 0:  # its Doppler ambiguity: rates wrap into [-v, v), a bin's too
+        v = cfg.unambiguous_range_rate_mps
+        rr = np.mod(rr + v, 2.0 * v) - v
     points = spherical_dirs(az, el) * rng_m[:, None]
     fields = {
         "range": rng_m.astype(np.float32),

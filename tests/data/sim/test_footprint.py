@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from boomtip.data.sim.footprint import (CENTRE_WEIGHT, RING_RAYS, edge_rays, footprint_dirs, mixed_returns,
-                                        sample_weights)
+                                        sample_weights, thinned_returns)
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.config.scenario import load_scenario
 
@@ -101,3 +101,19 @@ def test_dual_frames_carry_both_returns_of_a_ray():
                                                    "installation.lidar.returns=dual"]))
     _, _, _, (rays, *_) = dual._lidar_hits(0.1, dual._scene_poses, dual._sensor_fixed_hits("lidar"))
     assert len(dual.lidar_frame(1, 0.1)) - len(base.lidar_frame(1, 0.1)) == pytest.approx(len(rays), rel=0.1)
+
+
+def test_second_returns_are_thinned_like_the_first_by_the_seas_clutter_and_dropouts():
+    face_offset = np.array([0, 100, 300])  # bodies 0 (a ship), 1 (the sea), 2
+    n = 20000
+    rng = np.random.default_rng(5)
+    faces = rng.integers(0, 400, n)
+    second = (np.arange(n), np.full(n, 30.0), faces, np.full(n, 0.5))
+    on_sea = (faces >= 100) & (faces < 300)
+    rays, r2, f2, c2 = thinned_returns(second, face_offset, 1, 0.1, 0.0, np.random.default_rng(1))
+    kept_sea = np.isin(rays, np.flatnonzero(on_sea))
+    assert kept_sea.sum() == pytest.approx(0.1 * on_sea.sum(), rel=0.1)  # a tenth of the sea's
+    assert (~kept_sea).sum() == (~on_sea).sum()  # all the rest
+    rays, *_ = thinned_returns(second, face_offset, None, 0.0, 0.25, np.random.default_rng(1))
+    assert len(rays) == pytest.approx(0.75 * n, rel=0.03)
+    assert np.array_equal(thinned_returns(second, face_offset, None, 0.0, 0.0, np.random.default_rng(1))[0], second[0])
