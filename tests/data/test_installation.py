@@ -30,3 +30,13 @@ def test_no_installation_quantity_is_infinite_or_nan(value):
 def test_a_world_quantity_that_is_nan_is_refused_with_its_key(key):
     with pytest.raises(ScenarioError, match=f"key '{key}': Input should be a finite number"):
         load_scenario("sts-loaded", [f"{key}=nan"])
+
+
+def test_a_beam_wider_than_the_scans_spacing_is_refused_with_its_key():
+    """The footprint model casts only the rays beside a depth edge: a footprint narrower than
+    the spacing between rays (0.5 deg, 8.7 mrad, on the default grid; an OS1-128's 6.1 mrad)."""
+    assert Installation.model_validate({"lidar": {"beam_divergence_mrad": 8.0}}).lidar.beam_divergence_mrad == 8.0
+    with pytest.raises(ValidationError, match="beam_divergence_mrad"):
+        Installation.model_validate({"lidar": {"beam_divergence_mrad": 9.0}})
+    with pytest.raises(ScenarioError, match="beam_divergence_mrad"):
+        load_scenario("sts-loaded", ["lidar.pattern=spinning", "lidar.channels=128", "lidar.beam_divergence_mrad=6.5"])
