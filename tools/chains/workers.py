@@ -53,9 +53,25 @@ def parallel_enabled() -> bool:
 def _as_child() -> None:
     """A child's signals: the parent decides. Ctrl-C reaches the whole process group, so the child
     ignores it (the parent stops it); SIGTERM, which the CLI turns into KeyboardInterrupt so that a
-    run cleans up, ends the child at once (its parent's clean-up sends it)."""
+    run cleans up, ends the child at once (its parent's clean-up sends it). They were blocked
+    from before the fork (`_started`) until now: one sent in between waits for these handlers."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _CHILD_SIGNALS)
+
+
+_CHILD_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+def _started(proc) -> None:
+    """proc.start() with SIGINT and SIGTERM blocked across the fork: a child signalled before it
+    set its own handlers would raise the parent's KeyboardInterrupt through its copy of the
+    parent's stack (and run the parent's clean-up) instead of ending."""
+    saved = signal.pthread_sigmask(signal.SIG_BLOCK, _CHILD_SIGNALS)
+    try:
+        proc.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, saved)
 
 
 def _put(queue, item, parent_pid: int) -> None:
@@ -110,7 +126,7 @@ def mapped_in_child(items: Iterable, fn: Callable | None, at_end: Callable | Non
     ctx = mp.get_context("fork")
     queue = ctx.Queue(FRAMES_AHEAD)
     proc = ctx.Process(target=_produce, args=(items, fn, at_end, queue, os.getpid()), name=name, daemon=True)
-    proc.start()
+    _started(proc)
     # the queue's sending end is the child's: closed here, a child that dies halfway through a
     # message ends the read with EOF (WorkerDied) instead of a wait for the rest forever
     queue._writer.close()
@@ -205,7 +221,7 @@ def run_split(names: Sequence[str], costs: dict[str, float], work: Callable[[str
         for jobs in split_by_cost({n: costs.get(n, 1.0) for n in names}):
             recv, send = ctx.Pipe(duplex=False)
             proc = ctx.Process(target=_run_group, args=(jobs, work, send), name="boomtip-estimators", daemon=True)
-            proc.start()
+            _started(proc)
             send.close()
             children.append((proc, recv))
         out: dict[str, object] = {}
@@ -251,7 +267,7 @@ class ForkExecutor(Executor):
         ctx = mp.get_context("fork")
         recv, send = ctx.Pipe(duplex=False)
         proc = ctx.Process(target=_call_in_child, args=(fn, args, send), name=self.name, daemon=True)
-        proc.start()
+        _started(proc)
         send.close()
         future: Future = Future()
 

@@ -5,6 +5,8 @@ its fusion. A child that dies stops the run with that reason."""
 from __future__ import annotations
 
 import csv
+import os
+import time
 import json
 
 import numpy as np
@@ -324,3 +326,31 @@ def test_a_worker_of_ours_runs_its_own_work_serially():
     pool = workers.ForkExecutor("boomtip-test-daemon")
     assert pool.submit(workers.parallel_enabled).result(timeout=30) is False  # a daemonic process may not fork
     pool.shutdown()
+
+
+def _sleep_as_child():
+    workers._as_child()
+    time.sleep(2.0)
+
+
+def test_a_child_signalled_as_it_starts_ends_by_the_signal_not_through_the_parents_handler():
+    """Under the CLI's SIGTERM handler (KeyboardInterrupt), a child signalled before it set its
+    own handlers would unwind through its copy of the parent's stack; SIGINT and SIGTERM are
+    blocked across the fork, so it ends by the signal, and the parent's mask is as it was."""
+    import multiprocessing as mp
+    import signal
+
+    from boomtip.tools.cli.common import terminate_like_interrupt
+
+    saved, mask = signal.getsignal(signal.SIGTERM), signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    try:
+        terminate_like_interrupt()
+        for _ in range(10):
+            proc = mp.get_context("fork").Process(target=_sleep_as_child, daemon=True)
+            workers._started(proc)
+            os.kill(proc.pid, signal.SIGTERM)  # at once: before the child's own handlers, as often as not
+            proc.join(10)
+            assert proc.exitcode == -signal.SIGTERM
+    finally:
+        signal.signal(signal.SIGTERM, saved)
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, set()) == mask
