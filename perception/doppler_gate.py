@@ -34,3 +34,10 @@ def doppler_band_mps(radar, sigmas: float, floor_mps: float) -> float:
     (what the rigid-deck model leaves unexplained)."""
     sigma = math.hypot(radar.range_rate_noise_mps, radar.range_rate_resolution_mps / math.sqrt(12.0))
     return max(floor_mps, sigmas * sigma)
+
+
+def above_deck_only(points_sensor: np.ndarray, range_rate_mps: np.ndarray, deck, margin_m: float):
+    """The detections (points, range rates) on or above `deck`'s plane (the scan's DeckResult;
+    every one of them without a deck found)."""
+    keep = on_or_above_deck(points_sensor, deck.plane_sensor if deck is not None and deck.ok else None, margin_m)
+    return points_sensor[keep], range_rate_mps[keep]

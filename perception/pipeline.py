@@ -25,7 +25,7 @@ from boomtip.data.installation import Installation
 from boomtip.perception.deck import LIDAR_DECK, RADAR_DECK, DeckConfig, DeckResult, detect_deck, status_ok
 from boomtip.perception.doppler import DopplerConfig, DopplerFit, doppler_velocity
 from boomtip.perception.doppler_alias import WAIT_S, alias_prior_level, unwrap_range_rates
-from boomtip.perception.doppler_gate import beyond_deck_margin_m, doppler_band_mps, on_or_above_deck
+from boomtip.perception.doppler_gate import above_deck_only, beyond_deck_margin_m, doppler_band_mps
 from boomtip.perception.geometry import (
     NormalRate,
     heave_rate_document,
@@ -301,8 +301,7 @@ class HeavePipeline:
                                                 prior_D_m=prior, prior_tol_m=tol, max_D_m=self.max_deck_D(rpy_rad))
             inputs = doppler_inputs(frame, cfg.doppler_preprocess)
             if inputs is not None:  # as in process: what lies beyond this scan's deck is no deck
-                keep = on_or_above_deck(inputs[0], deck.plane_sensor if deck.ok else None, self.beyond_deck_m)
-                inputs = (inputs[0][keep], inputs[1][keep])
+                inputs = above_deck_only(*inputs, deck, self.beyond_deck_m)
             if inputs is not None and len(inputs[0]) >= 3:
                 wraps = self.unambiguous_mps > 0
                 R_rows = level_rotation_rows(rpy_rad, self._R_crane_sensor_rows[frame.sensor]) if wraps else None
@@ -361,9 +360,7 @@ class HeavePipeline:
             if inputs is None:
                 return {m: (np.nan, np.nan, "frame has no range_rate field") for m in wanted if m.startswith("doppler")}
             pts, range_rate_mps = inputs
-            deck = out.deck_radar if out.deck_radar is not None and out.deck_radar.ok else None
-            keep = on_or_above_deck(pts, None if deck is None else deck.plane_sensor, self.beyond_deck_m)
-            pts, range_rate_mps = pts[keep], range_rate_mps[keep]
+            pts, range_rate_mps = above_deck_only(pts, range_rate_mps, out.deck_radar, self.beyond_deck_m)
             if self.unambiguous_mps > 0:  # the radar's wrapped rates back on the prior's branch
                 u_prior = self._alias_prior(frame.t_s)
                 self.first_radar_t = frame.t_s if self.first_radar_t is None else self.first_radar_t

@@ -138,28 +138,27 @@ def cast_footprints(caster, faces, fans, hits, R_world_sensor: np.ndarray, p_wor
     face of the sample that dominates it, and a cosine that gives it the footprint's energy."""
     n_az, n_el = len(fans.az_rad), len(fans.el_rad)
     rays = np.flatnonzero(edge_rays(hits.range_m.reshape(n_az, n_el), wrap_azimuth).ravel())
-    flat_face = hits.flat_face if hits.flat_face is not None else caster.face_offset[np.maximum(hits.body, 0)] + hits.face
-    none = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), np.zeros(0))
     if len(rays) == 0:
-        return hits, none
-    s = 1 + RING_RAYS
-    sub_sensor = footprint_dirs(fans.dirs[rays], divergence_mrad)  # (N,S,3)
+        return hits, (np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), np.zeros(0))
+    ring_sensor = footprint_dirs(fans.dirs[rays], divergence_mrad)[:, 1:]  # (N,S-1,3): the centre is the ray, cast already
     pose = np.zeros(len(rays), np.int64) if len(R_world_sensor) == 1 else rays // n_el
     if len(R_world_sensor) == 1:
-        sub_world = sub_sensor.reshape(-1, 3) @ R_world_sensor[0].T
+        ring_world = ring_sensor.reshape(-1, 3) @ R_world_sensor[0].T
     else:
-        sub_world = np.einsum("nij,nsj->nsi", R_world_sensor[pose], sub_sensor).reshape(-1, 3)
-    origins = np.repeat(p_world_sensor[pose], s, axis=0)
-    sub = caster.cast(origins, sub_world, R_world_body, p_world_body,
-                      pose_index=None if len(R_world_sensor) == 1 else np.repeat(pose, s), scale_body=scale_body)
-    sub_face = np.where(sub.hit, caster.face_offset[np.maximum(sub.body, 0)] + sub.face, 0)
-    refl = faces.reflectivity[sub_face] * np.where(faces.retro[sub_face], retro_gain, 1.0)
-    r_sub = sub.range_m.reshape(-1, s)
-    cos_sub = np.maximum(sub.cos_incidence.reshape(-1, s).astype(float), 1e-3)
-    energy = np.where(np.isfinite(r_sub), sample_weights()[None, :] * refl.reshape(-1, s) * cos_sub
-                      / np.where(np.isfinite(r_sub), r_sub, 1.0) ** 2, 0.0)
+        ring_world = np.einsum("nij,nsj->nsi", R_world_sensor[pose], ring_sensor).reshape(-1, 3)
+    ring = caster.cast(np.repeat(p_world_sensor[pose], RING_RAYS, axis=0), ring_world, R_world_body, p_world_body,
+                       pose_index=None if len(R_world_sensor) == 1 else np.repeat(pose, RING_RAYS), scale_body=scale_body)
+    flat_face = _flat_faces(hits, faces)
+    # each footprint's samples: the ray's own hit, then its ring's
+    r_sub = np.column_stack([hits.range_m[rays].astype(float), ring.range_m.reshape(-1, RING_RAYS)])
+    faces_sub = np.column_stack([flat_face[rays], _flat_faces(ring, faces).reshape(-1, RING_RAYS)])
+    cos_sub = np.maximum(np.column_stack([hits.cos_incidence[rays], ring.cos_incidence.reshape(-1, RING_RAYS)])
+                         .astype(float), 1e-3)
+    hit_sub = np.isfinite(r_sub)
+    refl = faces.reflectivity[faces_sub] * np.where(faces.retro[faces_sub], retro_gain, 1.0)
+    energy = np.where(hit_sub, sample_weights()[None, :] * refl * cos_sub / np.where(hit_sub, r_sub, 1.0) ** 2, 0.0)
     (r1, j1, e1), dual, (r2, j2, e2) = mixed_returns(r_sub, energy, separation_m, mode)
-    faces_sub, row = sub_face.reshape(-1, s), np.arange(len(rays))
+    row = np.arange(len(rays))
 
     def surface(rows, r, j, e):
         """The flat face and the effective cosine of returns whose dominant sample is j."""
@@ -173,13 +172,22 @@ def cast_footprints(caster, faces, fans, hits, R_world_sensor: np.ndarray, p_wor
     seen = np.isfinite(r1)
     range_m = hits.range_m.copy()
     range_m[rays] = r1.astype(range_m.dtype)
-    flat = flat_face.astype(np.int64, copy=True)
+    flat = flat_face.copy()
     flat[rays] = np.where(seen, f1, flat[rays])
     cos_inc = hits.cos_incidence.copy()
     cos_inc[rays] = np.where(seen, c1, 0.0).astype(cos_inc.dtype)
     mixed = Hits(range_m, None, None, cos_inc, flat_face=flat.astype(np.int32), face_offset=caster.face_offset)
     f2, c2 = surface(row[dual], r2[dual], j2[dual], e2[dual])
     return mixed, (rays[dual], r2[dual], f2, c2)
+
+
+def _flat_faces(hits, faces) -> np.ndarray:
+    """(K,) int64: each hit's face over all bodies (the materials' index; 0 on a miss)."""
+    if hits.flat_face is not None:
+        return np.where(hits.hit, hits.flat_face, 0).astype(np.int64)
+    flat = np.zeros(len(hits.range_m), np.int64)
+    flat[hits.hit] = faces.flat(hits, hits.hit)
+    return flat
 
 
 def with_second_returns(idx, r, cos_inc, intensity, label, second, faces, lo, hi):

@@ -56,5 +56,5 @@ class GustyWind:
         speed = np.hypot(wx, wy)
         if speed <= 0:
             return wx, wy
-        g = float(np.dot(np.cos(self.omega_radps * t_s + self.phase_rad), self.amplitude_mps)) / speed
+        g = float(self.gust_mps(t_s)) / speed
         return wx * (1.0 + g), wy * (1.0 + g)
