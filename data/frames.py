@@ -31,6 +31,12 @@ HOOK_TRUTH_COLUMNS = (
     "tip_x", "tip_y", "tip_z", "slew", "luff", "hoist", "boom_deflection", "sway_a", "sway_b",
     "crane_roll", "crane_pitch",
 )
+# the lift's: the hook's, and the load over the feeder's deck (clearance: its lowest point's height
+# above the deck below it; landing: its underside's centre dropped onto the deck, feeder body frame,
+# and relative to the boom tip in world axes; load: its underside's centre, world; contact: 1 once it rests on
+# the deck)
+LIFT_TRUTH_COLUMNS = HOOK_TRUTH_COLUMNS + ("clearance", "clearance_rate", "landing_x", "landing_y", "landing_rel_x",
+                                          "landing_rel_y", "load_x", "load_y", "load_z", "contact")
 ENCODER_COLUMNS = ("t", "slew", "luff", "hoist")
 
 

@@ -19,6 +19,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from scipy.spatial.transform import Rotation
 
+from boomtip.data.loads import LoadKind, load_mass, load_size
+
 
 MAX_ANGLE_DEG = 360.0  # a mount angle beyond a turn is a unit or typing error
 
@@ -243,6 +245,31 @@ class MarkerSpec(StrictModel):
     height_m: float = Field(0.002, ge=0, le=0.5, description="markers' height above the deck (tape thickness)")
 
 
+class LoadModel(StrictModel):
+    """The load the crane lowers, as the crew knows it (data/loads.py): its kind and size."""
+
+    kind: LoadKind = Field("container20", description="container20, container40, blade_section or box")
+    size_m: tuple[float, float, float] | None = Field(None, description="length, width, height (m); null: the kind's "
+                                                       "standard size (a box has none: give it)")
+    mass_kg: float | None = Field(None, gt=0, description="null: the kind's typical mass")
+
+    def dimensions(self, key: str = "installation.lift.load_model.size_m") -> tuple[float, float, float]:
+        return load_size(self.kind, self.size_m, key)
+
+    def mass(self) -> float:
+        return load_mass(self.kind, self.mass_kg)
+
+    @model_validator(mode="after")
+    def _has_a_size(self) -> "LoadModel":
+        self.dimensions()
+        return self
+
+
+class LiftSpec(StrictModel):
+    load_model: LoadModel | None = Field(LoadModel(), description="the load's known model; null: unknown (the "
+                                         "clearance from its lowest points seen)")
+
+
 class Installation(StrictModel):
     lidar: LidarSpec = LidarSpec()
     radar: RadarSpec = RadarSpec()
@@ -252,6 +279,7 @@ class Installation(StrictModel):
     encoders: EncoderSpec = EncoderSpec()
     crane: CraneSpec = CraneSpec()
     markers: MarkerSpec = MarkerSpec()
+    lift: LiftSpec = LiftSpec()
     attitude: Literal["mru", "level"] = Field(
         "mru", description="'level': no attitude stream; the boom-tip frame is taken as level"
     )

@@ -28,6 +28,8 @@ class Label(IntEnum):
     CARGO = 20
     HOOK = 30
     ROPE = 31
+    LOAD = 32  # a load hanging from the hook (the lift)
+    SLING = 33  # the slings between the hook and the load
 
 
 class RcsClass(IntEnum):

@@ -42,10 +42,11 @@ KEPT_TRACKS = ("roll", "pitch", "nu", "mu", "l", "nu_f", "a", "b", "p_tip_world"
 
 def crane_params(s: SimulatedRun) -> CraneParams:
     """The crane as it really is: the installation's nominal parameters times the world's
-    mismatch factors (geometry as surveyed)."""
+    mismatch factors (geometry as surveyed); in the lift, the load's true mass on the hook."""
     c, mm = s.installation.crane, s.world.mismatch
+    load_kg = s.world.lift.mass_kg() if s.world.lift.enabled else 0.0
     return CraneParams(
-        m=c.dynamics.hook_mass_kg * mm.hook_mass, m_b=c.dynamics.boom_mass_kg * mm.boom_mass, L=c.geometry.boom_length_m, b=c.geometry.boom_foot_offset_m,
+        m=c.dynamics.hook_mass_kg * mm.hook_mass + load_kg, m_b=c.dynamics.boom_mass_kg * mm.boom_mass, L=c.geometry.boom_length_m, b=c.geometry.boom_foot_offset_m,
         h=c.geometry.boom_foot_height_m, c=c.geometry.crane_base_m, k_f=c.dynamics.boom_stiffness_nm_per_rad * mm.boom_stiffness,
         c_f=c.dynamics.boom_damping * mm.boom_damping, flexible=s.world.hook.flexible,
     )
@@ -160,33 +161,33 @@ class TrackFiles:
 class _TruthColumns(Mapping):
     """The truth table's columns, each read from its file when asked for."""
 
-    def __init__(self, t: np.ndarray, files: TrackFiles) -> None:
-        self._t, self._files = t, files
+    def __init__(self, t: np.ndarray, files: TrackFiles, names: tuple[str, ...]) -> None:
+        self._t, self._files, self._names = t, files, names
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "t":
             return self._t
-        if name not in HOOK_TRUTH_COLUMNS:
+        if name not in self._names:
             raise KeyError(name)
         return self._files.read(name)
 
     def __iter__(self) -> Iterator[str]:
-        return iter(HOOK_TRUTH_COLUMNS)
+        return iter(self._names)
 
     def __len__(self) -> int:
-        return len(HOOK_TRUTH_COLUMNS)
+        return len(self._names)
 
 
 class StoredTruth(Truth):
     """A hook run's truth table with its columns on disk (`TrackFiles`): ``at`` reads only the
     rows about the asked times, ``columns`` reads a whole column when indexed."""
 
-    def __init__(self, t: np.ndarray, files: TrackFiles) -> None:  # noqa: D107 (no dataclass fields of its own)
-        self._t, self._files = t, files
+    def __init__(self, t: np.ndarray, files: TrackFiles, names: tuple[str, ...] = HOOK_TRUTH_COLUMNS) -> None:  # noqa: D107 (no dataclass fields of its own)
+        self._t, self._files, self._names = t, files, names
 
     @property
     def columns(self) -> Mapping:
-        return _TruthColumns(self._t, self._files)
+        return _TruthColumns(self._t, self._files, self._names)
 
     def at(self, name: str, t_s: np.ndarray) -> np.ndarray:
         if name == "t":
@@ -224,11 +225,11 @@ class HookSimulation(Simulation):
     """A hook scenario simulated in memory: LiDAR frames, MRU and encoder logs, hook truth."""
 
     def __init__(self, scenario: SimulatedRun) -> None:
-        if not scenario.world.hook.enabled:
+        if not (scenario.world.hook.enabled or scenario.world.lift.enabled):
             raise ValueError(f"scenario '{scenario.name}': world.hook.enabled is false; use Simulation")
         self.params = crane_params(scenario)
-        world = SimScene(scenario, hook_bodies(scenario))
-        spec = HOOK_SCENARIOS[scenario.world.hook.program](self.params)
+        world = SimScene(scenario, self._bodies(scenario))
+        joints = self._joints(scenario)
         bank = world.crane_motion.bank  # DOF order: surge sway heave roll pitch yaw
 
         def dof(i):
@@ -239,7 +240,7 @@ class HookSimulation(Simulation):
         self._tracks = TrackFiles()
         t_crane = []
         for crane in crane_truth_chunks(
-            self.params, spec.joints, CallableVesselMotion(dof(3), dof(4)),
+            self.params, joints, CallableVesselMotion(dof(3), dof(4)),
             duration_s=scenario.duration_s + 0.5, record_rate_hz=max(scenario.world.truth_rate_hz, 200.0),
             # richer than the filter's model: an elastic reeving and the wind on block and load
             rope_ea_n=scenario.world.mismatch.rope_ea_n, wind_mps=scenario.world.mismatch.wind_mps,
@@ -252,6 +253,21 @@ class HookSimulation(Simulation):
         self._t_crane = np.concatenate(t_crane)
         super().__init__(scenario, world)
         self.encoders = self._encoder_log()
+
+    def _bodies(self, scenario: SimulatedRun) -> list[Body]:
+        return hook_bodies(scenario)
+
+    def _joints(self, scenario: SimulatedRun):
+        return HOOK_SCENARIOS[scenario.world.hook.program](self.params).joints
+
+    def _vessel_translation(self, times: np.ndarray) -> np.ndarray:
+        """The crane vessel's surge, sway and heave (M,3): none in the hook scene, whose vessel
+        turns about its origin (document 002)."""
+        return np.zeros((len(times), 3))
+
+    def _hook_rel_tip(self, times: np.ndarray) -> np.ndarray:
+        """The hook's reference point relative to the tip, world axes (M,3)."""
+        return self._interp("p_hook_rel_tip", times)
 
     # The MRU and encoder logs on disk too, each read back whole when asked for: a chain copies
     # what it needs once, and no second copy stays for the whole run (700 s: 10 MB).
@@ -298,14 +314,15 @@ class HookSimulation(Simulation):
         foot_v = base + self.params.b * np.stack([np.cos(nu), np.sin(nu), np.zeros_like(nu)], -1) + [0, 0, self.params.h]
         R_tipframe = R_v @ rot_z(nu + nu_f)
         R_boom = R_tipframe @ _ry(-mu)
-        p_tip = self._interp("p_tip_world", times)
-        r_hook = self._interp("p_hook_rel_tip", times)
+        shift = self._vessel_translation(times)
+        p_tip = self._interp("p_tip_world", times) + shift
+        r_hook = self._hook_rel_tip(times)
         p_hook = p_tip + r_hook
         R_block = hanging_rotation(r_hook, nu + nu_f)
         l = np.linalg.norm(r_hook, axis=-1)
         m = len(times)
         Rs = [R_v, R_boom, R_block, R_block]
-        ps = [np.zeros((m, 3)), np.einsum("nij,nj->ni", R_v, foot_v), p_hook, p_hook]
+        ps = [shift, np.einsum("nij,nj->ni", R_v, foot_v) + shift, p_hook, p_hook]
         scales = [None, None, None, np.stack([np.ones(m), np.ones(m), l], -1)]
         T_ts = self.world.T_boomtip_sensor[sensor]
         R_ws = R_tipframe @ T_ts[:3, :3]
@@ -359,9 +376,10 @@ class HookSimulation(Simulation):
         files = TrackFiles()
         for a in range(0, len(t), TRUTH_CHUNK):
             tc = t[a:a + TRUTH_CHUNK]
+            shift = self._vessel_translation(tc)
             for prefix, name in (("hook_", "p_hook_world"), ("hook_v", "v_hook_world"), ("hook_rel_", "p_hook_rel_tip"),
                                  ("hook_rel_v", "v_hook_rel_tip"), ("tip_", "p_tip_world")):
-                v = self._interp(name, tc)
+                v = self._interp(name, tc) + (shift if name in ("p_hook_world", "p_tip_world") else 0.0)
                 for k, ax in enumerate("xyz"):
                     files.append(f"{prefix}{ax}", v[:, k])
             for col, name in (("slew", "nu"), ("luff", "mu"), ("hoist", "l"), ("boom_deflection", "nu_f"),

@@ -15,6 +15,7 @@ from boomtip.data.meshes import Body, Label, Part, RcsClass, box, cylinder
 from boomtip.data.sim.run import SimulatedRun
 
 FALSE_BRIGHT_SEED_SALT = 101  # the run's seed plus this: where the bright patches that are not markers lie
+BULWARK_THICKNESS_M = 0.3
 
 
 def lofted_hull(
@@ -196,7 +197,7 @@ def _cargo_parts(s: SimulatedRun) -> list[Part]:
     return parts
 
 
-def _cargo_deck_x(s: SimulatedRun) -> tuple[float, float]:
+def open_deck_x(s: SimulatedRun) -> tuple[float, float]:
     """Fore and aft limits of the open cargo deck (between accommodation and forecastle)."""
     g = s.world.feeder.geometry
     return -g.length_m / 2 + 0.16 * g.length_m, g.length_m / 2 - 0.15 * g.length_m
@@ -204,7 +205,7 @@ def _cargo_deck_x(s: SimulatedRun) -> tuple[float, float]:
 
 def _marker_centers(s: SimulatedRun) -> np.ndarray:
     g, r = s.world.feeder.geometry, s.world.feeder.reflectors
-    x0, x1 = _cargo_deck_x(s)
+    x0, x1 = open_deck_x(s)
     xs = np.arange(x0 + r.size_m, x1 - r.size_m / 2, r.spacing_m)
     y = g.beam_m / 2 - r.inset_m - r.size_m / 2
     return np.array([[x, sy * y] for sy in (-1, 1) for x in xs])
@@ -215,12 +216,12 @@ def feeder_vessel(s: SimulatedRun) -> Body:
     z = g.freeboard_m
     h, is_deck = lofted_hull(g.length_m, g.beam_m, -g.draft_m, z, bow_length_m=0.15 * g.length_m)
     parts = [Part(h, Label.FEEDER_HULL, 0.3, face_label=np.where(is_deck, int(Label.FEEDER_DECK), int(Label.FEEDER_HULL)))]
-    x0, x1 = _cargo_deck_x(s)
+    x0, x1 = open_deck_x(s)
     # Accommodation aft and a forecastle forward: structures the deck detector must not take for the deck.
     parts.append(Part(box([(-g.length_m / 2 + x0) / 2, 0, z + 6], [x0 + g.length_m / 2, 0.8 * g.beam_m, 12]), Label.FEEDER_HULL, 0.6))
     parts.append(Part(box([(x1 + g.length_m / 2 - 0.02 * g.length_m) / 2, 0, z + 1.25],
                           [g.length_m / 2 - 0.02 * g.length_m - x1, 0.5 * g.beam_m, 2.5]), Label.FEEDER_HULL, 0.4))
-    bh, t = g.bulwark_height_m, 0.3
+    bh, t = g.bulwark_height_m, BULWARK_THICKNESS_M
     if bh > 0:
         for sy in (-1, 1):
             parts.append(Part(box([(x0 + x1) / 2, sy * (g.beam_m / 2 - t / 2), z + bh / 2], [x1 - x0, t, bh]), Label.FEEDER_BULWARK, 0.4))

@@ -18,6 +18,7 @@ from pydantic import Field, field_validator, model_validator
 from scipy.spatial.transform import Rotation
 
 from boomtip.data.installation import LidarSpec, Mount, RadarSpec, require_finite, StrictModel
+from boomtip.data.sim.lift_scene import LiftScene
 
 DOFS = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 
@@ -284,6 +285,7 @@ class World(StrictModel):
     radar: RadarBehaviour = RadarBehaviour()
     mru: MruBehaviour = MruBehaviour()
     hook: HookScene = HookScene()
+    lift: LiftScene = LiftScene()
     mismatch: Mismatch = DEFAULT_MISMATCH
     randomize: Randomize = Randomize()
 
