@@ -11,7 +11,7 @@ from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
 from boomtip.fusion.hook_run import merged_events
-from boomtip.fusion.models.crane_pendulum import IF, INU, IPITCH, IROLL
+from boomtip.fusion.models.crane_pendulum import IF, IL, INU, IPITCH, IROLL
 
 __all__ = ["HookTracker"]
 
@@ -104,6 +104,11 @@ class HookTracker:
         x = self.filter.x
         heading = x[INU] + (x[IF] if len(x) > IF else 0.0)
         return float(x[IROLL]), float(x[IPITCH]), float(heading)
+
+    def hoist(self) -> tuple[float, float]:
+        """The rope's length and its rate (m, m/s) at the last :meth:`predict`, filtered."""
+        x = self.filter.x
+        return float(x[IL]), float(x[IL + 1])
 
     def correct(self, p_rel_tip_world: np.ndarray, cov_m2: np.ndarray) -> bool:
         """Apply a detection at the time of the last :meth:`predict`; False if gated out."""

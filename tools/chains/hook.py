@@ -76,7 +76,9 @@ class HookResult:
 class HookChain:
     name = "hook"
 
-    def __init__(self, source: FrameSource, processing: Processing, resources: RunResources | None = None) -> None:
+    def __init__(self, source: FrameSource, processing: Processing, resources: RunResources | None = None,
+                 load_mass_kg: float = 0.0) -> None:
+        """load_mass_kg: a load's known mass on the hook, beyond the installation's hook mass (the lift)."""
         inst: Installation = source.meta.installation
         enc, m = source.encoders, source.mru  # once: a source may read them from disk on each access
         if enc is None:
@@ -90,6 +92,8 @@ class HookChain:
         if "levelling_bias_sigma_rad" not in self.filter_cfg.model_fields_set:  # the kit's stated accuracy
             self.filter_cfg = self.filter_cfg.model_copy(update={"levelling_bias_sigma_rad": inst.levelling_bias_sigma_rad("lidar")})
         self.params = nominal_crane_params(inst.crane)
+        if load_mass_kg:
+            self.params = self.params.model_copy(update={"m": self.params.m + load_mass_kg})
         # The hoist encoder reads the rope paid out; the pendulum is that stretched by the
         # hook's weight, with the rope's nominal EA (rigid when the installation gives none).
         stretch = 1.0 + (self.params.m * self.params.g / inst.crane.rope_ea_n if inst.crane.rope_ea_n else 0.0)

@@ -22,6 +22,7 @@ from boomtip.data.keys import format_validation, leaf_keys, settings_dump
 from boomtip.tools.chains.chain import Chain, NullVisualiser
 from boomtip.tools.chains.heave import HeaveChain
 from boomtip.tools.chains.hook import HookChain
+from boomtip.tools.chains.lift import LiftChain
 from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.provenance import outage_windows, run_labels
 from boomtip.tools.chains.resources import RunResources
@@ -58,6 +59,8 @@ def build_chain(source: FrameSource, processing: Processing, resources: RunResou
     kind = processing.chain or ("hook" if source.encoders is not None else "heave")
     if kind == "hook":
         return HookChain(source, processing, resources)
+    if kind == "lift":
+        return LiftChain(source, processing, resources)
     if processing.feeder.enabled and source.meta.installation.lidar.enabled:
         return ShipChain(source, processing, resources)
     return HeaveChain(source, processing, resources)

@@ -13,9 +13,11 @@ from pydantic import Field
 from boomtip.data.installation import StrictModel
 from boomtip.fusion.feeder_estimator import FeederEstimatorConfig
 from boomtip.fusion.hook_config import HookFilterConfig
+from boomtip.fusion.heave_filter import HeaveFilterConfig
 from boomtip.fusion.solutions import FusionConfig
 from boomtip.perception.feeder_pipeline import FeederPipelineConfig
 from boomtip.perception.hook_types import HookConfig
+from boomtip.perception.lift import LiftConfig
 from boomtip.perception.pipeline import PipelineConfig
 from boomtip.perception.rope import RopeConfig
 
@@ -42,13 +44,29 @@ class FeederProcessing(FeederPipelineConfig, FeederEstimatorConfig):
     enabled: bool = Field(True, description="run the feeder's 6-DOF chain beside the heave chain when there is a LiDAR")
 
 
+class LiftProcessing(StrictModel):
+    """The lift chain's own stages: the load and the deck below it, the clearance's filter and
+    its forecast."""
+
+    detector: LiftConfig = LiftConfig()
+    filter: HeaveFilterConfig = Field(HeaveFilterConfig(), description="the clearance's filter (C, its rate and "
+                                      "acceleration; the relative-heave filter's model)")
+    landing_offset_rate_sigma_mps: float = Field(0.05, gt=0, description="how fast the load's centre may wander from "
+                                                 "the rope's line (the slings' give, the load turning): the landing "
+                                                 "point's filter (fusion.landing_filter)")
+    horizon_s: float = Field(8.0, gt=0, le=60, description="the touchdown forecast's horizon")
+    forecast_history_s: float = Field(40.0, gt=5, le=600, description="the forecast's AR model is fitted to this much "
+                                      "of the recent relative motion")
+
+
 class Processing(StrictModel):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the stages' random draws (RANSAC, ...)")
-    chain: Literal["heave", "hook"] | None = Field(
+    chain: Literal["heave", "hook", "lift"] | None = Field(
         None, description="which chain runs; null: the hook chain when the source has an encoder stream, else heave"
     )
     heave: PipelineConfig = PipelineConfig()
     fusion: FusionConfig = FusionConfig()
     hook: HookProcessing = HookProcessing()
     feeder: FeederProcessing = FeederProcessing()
+    lift: LiftProcessing = LiftProcessing()
     sea_state: SeaStatePrior | None = None

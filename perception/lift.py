@@ -1,0 +1,217 @@
+"""The load under the hook and the deck below it, in one levelled LiDAR frame (the hook
+pipeline's: z up, origin at the boom tip, metres): the clearance C from the load's lowest point
+down to the deck, and where that point would touch the deck.
+
+    points below the block, about the rope's line continued   -> the load (within its radius)
+                                                                  and the deck (a ring beyond it)
+    deck ring -> its dominant height (or about the last deck) -> a plane fitted, outliers out
+    load      -> with its model: the top face's plane, its rectangle and the underside's lowest
+                 corner; without: its lowest points seen
+    C = the lowest point's height above the deck plane straight below it
+
+C is a difference of two heights measured in the same frame a few metres apart, so the levelling's
+error (a tilt of the whole frame) moves both alike and cancels but for the slope it puts on that
+offset. Built from the installation (the load's model, the block's height) and the settings.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from boomtip.perception.geometry import plane_sigma_at
+
+__all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy"]
+
+STATUS_OK = "ok"
+
+
+class LiftConfig(BaseModel):
+    """Where the load and the deck are searched, and how much of each a fix needs."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    load_margin_m: float = Field(0.8, gt=0, description="the load's footprint radius plus this: its points")
+    unknown_load_radius_m: float = Field(8.0, gt=0, description="the footprint radius searched without a load model")
+    deck_ring_m: float = Field(6.0, gt=0, description="the deck: a ring this wide beyond the load's footprint")
+    below_block_m: float = Field(0.5, ge=0, description="the load's points start this far below the block's bottom")
+    above_deck_m: float = Field(0.15, ge=0, description="the load's points lie at least this far above the deck")
+    deck_gate_m: float = Field(0.6, gt=0, description="the deck's points lie this close to the last deck height")
+    height_bin_m: float = Field(0.1, gt=0, description="bins of the deck's height histogram")
+    min_deck_points: int = Field(30, ge=4)
+    min_top_points: int = Field(8, ge=4)
+    top_fraction: float = Field(0.5, gt=0, le=1, description="the top face holds at least this share of the load's points")
+    outlier_sigmas: float = Field(3.0, gt=0, description="plane residuals beyond this many robust sigmas are left out")
+
+
+@dataclass
+class LoadClearance:
+    """One frame's clearance: C (m) and its 1-sigma, the load's lowest point and its underside's
+    centre (levelled frame), the deck's height under each; status says why not when C is NaN."""
+
+    status: str
+    clearance_m: float = math.nan
+    sigma_m: float = math.nan
+    lowest_point_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    underside_centre_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    centre_sigma_m: float = math.nan  # the underside centre's 1-sigma per horizontal axis
+    deck_z_m: float = math.nan  # under the lowest point
+    landing_z_m: float = math.nan  # the deck under the underside's centre
+    n_load: int = 0
+    n_deck: int = 0
+    load_mask: np.ndarray | None = None
+    deck_mask: np.ndarray | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == STATUS_OK
+
+    @property
+    def landing_m(self) -> np.ndarray:
+        """The landing point: the underside's centre dropped onto the deck (levelled frame)."""
+        return np.array([self.underside_centre_m[0], self.underside_centre_m[1], self.landing_z_m])
+
+
+def height_plane(points: np.ndarray, outlier_sigmas: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """z = a + b x + c y by least squares, refitted once without the points beyond
+    `outlier_sigmas` robust (MAD) sigmas: ((a, b, c), the inliers' mask); None with < 4 points."""
+    keep = np.ones(len(points), bool)
+    coef = None
+    for _ in range(2):
+        if np.count_nonzero(keep) < 4:
+            return None
+        p = points[keep]
+        A = np.column_stack([np.ones(len(p)), p[:, 0], p[:, 1]])
+        coef, *_ = np.linalg.lstsq(A, p[:, 2], rcond=None)
+        resid = points[:, 2] - (coef[0] + points[:, :2] @ coef[1:])
+        mad = float(np.median(np.abs(resid[keep] - np.median(resid[keep]))))
+        keep = np.abs(resid) <= outlier_sigmas * max(1.4826 * mad, 1e-4)
+    return coef, keep
+
+
+def _as_plane(coef: np.ndarray) -> np.ndarray:
+    """z = a + b x + c y as [n, d] with a unit normal."""
+    n = np.array([-coef[1], -coef[2], 1.0])
+    s = np.linalg.norm(n)
+    return np.append(n / s, -coef[0] / s)
+
+
+def _height_at(coef: np.ndarray, xy: np.ndarray) -> float:
+    return float(coef[0] + coef[1] * xy[0] + coef[2] * xy[1])
+
+
+def rope_line_xy(hook_m: np.ndarray, z_m: np.ndarray | float) -> np.ndarray:
+    """Where the rope's line from the tip (the levelled frame's origin) through the hook's
+    reference point lies at the height(s) z: (2,) or (N,2). The load hangs on it."""
+    z = np.asarray(z_m, float)
+    return hook_m[:2] + (z[..., None] - hook_m[2]) * (hook_m[:2] / hook_m[2])
+
+
+def _dominant(z: np.ndarray, bin_m: float) -> float:
+    """The centre of the most populated height bin."""
+    lo = math.floor(z.min() / bin_m)
+    counts = np.bincount(np.floor(z / bin_m).astype(int) - lo)
+    return (lo + int(np.argmax(counts)) + 0.5) * bin_m
+
+
+def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height_m: float,
+                      load_size_m: tuple[float, float, float] | None, cfg: LiftConfig,
+                      deck_prior_z_m: float | None = None, range_noise_m: float = 0.0,
+                      angular_step_rad: float = 0.0) -> LoadClearance:
+    """The clearance in one levelled frame, about the hook's reference point `hook_m` (the hook
+    filter's estimate, levelled frame); `deck_prior_z_m` the deck's last height there, if any.
+    The LiDAR's range noise and angular step size the sigmas."""
+    pts = points_level[np.all(np.isfinite(points_level), axis=1)] if len(points_level) else points_level
+    if len(pts) == 0 or not np.all(np.isfinite(hook_m)) or hook_m[2] >= 0:
+        return LoadClearance("no points or no hook")
+    # The load hangs on the rope's line continued below the hook: its axis at each point's height.
+    d = np.linalg.norm(pts[:, :2] - rope_line_xy(hook_m, pts[:, 2]), axis=1)
+    radius = 0.5 * math.hypot(*load_size_m[:2]) if load_size_m else cfg.unknown_load_radius_m
+    below = pts[:, 2] < hook_m[2] - block_height_m - cfg.below_block_m
+    inner = radius + cfg.load_margin_m
+    ring = below & (d > inner) & (d < inner + cfg.deck_ring_m)
+    if np.count_nonzero(ring) < cfg.min_deck_points:
+        return LoadClearance("too few deck points about the load")
+    zr = pts[ring, 2]
+    centre = deck_prior_z_m if deck_prior_z_m is not None and math.isfinite(deck_prior_z_m) else _dominant(zr, cfg.height_bin_m)
+    near = np.abs(zr - centre) <= cfg.deck_gate_m
+    if np.count_nonzero(near) < cfg.min_deck_points and deck_prior_z_m is not None:  # lost it: search afresh
+        near = np.abs(zr - _dominant(zr, cfg.height_bin_m)) <= cfg.deck_gate_m
+    fit = height_plane(pts[ring][near], cfg.outlier_sigmas) if np.count_nonzero(near) >= cfg.min_deck_points else None
+    if fit is None:
+        return LoadClearance("no deck plane about the load")
+    deck_coef, deck_in = fit
+    deck_pts = pts[ring][near][deck_in]
+    # The load: inside its footprint, below the block, clear of the deck under it.
+    deck_under = deck_coef[0] + pts[:, :2] @ deck_coef[1:]
+    load = below & (d <= inner) & (pts[:, 2] > deck_under + cfg.above_deck_m)
+    n_load = int(np.count_nonzero(load))
+    ring_idx, load_idx = np.flatnonzero(ring)[near][deck_in], np.flatnonzero(load)
+    masks = dict(load_mask=_mask(points_level, pts, load_idx), deck_mask=_mask(points_level, pts, ring_idx))
+    if n_load < cfg.min_top_points:
+        return LoadClearance("too few load points", n_load=n_load, n_deck=len(deck_pts), **masks)
+    candidates, centre, sigma_low = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m) if load_size_m
+                                     else _lowest_seen(pts[load], range_noise_m))
+    if candidates is None:
+        return LoadClearance("no top face on the load", n_load=n_load, n_deck=len(deck_pts), **masks)
+    # the lowest point is the one nearest the deck below it (a rolling deck is not level)
+    lowest = candidates[np.argmin(candidates[:, 2] - (deck_coef[0] + candidates[:, :2] @ deck_coef[1:]))]
+    deck_z = _height_at(deck_coef, lowest[:2])
+    sigma_deck = plane_sigma_at(deck_pts, _as_plane(deck_coef), np.array([lowest[0], lowest[1], deck_z]))
+    sigma = math.hypot(sigma_low, sigma_deck if math.isfinite(sigma_deck) else range_noise_m)
+    # the centre: midway between two edges, each known to a beam spacing s (uniform): s / sqrt(24)
+    sigma_centre = max(float(np.linalg.norm(centre)) * angular_step_rad / math.sqrt(24.0), range_noise_m)
+    return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
+                         _height_at(deck_coef, centre[:2]), n_load, len(deck_pts), **masks)
+
+
+def _mask(points_level: np.ndarray, finite_pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """A mask over the frame's points from indices among its finite ones."""
+    finite = np.flatnonzero(np.all(np.isfinite(points_level), axis=1)) if len(finite_pts) != len(points_level) else None
+    m = np.zeros(len(points_level), bool)
+    m[idx if finite is None else finite[idx]] = True
+    return m
+
+
+def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], cfg: LiftConfig,
+                          range_noise_m: float) -> tuple[np.ndarray | None, np.ndarray | None, float]:
+    """The underside's corners (4,3) and centre, and a corner height's 1-sigma, from the top face
+    (a plane through the load's points, the
+    slings above it and any side seen below it left out as outliers) and the model: the top's
+    rectangle about its points' centroid along their principal axis, its corners carried down
+    the face's normal by the height."""
+    fit = height_plane(load, cfg.outlier_sigmas)  # the slings above it and any side below: outliers
+    if fit is None or np.count_nonzero(fit[1]) < max(cfg.min_top_points, cfg.top_fraction * len(load)):
+        return None, None, math.nan
+    coef, keep = fit
+    top = load[keep]
+    c = top[:, :2].mean(axis=0)
+    evals, evecs = np.linalg.eigh(np.cov((top[:, :2] - c).T))
+    e1, e2 = evecs[:, 1], evecs[:, 0]
+    # the face's centre midway between its outermost points along each axis: the block and
+    # slings' shadow on the face moves the points' centroid, not the face's edges
+    a1, a2 = (top[:, :2] - c) @ e1, (top[:, :2] - c) @ e2
+    c = c + 0.5 * (a1.max() + a1.min()) * e1 + 0.5 * (a2.max() + a2.min()) * e2
+    length, width, height = size_m
+    corners_xy = np.array([c + sx * length / 2 * e1 + sy * width / 2 * e2 for sx in (-1, 1) for sy in (-1, 1)])
+    n = _as_plane(coef)[:3]
+    corners = np.column_stack([corners_xy, coef[0] + corners_xy @ coef[1:]]) - height * n
+    lowest = corners[np.argmin(corners[:, 2])]  # the sigma's reference: the corners lie alike about the centroid
+    centre = np.append(c, coef[0] + c @ coef[1:]) - height * n
+    resid = top[:, 2] - (coef[0] + top[:, :2] @ coef[1:])
+    s_fit = max(float(np.std(resid)), range_noise_m)
+    # the corner's height: the face's fit there (its offset and slope, from the points' spread)
+    sigma = s_fit * math.sqrt(1.0 / len(top) + float(np.sum(((lowest[:2] - c) @ evecs) ** 2 / np.maximum(evals * (len(top) - 1), 1e-9))))
+    return corners, centre, sigma
+
+
+def _lowest_seen(load: np.ndarray, range_noise_m: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Without a model: the load's lowest points seen (their few lowest, averaged: one point's
+    noise is not the load's bottom), and its points' centroid for the underside's centre."""
+    k = min(5, len(load))
+    low = load[np.argsort(load[:, 2])[:k]]
+    centre = np.append(load[:, :2].mean(axis=0), low[:, 2].mean())
+    return low.mean(axis=0)[None, :], centre, max(float(np.std(low[:, 2])), range_noise_m) / math.sqrt(k)

@@ -1,0 +1,126 @@
+"""The lift chain: the hook chain's frames (levelled with the tracker's attitude, the rope and
+the block fitted, the hook tracked) and, on the same levelled cloud, the load under the hook
+and the deck below it (perception.lift); at the end, the touchdown forecast
+(fusion.lift_forecast) and the hook's estimators.
+
+The clearance C falls as the hoist pays out rope l and swings with the waves. The filter (the
+relative-heave filter's model: a value, its rate and acceleration) follows the wave part C + l,
+a smooth narrow-band motion; C and its rate are that less the hook tracker's l and its rate (the
+hoist encoder filtered). A constant-acceleration model would otherwise have to follow the
+hoist's starts and stops as jerks.
+
+Built from the installation (the LiDAR, the crane, the block's and the load's models) and the
+processing settings; never from the simulated world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from boomtip.data.frames import Frame, FrameSource, Truth
+from boomtip.fusion.heave_filter import HeaveFilter, Measurement
+from boomtip.fusion.landing_filter import LandingOffsetFilter
+from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
+from boomtip.perception.lift import LoadClearance, measure_clearance, rope_line_xy
+from boomtip.tools.chains.hook import HookChain, HookFrameResult, HookResult
+from boomtip.tools.chains.resources import RunResources
+from boomtip.tools.config.processing import Processing
+from boomtip.tools.report import lift as outputs
+
+CLEARANCE_SOURCE = "lidar_clearance"
+
+
+@dataclass
+class LiftFrameResult(HookFrameResult):
+    """A LiDAR frame's hook work and the load's clearance in it."""
+
+    clearance: LoadClearance | None = None
+
+
+@dataclass
+class LiftResult:
+    hook: HookResult
+    rows: dict[str, np.ndarray]  # the lift's per-frame rows as columns (lift_estimates.csv)
+    forecasts: TouchdownForecasts
+
+
+class LiftChain:
+    name = "lift"
+
+    def __init__(self, source: FrameSource, processing: Processing, resources: RunResources | None = None) -> None:
+        inst = source.meta.installation
+        model = inst.lift.load_model
+        self.hook = HookChain(source, processing, resources, load_mass_kg=model.mass() if model is not None else 0.0)
+        self.load_size_m = model.dimensions() if model is not None else None
+        if model is None:
+            self.hook.warnings.append("no load model (installation.lift.load_model): the clearance is the lowest load "
+                                      "point seen, which from above is the top, not the underside")
+        self.cfg = processing.lift
+        self.block_height_m = self.hook.pipeline.cfg.block_height_m
+        self.lidar_noise = (inst.lidar.range_noise_m, inst.lidar.angular_step_rad)
+        self.filter = HeaveFilter(self.cfg.filter)
+        self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps)
+        self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
+        self.hoist = (math.nan, math.nan)  # the rope's length and rate (the hook tracker's) at the last frame
+        self.rows: list[dict] = []
+
+    def frames(self, source: FrameSource):
+        return self.hook.frames(source)
+
+    def process(self, frame: Frame) -> LiftFrameResult | None:
+        res = self.hook.process(frame)
+        if res is None:
+            return None
+        out = LiftFrameResult(**{k: getattr(res, k) for k in res.__dataclass_fields__})
+        row = {"t": frame.t_s, "status": res.row.get("status", "no levelled frame")}
+        if res.points_level is not None and self.hook.tracker is not None:
+            with out.times.stage("lift.clearance"):
+                p_hook, _ = self.hook.tracker.estimate()
+                obs = out.clearance = measure_clearance(res.points_level, p_hook, self.block_height_m, self.load_size_m,
+                                                        self.cfg.detector, self.deck_z_m, *self.lidar_noise)
+                self.hoist = self.hook.tracker.hoist()
+            row.update(outputs.observation_row(obs))
+            if obs.ok:
+                self.deck_z_m = obs.deck_z_m
+                line = rope_line_xy(p_hook, obs.underside_centre_m[2])
+                self.landing.update(frame.t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
+                row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s)))
+                with out.times.stage("lift.filter"):  # the wave part C + l: the rope paid out is the operator's
+                    row["filter"] = self.filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.clearance_m + self.hoist[0],
+                                                                obs.sigma_m, CLEARANCE_SOURCE))
+        row.update(outputs.estimate_row(*self.filter.estimate(frame.t_s), *self.hoist))
+        self.rows.append(row)
+        return out
+
+    def finish(self) -> LiftResult:
+        hook = self.hook.finish()
+        rows = outputs.as_columns(self.rows)
+        forecasts = touchdown_forecasts(rows["t"], rows["clearance_m"], rows["hoist_m"], self.cfg.horizon_s,
+                                        self.cfg.forecast_history_s)
+        return LiftResult(hook, rows, forecasts)
+
+    def outputs(self, out: Path, result: LiftResult) -> list[str]:
+        names = self.hook.outputs(out, result.hook)
+        outputs.write_estimates(out / "lift_estimates.csv", result.rows)
+        outputs.write_forecasts(out / "lift_forecast.csv", result.forecasts)
+        return names + ["lift_estimates.csv", "lift_forecast.csv"]
+
+    def kpis(self, result: LiftResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
+        k = self.hook.kpis(result.hook, truth, windows)
+        k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, self.filter)
+        return k
+
+    def report(self, out: Path, kpis: dict, result: LiftResult, truth: Truth | None) -> list[str]:
+        names = self.hook.report(out, kpis, result.hook, truth)
+        return sorted(set(names) | set(outputs.write_lift_report(out, kpis["lift"], result, truth)))
+
+    def visualiser(self, path: Path, source: FrameSource):
+        return self.hook.visualiser(path, source)
+
+    def visualise_result(self, viz, result: LiftResult, truth: Truth | None) -> None:
+        self.hook.visualise_result(viz, result.hook, truth)
+

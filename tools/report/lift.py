@@ -1,0 +1,189 @@
+"""The lift chain's outputs: the clearance per frame (measured and filtered) and the touchdown
+forecasts as CSV, the KPIs against the truth (when there is one), and report.md's lift section
+with a plot of C and its forecasts.
+
+Scored where the issue asks: the clearance over the samples whose true clearance lies between 0
+and 10 m before touchdown; the forecast's rate 2 s ahead over the issues whose target instant
+lies there too.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from boomtip.data.frames import Truth
+from boomtip.data.io.atomic import atomic_text_file
+from boomtip.fusion.consistency import Innovations, consistency_block
+from boomtip.fusion.heave_filter import HeaveFilter
+from boomtip.fusion.lift_forecast import TouchdownForecasts
+from boomtip.perception.lift import LoadClearance
+from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path, save
+
+SCORED_CLEARANCE_M = (0.0, 10.0)  # the last 10 m of the lowering, before touchdown
+FORECAST_LEAD_SCORED_S = 2.0
+COLUMNS = ("t", "status", "clearance_meas_m", "sigma_meas_m", "lowest_x_m", "lowest_y_m", "lowest_z_m", "deck_z_m",
+           "centre_x_m", "centre_y_m", "landing_x_m", "landing_y_m", "landing_z_m", "landing_sigma_m", "n_load", "n_deck", "clearance_m", "clearance_rate_mps", "sigma_m", "sigma_rate_mps", "hoist_m")
+LEVELLED = "levelled frame at the boom tip (z up, world axes)"
+
+
+def observation_row(obs: LoadClearance) -> dict:
+    return {"status": obs.status, "clearance_meas_m": obs.clearance_m, "sigma_meas_m": obs.sigma_m,
+            "lowest_x_m": obs.lowest_point_m[0], "lowest_y_m": obs.lowest_point_m[1], "lowest_z_m": obs.lowest_point_m[2],
+            "deck_z_m": obs.deck_z_m, "centre_x_m": obs.landing_m[0], "centre_y_m": obs.landing_m[1],
+            "landing_z_m": obs.landing_m[2], "n_load": obs.n_load, "n_deck": obs.n_deck}
+
+
+def landing_row(landing_xy: np.ndarray, var_m2: float) -> dict:
+    return {"landing_x_m": float(landing_xy[0]), "landing_y_m": float(landing_xy[1]), "landing_sigma_m": math.sqrt(var_m2)}
+
+
+def estimate_row(x: np.ndarray, P: np.ndarray, hoist_m: float, hoist_rate_mps: float) -> dict:
+    """C and its rate from the filter's wave part C + l and the rope's length and rate."""
+    return {"clearance_m": float(x[0]) - hoist_m, "clearance_rate_mps": float(x[1]) - hoist_rate_mps,
+            "sigma_m": float(math.sqrt(max(P[0, 0], 0.0))), "sigma_rate_mps": float(math.sqrt(max(P[1, 1], 0.0))),
+            "hoist_m": hoist_m}
+
+
+def as_columns(rows: list[dict]) -> dict[str, np.ndarray]:
+    out = {}
+    for c in COLUMNS:
+        if c == "status":
+            out[c] = np.array([r.get(c, "") for r in rows], dtype=object)
+        else:
+            out[c] = np.array([r.get(c, math.nan) for r in rows], dtype=float)
+    return out
+
+
+def write_estimates(path: Path, cols: dict[str, np.ndarray]) -> None:
+    """lift_estimates.csv: a row per LiDAR frame; lengths in metres, the lowest point and the
+    deck's height in the levelled frame at the boom tip."""
+    with atomic_text_file(path) as fh:
+        fh.write(",".join(COLUMNS) + "\n")
+        for k in range(len(cols["t"])):
+            fh.write(",".join(str(cols[c][k]) if c == "status" else f"{cols[c][k]:.6g}" for c in COLUMNS) + "\n")
+
+
+def write_forecasts(path: Path, f: TouchdownForecasts) -> None:
+    """lift_forecast.csv: a row per issue and lead: the forecast C, its rate and their 1-sigma."""
+    with atomic_text_file(path) as fh:
+        fh.write("t_issue,lead_s,clearance_m,clearance_rate_mps,sigma_m,sigma_rate_mps\n")
+        for i, t in enumerate(f.t_issue):
+            for k, lead in enumerate(f.lead_s):
+                fh.write(f"{t:.3f},{lead:.2f},{f.clearance_m[i, k]:.5g},{f.clearance_rate_mps[i, k]:.5g},"
+                         f"{f.sigma_m[i, k]:.4g},{f.sigma_rate_mps[i, k]:.4g}\n")
+
+
+def _innovations(filt: HeaveFilter) -> Innovations:
+    inn = Innovations()
+    for t_acq, source, nis, scale in filt.innovations():
+        inn.add(source, t_acq, nis, 1, scale)
+    return inn
+
+
+def _scored(truth: Truth, t: np.ndarray) -> np.ndarray:
+    C = truth.at("clearance", t)
+    lo, hi = SCORED_CLEARANCE_M
+    return np.isfinite(C) & (C > lo) & (C <= hi) & (truth.at("contact", t) < 0.5)
+
+
+def _rms(e: np.ndarray) -> float:
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
+
+
+def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth | None, filt: HeaveFilter) -> dict:
+    t, status = rows["t"], rows["status"]
+    n = len(t)
+    k: dict = {"frames": n, "clearance_found_fraction": float(np.mean(status == "ok")) if n else 0.0,
+               "statuses": {s: int(np.count_nonzero(status == s)) for s in sorted(set(status.tolist()))},
+               "consistency": consistency_block(_innovations(filt))}
+    if truth is None or "clearance" not in truth.columns:
+        k["note"] = "no truth: the clearance and its forecast are in lift_estimates.csv and lift_forecast.csv"
+        return k
+    m = _scored(truth, t)
+    C_true, rate_true = truth.at("clearance", t), truth.at("clearance_rate", t)
+    err, err_meas = rows["clearance_m"] - C_true, rows["clearance_meas_m"] - C_true
+    z = err / rows["sigma_m"]
+    k["clearance"] = {"rmse_m": _rms(err[m]), "max_abs_m": float(np.nanmax(np.abs(err[m]))) if m.any() else math.nan,
+                      "measured_rmse_m": _rms(err_meas[m]), "within_3sigma": float(np.mean(np.abs(z[m]) <= 3.0)) if m.any() else math.nan,
+                      "samples": int(np.count_nonzero(m)), "scored": f"true clearance in ({SCORED_CLEARANCE_M[0]:g}, "
+                      f"{SCORED_CLEARANCE_M[1]:g}] m before touchdown"}
+    k["clearance_rate"] = {"rmse_mps": _rms((rows["clearance_rate_mps"] - rate_true)[m])}
+    # the landing point (the underside's centre dropped onto the deck) relative to the tip, world axes
+    land_true = np.column_stack([truth.at("landing_rel_x", t), truth.at("landing_rel_y", t)])
+    land_err = np.hypot(rows["landing_x_m"] - land_true[:, 0], rows["landing_y_m"] - land_true[:, 1])
+    centre_err = np.hypot(rows["centre_x_m"] - land_true[:, 0], rows["centre_y_m"] - land_true[:, 1])
+    k["landing_point"] = {"rmse_m": _rms(land_err[m]), "measured_rmse_m": _rms(centre_err[m]), "frame": "relative to the boom tip, world axes (the feeder's "
+                          "deck frame needs the feeder chain, not run here)"}
+    k["touchdown_s"] = _touchdown_time(truth)
+    k["forecast"] = _forecast_kpis(f, truth)
+    return k
+
+
+def _touchdown_time(truth: Truth) -> float | None:
+    c, t = truth.columns["contact"], truth.columns["t"]
+    hit = np.flatnonzero(np.asarray(c) > 0.5)
+    return float(t[hit[0]]) if len(hit) else None
+
+
+def _forecast_kpis(f: TouchdownForecasts, truth: Truth) -> dict:
+    if not len(f.t_issue):
+        return {"issues": 0}
+    j = int(np.argmin(np.abs(f.lead_s - FORECAST_LEAD_SCORED_S)))
+    target = f.t_issue + f.lead_s[j]
+    m = _scored(truth, target)
+    err = f.clearance_rate_mps[:, j] - truth.at("clearance_rate", target)
+    err_c = f.clearance_m[:, j] - truth.at("clearance", target)
+    return {"rmse_mps_at_2s": _rms(err[m]), "clearance_rmse_m_at_2s": _rms(err_c[m]),
+            "rate_within_2sigma_at_2s": float(np.mean(np.abs(err[m]) <= 2.0 * f.sigma_rate_mps[m, j])) if m.any() else math.nan,
+            "issues_scored": int(np.count_nonzero(m)), "horizon_s": float(f.lead_s[-1])}
+
+
+def write_lift_report(out: Path, kpis: dict, result, truth: Truth | None) -> list[str]:
+    """report.md's lift section (appended) and plots/lift_clearance.png."""
+    lines = ["", "## The lift: clearance, landing point and touchdown forecast", ""]
+    k = kpis
+    lines.append(f"Clearance found in {100 * k['clearance_found_fraction']:.1f} % of {k['frames']} LiDAR frames.")
+    if "clearance" in k:
+        c, f = k["clearance"], k["forecast"]
+        lines += ["", "| quantity | RMSE | notes |", "|---|---|---|",
+                  f"| clearance C | {100 * c['rmse_m']:.2f} cm | max {100 * c['max_abs_m']:.2f} cm, measured per frame "
+                  f"{100 * c['measured_rmse_m']:.2f} cm, {100 * c['within_3sigma']:.1f} % within 3 sigma |",
+                  f"| clearance rate | {100 * k['clearance_rate']['rmse_mps']:.2f} cm/s | |",
+                  f"| landing point | {100 * k['landing_point']['rmse_m']:.2f} cm | {k['landing_point']['frame']} |",
+                  f"| rate forecast 2 s ahead | {100 * f.get('rmse_mps_at_2s', math.nan):.2f} cm/s | "
+                  f"{f.get('issues_scored', 0)} issues |",
+                  "", f"Scored: {c['scored']}; touchdown at {k['touchdown_s']} s."]
+    names = []
+    plot = _plot(out, result, truth)
+    if plot is not None:
+        lines += ["", plot_link(plot)]
+        names.append("plots")
+    with open(out / "report.md", "a", encoding="utf-8") as fh:
+        fh.write("\n".join(lines) + "\n")
+    return ["report.md"] + names
+
+
+def _plot(out: Path, result, truth: Truth | None):
+    import matplotlib.pyplot as plt
+
+    rows, f = result.rows, result.forecasts
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    t = rows["t"]
+    ax[0].plot(t, rows["clearance_m"], lw=1, label="C (filtered)")
+    ax[1].plot(t, rows["clearance_rate_mps"], lw=1, label="C rate (filtered)")
+    if truth is not None and "clearance" in truth.columns:
+        ax[0].plot(t, truth.at("clearance", t), **TRUTH_STYLE)
+        ax[1].plot(t, truth.at("clearance_rate", t), **TRUTH_STYLE)
+    for i in range(0, len(f.t_issue), 8):  # every 4th second: a forecast's path
+        ax[0].plot(f.t_issue[i] + f.lead_s, f.clearance_m[i], color="tab:orange", lw=0.6, alpha=0.7)
+    ax[0].set_ylabel("clearance (m)")
+    ax[1].set_ylabel("rate (m/s)")
+    ax[1].set_xlabel("t (s)")
+    legend(ax[0])
+    path = plot_path(out, "lift_clearance.png")
+    save(fig, path)
+    return path
