@@ -31,7 +31,8 @@ HOOK_TRUTH_COLUMNS = (
     "tip_x", "tip_y", "tip_z", "slew", "luff", "hoist", "boom_deflection", "sway_a", "sway_b",
     "crane_roll", "crane_pitch",
 )
-# the lift's: the hook's, and the load over the feeder's deck (clearance: its lowest point's height
+# the lift's: the hook's (hook_*, tip_*: in the frame the hook chain estimates them in, which turns
+# with the crane vessel's roll and pitch but not its surge, sway and heave), and the load over the feeder's deck (clearance: its lowest point's height
 # above the deck below it; landing: its underside's centre dropped onto the deck, feeder body frame,
 # and relative to the boom tip in world axes; load: its underside's centre, world; contact: 1 once it rests on
 # the deck)

@@ -27,6 +27,7 @@ from boomtip.perception.geometry import plane_sigma_at
 __all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy"]
 
 STATUS_OK = "ok"
+MAX_REFITS = 5  # a plane refitted without its outliers at most this often
 
 
 class LiftConfig(BaseModel):
@@ -76,19 +77,21 @@ class LoadClearance:
 
 
 def height_plane(points: np.ndarray, outlier_sigmas: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """z = a + b x + c y by least squares, refitted once without the points beyond
-    `outlier_sigmas` robust (MAD) sigmas: ((a, b, c), the inliers' mask); None with < 4 points."""
+    """z = a + b x + c y by least squares, refitted without the points beyond `outlier_sigmas`
+    robust (MAD) sigmas until the inliers settle (a few rounds): ((a, b, c), the inliers' mask,
+    the set the coefficients were fitted to); None with < 4 points."""
     keep = np.ones(len(points), bool)
-    coef = None
-    for _ in range(2):
+    for k in range(MAX_REFITS):
         if np.count_nonzero(keep) < 4:
             return None
         p = points[keep]
-        A = np.column_stack([np.ones(len(p)), p[:, 0], p[:, 1]])
-        coef, *_ = np.linalg.lstsq(A, p[:, 2], rcond=None)
+        coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(len(p)), p[:, 0], p[:, 1]]), p[:, 2], rcond=None)
         resid = points[:, 2] - (coef[0] + points[:, :2] @ coef[1:])
         mad = float(np.median(np.abs(resid[keep] - np.median(resid[keep]))))
-        keep = np.abs(resid) <= outlier_sigmas * max(1.4826 * mad, 1e-4)
+        inliers = np.abs(resid) <= outlier_sigmas * max(1.4826 * mad, 1e-4)
+        if np.array_equal(inliers, keep) or k == MAX_REFITS - 1:
+            break
+        keep = inliers
     return coef, keep
 
 
@@ -153,17 +156,20 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     masks = dict(load_mask=_mask(points_level, pts, load_idx), deck_mask=_mask(points_level, pts, ring_idx))
     if n_load < cfg.min_top_points:
         return LoadClearance("too few load points", n_load=n_load, n_deck=len(deck_pts), **masks)
-    candidates, centre, sigma_low = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m) if load_size_m
-                                     else _lowest_seen(pts[load], range_noise_m))
+    candidates, centre, sigma_low, gradient = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m)
+                                               if load_size_m else _lowest_seen(pts[load], range_noise_m))
     if candidates is None:
         return LoadClearance("no top face on the load", n_load=n_load, n_deck=len(deck_pts), **masks)
     # the lowest point is the one nearest the deck below it (a rolling deck is not level)
     lowest = candidates[np.argmin(candidates[:, 2] - (deck_coef[0] + candidates[:, :2] @ deck_coef[1:]))]
     deck_z = _height_at(deck_coef, lowest[:2])
     sigma_deck = plane_sigma_at(deck_pts, _as_plane(deck_coef), np.array([lowest[0], lowest[1], deck_z]))
-    sigma = math.hypot(sigma_low, sigma_deck if math.isfinite(sigma_deck) else range_noise_m)
-    # the centre: midway between two edges, each known to a beam spacing s (uniform): s / sqrt(24)
+    # the centre: midway between two edges, each known to a beam spacing s (uniform): s / sqrt(24);
+    # a corner's place as uncertain, and its height over the deck changes with it as the two
+    # faces' slopes differ
     sigma_centre = max(float(np.linalg.norm(centre)) * angular_step_rad / math.sqrt(24.0), range_noise_m)
+    sigma_place = sigma_centre * float(np.linalg.norm(gradient - deck_coef[1:]))
+    sigma = math.sqrt(sigma_low**2 + (sigma_deck if math.isfinite(sigma_deck) else range_noise_m) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
                          _height_at(deck_coef, centre[:2]), n_load, len(deck_pts), **masks)
 
@@ -177,15 +183,16 @@ def _mask(points_level: np.ndarray, finite_pts: np.ndarray, idx: np.ndarray) -> 
 
 
 def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], cfg: LiftConfig,
-                          range_noise_m: float) -> tuple[np.ndarray | None, np.ndarray | None, float]:
-    """The underside's corners (4,3) and centre, and a corner height's 1-sigma, from the top face
+                          range_noise_m: float) -> tuple[np.ndarray | None, np.ndarray | None, float, np.ndarray]:
+    """The underside's corners (4,3) and centre, a corner height's 1-sigma and the face's height
+    gradient (dz/dx, dz/dy), from the top face
     (a plane through the load's points, the
     slings above it and any side seen below it left out as outliers) and the model: the top's
     rectangle about its points' centroid along their principal axis, its corners carried down
     the face's normal by the height."""
     fit = height_plane(load, cfg.outlier_sigmas)  # the slings above it and any side below: outliers
     if fit is None or np.count_nonzero(fit[1]) < max(cfg.min_top_points, cfg.top_fraction * len(load)):
-        return None, None, math.nan
+        return None, None, math.nan, np.zeros(2)
     coef, keep = fit
     top = load[keep]
     c = top[:, :2].mean(axis=0)
@@ -205,13 +212,13 @@ def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], 
     s_fit = max(float(np.std(resid)), range_noise_m)
     # the corner's height: the face's fit there (its offset and slope, from the points' spread)
     sigma = s_fit * math.sqrt(1.0 / len(top) + float(np.sum(((lowest[:2] - c) @ evecs) ** 2 / np.maximum(evals * (len(top) - 1), 1e-9))))
-    return corners, centre, sigma
+    return corners, centre, sigma, coef[1:]
 
 
-def _lowest_seen(load: np.ndarray, range_noise_m: float) -> tuple[np.ndarray, np.ndarray, float]:
+def _lowest_seen(load: np.ndarray, range_noise_m: float) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Without a model: the load's lowest points seen (their few lowest, averaged: one point's
     noise is not the load's bottom), and its points' centroid for the underside's centre."""
     k = min(5, len(load))
     low = load[np.argsort(load[:, 2])[:k]]
     centre = np.append(load[:, :2].mean(axis=0), low[:, 2].mean())
-    return low.mean(axis=0)[None, :], centre, max(float(np.std(low[:, 2])), range_noise_m) / math.sqrt(k)
+    return low.mean(axis=0)[None, :], centre, max(float(np.std(low[:, 2])), range_noise_m) / math.sqrt(k), np.zeros(2)

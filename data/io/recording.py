@@ -23,7 +23,8 @@ from typing import Callable, Iterator
 import numpy as np
 from pydantic import ValidationError
 
-from boomtip.data.frames import ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.frames import (ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, LIFT_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame,
+                                 FrameSource, MruLog, SourceMeta, Truth)
 from boomtip.data.io.atomic import atomic_write_bytes
 from boomtip.data.io.pcd import PcdError, read_pcd, write_pcd
 from boomtip.data.installation import Installation
@@ -151,6 +152,14 @@ def frame_file_name(t_s: float) -> str:
     return f"{int(round(t_s * 1e9)):013d}.pcd"
 
 
+def truth_columns_of(path: Path) -> tuple[str, ...] | None:
+    """The lift's truth columns when truth.csv's header is the lift's (else None: the caller's
+    expectation, the hook's or the ship-to-ship one)."""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        header = tuple(fh.readline().strip().split(","))
+    return LIFT_TRUTH_COLUMNS if header == LIFT_TRUTH_COLUMNS else None
+
+
 def write_recording(
     source: FrameSource, out: Path, force: bool = False, progress: Callable[[int], None] | None = None,
     inputs: tuple[Path | None, ...] = (),
@@ -259,7 +268,7 @@ class Recording(FrameSource):
         if hook:
             self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS, bounds=ENCODER_BOUNDS, **streams)
         truth_path = self.root / "truth.csv"
-        expected = HOOK_TRUTH_COLUMNS if hook else TRUTH_COLUMNS
+        expected = (truth_columns_of(truth_path) if truth_path.exists() else None) or (HOOK_TRUTH_COLUMNS if hook else TRUTH_COLUMNS)
         self.truth = Truth(read_csv(truth_path, expected)) if truth_path.exists() else None
         self._files = self._list_frames()
 

@@ -24,7 +24,7 @@ from typing import Iterator
 
 import numpy as np
 
-from boomtip.data.frames import HOOK_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
+from boomtip.data.frames import HOOK_TRUTH_COLUMNS, LIFT_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.installation import Installation
 from pydantic import ValidationError
 
@@ -291,7 +291,7 @@ class RosBagSource(FrameSource):
 
     def _truth(self, rows: list[tuple], topic: str) -> Truth:
         names = tuple(rows[0][0].split(","))
-        if names not in (TRUTH_COLUMNS, HOOK_TRUTH_COLUMNS):
+        if names not in (TRUTH_COLUMNS, HOOK_TRUTH_COLUMNS, LIFT_TRUTH_COLUMNS):
             raise RecordingError(f"{self.path}: {topic}: truth columns {names[:4]}...: not boomtip's truth table")
         table = np.array([r[1] for r in rows if len(r[1]) == len(names)])
         if len(table) < 2:

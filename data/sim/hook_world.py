@@ -370,16 +370,18 @@ class HookSimulation(Simulation):
         }
 
     def _truth(self) -> Truth:
-        """The truth table at the truth rate, made a chunk of rows at a time into files of its own."""
+        """The truth table at the truth rate, made a chunk of rows at a time into files of its own.
+        The hook's and the tip's world positions are in the frame the hook chain estimates them
+        in: turning with the vessel's roll and pitch about its origin, not moving with its surge,
+        sway and heave (an MRU measures no translation; see `_vessel_translation`)."""
         s = self.scenario
         t = frame_times(s.world.truth_rate_hz, s.duration_s + 1.0 / s.world.truth_rate_hz)
         files = TrackFiles()
         for a in range(0, len(t), TRUTH_CHUNK):
             tc = t[a:a + TRUTH_CHUNK]
-            shift = self._vessel_translation(tc)
             for prefix, name in (("hook_", "p_hook_world"), ("hook_v", "v_hook_world"), ("hook_rel_", "p_hook_rel_tip"),
                                  ("hook_rel_v", "v_hook_rel_tip"), ("tip_", "p_tip_world")):
-                v = self._interp(name, tc) + (shift if name in ("p_hook_world", "p_tip_world") else 0.0)
+                v = self._interp(name, tc)
                 for k, ax in enumerate("xyz"):
                     files.append(f"{prefix}{ax}", v[:, k])
             for col, name in (("slew", "nu"), ("luff", "mu"), ("hoist", "l"), ("boom_deflection", "nu_f"),

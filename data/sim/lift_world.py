@@ -163,7 +163,8 @@ class LiftSimulation(HookSimulation):
             R, p = self.load_pose(tc)
             C, landing, touch = self._clearance(R, p, *self._feeder_pose(tc))
             C = np.where(tc >= t_td, 0.0, C)
-            rel = touch[:, :2] - np.column_stack([files.read(f"tip_{a}", a0, a0 + len(tc)) for a in "xy"])
+            tip = np.column_stack([files.read(f"tip_{a}", a0, a0 + len(tc)) for a in "xy"]) + self._vessel_translation(tc)[:, :2]
+            rel = touch[:, :2] - tip
             for name, v in (("clearance", C), ("landing_x", landing[:, 0]), ("landing_y", landing[:, 1]),
                             ("landing_rel_x", rel[:, 0]), ("landing_rel_y", rel[:, 1]),
                             ("load_x", p[:, 0]), ("load_y", p[:, 1]), ("load_z", p[:, 2]),

@@ -110,12 +110,14 @@ class LiftChain:
         return names + ["lift_estimates.csv", "lift_forecast.csv"]
 
     def kpis(self, result: LiftResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
-        k = self.hook.kpis(result.hook, truth, windows)
+        k = self.hook.kpis(result.hook, outputs.until_touchdown(truth), windows)
+        if truth is not None and "contact" in truth.columns:
+            k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
         k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, self.filter)
         return k
 
     def report(self, out: Path, kpis: dict, result: LiftResult, truth: Truth | None) -> list[str]:
-        names = self.hook.report(out, kpis, result.hook, truth)
+        names = self.hook.report(out, kpis, result.hook, outputs.until_touchdown(truth))
         return sorted(set(names) | set(outputs.write_lift_report(out, kpis["lift"], result, truth)))
 
     def visualiser(self, path: Path, source: FrameSource):

@@ -140,6 +140,8 @@ def rope_kpis(rows: FrameRows, truth) -> dict:
         t = rows["t"][fits]
         u = rows.xyz("rope_u")[fits]
         ref = np.column_stack([truth.at(f"hook_rel_{a}", t) for a in "xyz"])
+        covered = np.all(np.isfinite(ref), axis=1)  # the truth may not cover every fit
+        u, ref = u[covered], ref[covered]
         length = np.linalg.norm(ref, axis=1, keepdims=True)
         e = u - ref / length
         out["rmse_angle_mrad"] = float(1e3 * np.sqrt(np.mean(np.einsum("ij,ij->i", e, e))))

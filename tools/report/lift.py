@@ -76,6 +76,35 @@ def write_forecasts(path: Path, f: TouchdownForecasts) -> None:
                          f"{f.sigma_m[i, k]:.4g},{f.sigma_rate_mps[i, k]:.4g}\n")
 
 
+class TruthUntil(Truth):
+    """A truth that ends at `end_s` (NaN beyond): the hook's figures in a lift are scored while
+    the rope holds the load; once it has landed, the rope is slack and the hoist no longer says
+    where the hook is."""
+
+    def __init__(self, truth: Truth, end_s: float) -> None:  # noqa: D107 (no dataclass fields of its own)
+        self._truth, self._end_s = truth, end_s
+
+    @property
+    def columns(self):
+        return self._truth.columns
+
+    def at(self, name: str, t_s: np.ndarray) -> np.ndarray:
+        v = self._truth.at(name, t_s)
+        return v if name == "t" else np.where(np.asarray(t_s) <= self._end_s, v, np.nan)
+
+    @property
+    def end_s(self) -> float:
+        return min(self._end_s, self._truth.end_s)
+
+
+def until_touchdown(truth: Truth | None) -> Truth | None:
+    """The truth up to the load's first contact (all of it when there is none)."""
+    if truth is None or "contact" not in truth.columns:
+        return truth
+    t_td = touchdown_time(truth)
+    return truth if t_td is None else TruthUntil(truth, t_td)
+
+
 def _innovations(filt: HeaveFilter) -> Innovations:
     inn = Innovations()
     for t_acq, source, nis, scale in filt.innovations():
@@ -118,12 +147,12 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
     centre_err = np.hypot(rows["centre_x_m"] - land_true[:, 0], rows["centre_y_m"] - land_true[:, 1])
     k["landing_point"] = {"rmse_m": _rms(land_err[m]), "measured_rmse_m": _rms(centre_err[m]), "frame": "relative to the boom tip, world axes (the feeder's "
                           "deck frame needs the feeder chain, not run here)"}
-    k["touchdown_s"] = _touchdown_time(truth)
+    k["touchdown_s"] = touchdown_time(truth)
     k["forecast"] = _forecast_kpis(f, truth)
     return k
 
 
-def _touchdown_time(truth: Truth) -> float | None:
+def touchdown_time(truth: Truth) -> float | None:
     c, t = truth.columns["contact"], truth.columns["t"]
     hit = np.flatnonzero(np.asarray(c) > 0.5)
     return float(t[hit[0]]) if len(hit) else None
@@ -184,6 +213,6 @@ def _plot(out: Path, result, truth: Truth | None):
     ax[1].set_ylabel("rate (m/s)")
     ax[1].set_xlabel("t (s)")
     legend(ax[0])
-    path = plot_path(out, "lift_clearance.png")
+    path = plot_path(out, "lift_clearance")
     save(fig, path)
     return path

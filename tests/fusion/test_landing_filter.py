@@ -1,0 +1,37 @@
+"""The landing point's offset from the rope's line: a random walk per axis."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from boomtip.fusion.landing_filter import LandingOffsetFilter
+
+
+def test_noisy_offsets_are_averaged_to_their_stated_sigma():
+    rng = np.random.default_rng(1)
+    f = LandingOffsetFilter(rate_sigma_mps=0.01)
+    true = np.array([0.3, -0.2])
+    for k in range(400):
+        assert f.update(0.05 * k, true + 0.07 * rng.standard_normal(2), 0.07)
+    sigma = math.sqrt(f.predicted_var(20.0))
+    assert sigma < 0.02
+    assert np.all(np.abs(f.x - true) < 3 * sigma)
+
+
+def test_an_offset_far_outside_the_prediction_is_gated_and_nan_is_ignored():
+    f = LandingOffsetFilter(rate_sigma_mps=0.01)
+    for k in range(50):
+        f.update(0.05 * k, np.array([0.0, 0.0]), 0.05)
+    x = f.x.copy()
+    assert not f.update(2.6, np.array([3.0, 0.0]), 0.05)
+    assert not f.update(2.65, np.array([np.nan, 0.0]), 0.05)
+    assert np.array_equal(f.x, x)
+
+
+def test_its_variance_grows_while_no_frame_comes():
+    f = LandingOffsetFilter(rate_sigma_mps=0.05)
+    f.update(0.0, np.zeros(2), 0.05)
+    assert f.predicted_var(10.0) > f.predicted_var(1.0) > f.predicted_var(0.0)
+    assert math.isinf(LandingOffsetFilter(0.05).predicted_var(0.0))
