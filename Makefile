@@ -47,6 +47,7 @@ bench: setup
 	$(BIN)/boomtip bench startup --json runs/bench/startup.json --force
 	$(BIN)/boomtip bench process --json runs/bench/process.json --force
 	$(BIN)/boomtip bench batch --json runs/bench/batch.json --force
+	$(BIN)/boomtip bench lift --json runs/bench/lift.json --force
 
 # Resolve every dependency afresh (the newest releases pyproject.toml allows) into $(LOCK). Run
 # `make test` on the result before committing it: the lock holds the versions that passed.

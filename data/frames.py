@@ -35,9 +35,10 @@ HOOK_TRUTH_COLUMNS = (
 # with the crane vessel's roll and pitch but not its surge, sway and heave), and the load over the feeder's deck (clearance: its lowest point's height
 # above the deck below it; landing: its underside's centre dropped onto the deck, feeder body frame,
 # and relative to the boom tip in world axes; load: its underside's centre, world; contact: 1 once it rests on
-# the deck)
-LIFT_TRUTH_COLUMNS = HOOK_TRUTH_COLUMNS + ("clearance", "clearance_rate", "landing_x", "landing_y", "landing_rel_x",
-                                          "landing_rel_y", "load_x", "load_y", "load_z", "contact")
+# the deck; centre_clearance: the underside centre's height above the deck below it, relative_vz
+# its rate, the load's vertical velocity relative to the deck)
+LIFT_TRUTH_COLUMNS = HOOK_TRUTH_COLUMNS + ("clearance", "clearance_rate", "centre_clearance", "relative_vz", "landing_x",
+                                          "landing_y", "landing_rel_x", "landing_rel_y", "load_x", "load_y", "load_z", "contact")
 ENCODER_COLUMNS = ("t", "slew", "luff", "hoist")
 
 

@@ -1,11 +1,14 @@
-"""The touchdown forecast: the load's clearance C and its rate over the next seconds, so a
-"land now / wait" window can be read off.
+"""The touchdown forecast: the load's height above the deck and its relative vertical velocity
+over the next seconds, and the clearance C that follows, so a "land now / wait" window can be
+read off.
 
-C falls as the hoist pays out rope (the operator's command, read by the hoist encoder) and
-swings with the waves (the two ships' relative motion and the load's). The wave part y = C + l
-(l the rope paid out) is a narrow-band process: an AR model fitted to its recent past
-(fusion.wave_predictor) runs it forward; the hoist is taken to go on at its present rate. The
-forecast's variance is the model's backtested k-step error over the series it was fitted to.
+The height h (the underside centre's, above the deck below it) falls as the hoist pays out rope
+(the operator's command, read by the hoist encoder) and swings with the waves (the two ships'
+relative motion and the load's). The wave part y = h + l (l the rope paid out) is a narrow-band
+process: an AR model fitted to its recent past (fusion.wave_predictor) runs it forward; the hoist
+is taken to go on at its present rate. C is h less the lowest corner's offset below the centre,
+held as it is at the issue (the load's tilt, slow beside the waves). The forecast's variances are
+the model's backtested k-step errors over the series it was fitted to.
 """
 
 from __future__ import annotations
@@ -25,30 +28,35 @@ ISSUE_EVERY_S = 0.5  # a forecast issued this often
 
 @dataclass
 class TouchdownForecasts:
-    """Forecasts issued at t_issue (I,), each over the leads (K,): C, its rate and their 1-sigma (I, K)."""
+    """Forecasts issued at t_issue (I,), each over the leads (K,): the height, the relative
+    vertical velocity, the clearance and their 1-sigma (I, K)."""
 
     t_issue: np.ndarray
     lead_s: np.ndarray
+    height_m: np.ndarray
+    relative_vz_mps: np.ndarray
     clearance_m: np.ndarray
-    clearance_rate_mps: np.ndarray
     sigma_m: np.ndarray
     sigma_rate_mps: np.ndarray
 
 
-def touchdown_forecasts(t_s: np.ndarray, clearance_m: np.ndarray, hoist_m: np.ndarray, horizon_s: float,
-                        history_s: float) -> TouchdownForecasts:
+def touchdown_forecasts(t_s: np.ndarray, height_m: np.ndarray, hoist_m: np.ndarray, horizon_s: float,
+                        history_s: float, offset_m: np.ndarray | None = None) -> TouchdownForecasts:
     """Causal forecasts over a run: at each issue time, only what came before it is used.
-    t_s, clearance_m (the filter's estimates) and hoist_m (the encoder) at the frames' times."""
+    t_s, height_m (the filter's), hoist_m (the rope paid out) and offset_m (the lowest point's
+    depth below the centre: height - C; none: 0) at the frames' times."""
     steps = int(round(horizon_s / FORECAST_DT_S))
     lead = FORECAST_DT_S * np.arange(1, steps + 1)
-    ok = np.isfinite(clearance_m) & np.isfinite(hoist_m)
+    offset_m = np.zeros_like(height_m) if offset_m is None else offset_m
+    ok = np.isfinite(height_m) & np.isfinite(hoist_m) & np.isfinite(offset_m)
     empty = np.zeros((0, steps))
     if np.count_nonzero(ok) < 2:
-        return TouchdownForecasts(np.zeros(0), lead, empty, empty, empty, empty)
-    t, C, l = t_s[ok], clearance_m[ok], hoist_m[ok]
+        return TouchdownForecasts(np.zeros(0), lead, empty, empty, empty, empty, empty)
+    t, h, l = t_s[ok], height_m[ok], hoist_m[ok]
     grid = np.arange(t[0], t[-1] + 1e-9, FORECAST_DT_S)
-    y = np.interp(grid, t, C + l)
+    y = np.interp(grid, t, h + l)
     lg = np.interp(grid, t, l)
+    og = np.interp(grid, t, offset_m[ok])
     n_hist = int(round(history_s / FORECAST_DT_S))
     issues, out = [], []
     stride = max(int(round(ISSUE_EVERY_S / FORECAST_DT_S)), 1)
@@ -60,15 +68,15 @@ def touchdown_forecasts(t_s: np.ndarray, clearance_m: np.ndarray, hoist_m: np.nd
         y_pred, _ = forecast(model, hist, steps + 1)  # one step more: the last lead's central difference
         var = backtest_variance(model, hist, steps)
         rate_l = (lg[k] - lg[k - 1]) / FORECAST_DT_S  # the hoist goes on as it goes now
-        c_pred = y_pred[:steps] - (lg[k] + rate_l * lead)
+        h_pred = y_pred[:steps] - (lg[k] + rate_l * lead)
         rate = _central_rate(np.concatenate([[hist[-1]], y_pred]))[None, :] - rate_l
         sig_rate = np.sqrt(_backtest_rate_variance(model, hist, steps))
         issues.append(grid[k])
-        out.append((c_pred, rate[0], np.sqrt(var), sig_rate))
+        out.append((h_pred, rate[0], h_pred - og[k], np.sqrt(var), sig_rate))
     if not out:
-        return TouchdownForecasts(np.zeros(0), lead, empty, empty, empty, empty)
-    c, r, s, sr = (np.array(v) for v in zip(*out))
-    return TouchdownForecasts(np.array(issues), lead, c, r, s, sr)
+        return TouchdownForecasts(np.zeros(0), lead, empty, empty, empty, empty, empty)
+    h, r, c, s, sr = (np.array(v) for v in zip(*out))
+    return TouchdownForecasts(np.array(issues), lead, h, r, c, s, sr)
 
 
 def _central_rate(y: np.ndarray) -> np.ndarray:

@@ -61,6 +61,7 @@ class LoadClearance:
     centre_sigma_m: float = math.nan  # the underside centre's 1-sigma per horizontal axis
     deck_z_m: float = math.nan  # under the lowest point
     landing_z_m: float = math.nan  # the deck under the underside's centre
+    centre_height_sigma_m: float = math.nan  # the centre's height above the deck: its 1-sigma
     n_load: int = 0
     n_deck: int = 0
     load_mask: np.ndarray | None = None
@@ -69,6 +70,12 @@ class LoadClearance:
     @property
     def ok(self) -> bool:
         return self.status == STATUS_OK
+
+    @property
+    def centre_clearance_m(self) -> float:
+        """The underside centre's height above the deck below it: it moves with the relative
+        vertical motion alone, not with the load's tilting as the lowest corner does."""
+        return float(self.underside_centre_m[2] - self.landing_z_m)
 
     @property
     def landing_m(self) -> np.ndarray:
@@ -156,22 +163,29 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     masks = dict(load_mask=_mask(points_level, pts, load_idx), deck_mask=_mask(points_level, pts, ring_idx))
     if n_load < cfg.min_top_points:
         return LoadClearance("too few load points", n_load=n_load, n_deck=len(deck_pts), **masks)
-    candidates, centre, sigma_low, gradient = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m)
-                                               if load_size_m else _lowest_seen(pts[load], range_noise_m))
-    if candidates is None:
+    under = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m) if load_size_m
+             else _lowest_seen(pts[load], range_noise_m))
+    if under is None:
         return LoadClearance("no top face on the load", n_load=n_load, n_deck=len(deck_pts), **masks)
     # the lowest point is the one nearest the deck below it (a rolling deck is not level)
-    lowest = candidates[np.argmin(candidates[:, 2] - (deck_coef[0] + candidates[:, :2] @ deck_coef[1:]))]
-    deck_z = _height_at(deck_coef, lowest[:2])
-    sigma_deck = plane_sigma_at(deck_pts, _as_plane(deck_coef), np.array([lowest[0], lowest[1], deck_z]))
+    cand = under.candidates
+    lowest = cand[np.argmin(cand[:, 2] - (deck_coef[0] + cand[:, :2] @ deck_coef[1:]))]
+    deck_z, centre = _height_at(deck_coef, lowest[:2]), under.centre
+    plane = _as_plane(deck_coef)
+
+    def deck_sigma(xy: np.ndarray) -> float:
+        s_d = plane_sigma_at(deck_pts, plane, np.array([xy[0], xy[1], _height_at(deck_coef, xy)]))
+        return s_d if math.isfinite(s_d) else range_noise_m
+
     # the centre: midway between two edges, each known to a beam spacing s (uniform): s / sqrt(24);
     # a corner's place as uncertain, and its height over the deck changes with it as the two
     # faces' slopes differ
     sigma_centre = max(float(np.linalg.norm(centre)) * angular_step_rad / math.sqrt(24.0), range_noise_m)
-    sigma_place = sigma_centre * float(np.linalg.norm(gradient - deck_coef[1:]))
-    sigma = math.sqrt(sigma_low**2 + (sigma_deck if math.isfinite(sigma_deck) else range_noise_m) ** 2 + sigma_place**2)
+    sigma_place = sigma_centre * float(np.linalg.norm(under.gradient - deck_coef[1:]))
+    sigma = math.sqrt(under.sigma_corner_m**2 + deck_sigma(lowest[:2]) ** 2 + sigma_place**2)
+    sigma_centre_height = math.hypot(under.sigma_centre_m, deck_sigma(centre[:2]))
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
-                         _height_at(deck_coef, centre[:2]), n_load, len(deck_pts), **masks)
+                         _height_at(deck_coef, centre[:2]), sigma_centre_height, n_load, len(deck_pts), **masks)
 
 
 def _mask(points_level: np.ndarray, finite_pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -182,43 +196,56 @@ def _mask(points_level: np.ndarray, finite_pts: np.ndarray, idx: np.ndarray) -> 
     return m
 
 
+@dataclass
+class _Underside:
+    """The load's underside as one frame sees it (levelled frame): the candidates for its lowest
+    point, its centre, their heights' 1-sigma and the face's height gradient (dz/dx, dz/dy)."""
+
+    candidates: np.ndarray
+    centre: np.ndarray
+    sigma_corner_m: float
+    sigma_centre_m: float
+    gradient: np.ndarray
+
+
 def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], cfg: LiftConfig,
-                          range_noise_m: float) -> tuple[np.ndarray | None, np.ndarray | None, float, np.ndarray]:
-    """The underside's corners (4,3) and centre, a corner height's 1-sigma and the face's height
-    gradient (dz/dx, dz/dy), from the top face
-    (a plane through the load's points, the
-    slings above it and any side seen below it left out as outliers) and the model: the top's
-    rectangle about its points' centroid along their principal axis, its corners carried down
-    the face's normal by the height."""
+                          range_noise_m: float) -> _Underside | None:
+    """The underside's corners and centre from the top face (a plane through the load's points,
+    the slings above it and any side seen below it left out as outliers) and the model: the top's
+    rectangle about its points along their principal axis, carried down the face's normal by the
+    height."""
     fit = height_plane(load, cfg.outlier_sigmas)  # the slings above it and any side below: outliers
     if fit is None or np.count_nonzero(fit[1]) < max(cfg.min_top_points, cfg.top_fraction * len(load)):
-        return None, None, math.nan, np.zeros(2)
+        return None
     coef, keep = fit
     top = load[keep]
-    c = top[:, :2].mean(axis=0)
-    evals, evecs = np.linalg.eigh(np.cov((top[:, :2] - c).T))
+    mean = top[:, :2].mean(axis=0)
+    evals, evecs = np.linalg.eigh(np.cov((top[:, :2] - mean).T))
     e1, e2 = evecs[:, 1], evecs[:, 0]
     # the face's centre midway between its outermost points along each axis: the block and
     # slings' shadow on the face moves the points' centroid, not the face's edges
-    a1, a2 = (top[:, :2] - c) @ e1, (top[:, :2] - c) @ e2
-    c = c + 0.5 * (a1.max() + a1.min()) * e1 + 0.5 * (a2.max() + a2.min()) * e2
+    a1, a2 = (top[:, :2] - mean) @ e1, (top[:, :2] - mean) @ e2
+    c = mean + 0.5 * (a1.max() + a1.min()) * e1 + 0.5 * (a2.max() + a2.min()) * e2
     length, width, height = size_m
     corners_xy = np.array([c + sx * length / 2 * e1 + sy * width / 2 * e2 for sx in (-1, 1) for sy in (-1, 1)])
     n = _as_plane(coef)[:3]
     corners = np.column_stack([corners_xy, coef[0] + corners_xy @ coef[1:]]) - height * n
-    lowest = corners[np.argmin(corners[:, 2])]  # the sigma's reference: the corners lie alike about the centroid
-    centre = np.append(c, coef[0] + c @ coef[1:]) - height * n
     resid = top[:, 2] - (coef[0] + top[:, :2] @ coef[1:])
     s_fit = max(float(np.std(resid)), range_noise_m)
-    # the corner's height: the face's fit there (its offset and slope, from the points' spread)
-    sigma = s_fit * math.sqrt(1.0 / len(top) + float(np.sum(((lowest[:2] - c) @ evecs) ** 2 / np.maximum(evals * (len(top) - 1), 1e-9))))
-    return corners, centre, sigma, coef[1:]
+
+    def sigma_at(xy: np.ndarray) -> float:  # the face's fit's height there: its offset and its slopes
+        q = (xy - mean) @ evecs
+        return s_fit * math.sqrt(1.0 / len(top) + float(np.sum(q**2 / np.maximum(evals * (len(top) - 1), 1e-9))))
+
+    return _Underside(corners, np.append(c, coef[0] + c @ coef[1:]) - height * n, sigma_at(corners_xy[0]), sigma_at(c),
+                      coef[1:])
 
 
-def _lowest_seen(load: np.ndarray, range_noise_m: float) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+def _lowest_seen(load: np.ndarray, range_noise_m: float) -> _Underside:
     """Without a model: the load's lowest points seen (their few lowest, averaged: one point's
     noise is not the load's bottom), and its points' centroid for the underside's centre."""
     k = min(5, len(load))
     low = load[np.argsort(load[:, 2])[:k]]
-    centre = np.append(load[:, :2].mean(axis=0), low[:, 2].mean())
-    return low.mean(axis=0)[None, :], centre, max(float(np.std(low[:, 2])), range_noise_m) / math.sqrt(k), np.zeros(2)
+    sigma = max(float(np.std(low[:, 2])), range_noise_m) / math.sqrt(k)
+    return _Underside(low.mean(axis=0)[None, :], np.append(load[:, :2].mean(axis=0), low[:, 2].mean()), sigma, sigma,
+                      np.zeros(2))

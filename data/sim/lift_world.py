@@ -161,17 +161,20 @@ class LiftSimulation(HookSimulation):
         for a0 in range(0, len(t), TRUTH_CHUNK):
             tc = t[a0:a0 + TRUTH_CHUNK]
             R, p = self.load_pose(tc)
-            C, landing, touch = self._clearance(R, p, *self._feeder_pose(tc))
+            pose_f = self._feeder_pose(tc)
+            C, landing, touch = self._clearance(R, p, *pose_f)
             C = np.where(tc >= t_td, 0.0, C)
+            centre = np.where(tc >= t_td, 0.0, height_above_deck(p, *pose_f, self.scenario.world.feeder.geometry.freeboard_m))
             tip = np.column_stack([files.read(f"tip_{a}", a0, a0 + len(tc)) for a in "xy"]) + self._vessel_translation(tc)[:, :2]
             rel = touch[:, :2] - tip
-            for name, v in (("clearance", C), ("landing_x", landing[:, 0]), ("landing_y", landing[:, 1]),
+            for name, v in (("clearance", C), ("centre_clearance", centre), ("landing_x", landing[:, 0]), ("landing_y", landing[:, 1]),
                             ("landing_rel_x", rel[:, 0]), ("landing_rel_y", rel[:, 1]),
                             ("load_x", p[:, 0]), ("load_y", p[:, 1]), ("load_z", p[:, 2]),
                             ("contact", (tc >= t_td).astype(float))):
                 files.append(name, v)
         dt = 1.0 / self.scenario.world.truth_rate_hz
         files.replace("clearance_rate", np.gradient(files.read("clearance"), dt))
+        files.replace("relative_vz", np.gradient(files.read("centre_clearance"), dt))
         landed = t >= t_td
         if landed.any():  # the slack rope: the hook's reference point as the scene poses it
             r = self._hook_rel_tip(t)

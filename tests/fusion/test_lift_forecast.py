@@ -25,7 +25,7 @@ def test_a_narrow_band_sea_and_a_steady_hoist_are_forecast_to_millimetres_per_se
     k = int(np.argmin(np.abs(f.lead_s - 2.0)))
     target = f.t_issue + f.lead_s[k]
     inside = target < T[-1]
-    assert np.sqrt(np.mean((f.clearance_rate_mps[inside, k] - (waves_rate(target) - 0.1)[inside]) ** 2)) < 0.01
+    assert np.sqrt(np.mean((f.relative_vz_mps[inside, k] - (waves_rate(target) - 0.1)[inside]) ** 2)) < 0.01
     assert np.sqrt(np.mean((f.clearance_m[inside, k] - (10.0 - 0.1 * target + waves(target))[inside]) ** 2)) < 0.01
     assert f.clearance_m.shape == (len(f.t_issue), len(f.lead_s)) and f.lead_s[-1] == pytest.approx(8.0)
 

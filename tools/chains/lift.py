@@ -3,11 +3,13 @@ the block fitted, the hook tracked) and, on the same levelled cloud, the load un
 and the deck below it (perception.lift); at the end, the touchdown forecast
 (fusion.lift_forecast) and the hook's estimators.
 
-The clearance C falls as the hoist pays out rope l and swings with the waves. The filter (the
-relative-heave filter's model: a value, its rate and acceleration) follows the wave part C + l,
-a smooth narrow-band motion; C and its rate are that less the hook tracker's l and its rate (the
-hoist encoder filtered). A constant-acceleration model would otherwise have to follow the
-hoist's starts and stops as jerks.
+The clearance C (the lowest point's) and the height h (the underside centre's above the deck,
+which moves with the relative vertical motion alone, not with the load's tilting) fall as the
+hoist pays out rope l and swing with the waves. Two filters (the relative-heave filter's model:
+a value, its rate and acceleration) follow the wave parts C + l and h + l, smooth narrow-band
+motions; C, h and their rates are those less the hook tracker's l and its rate (the hoist
+encoder filtered). A constant-acceleration model would otherwise have to follow the hoist's
+starts and stops as jerks.
 
 Built from the installation (the LiDAR, the crane, the block's and the load's models) and the
 processing settings; never from the simulated world.
@@ -31,7 +33,7 @@ from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import lift as outputs
 
-CLEARANCE_SOURCE = "lidar_clearance"
+CLEARANCE_SOURCE, HEIGHT_SOURCE = "lidar_clearance", "lidar_height"
 
 
 @dataclass
@@ -62,7 +64,8 @@ class LiftChain:
         self.cfg = processing.lift
         self.block_height_m = self.hook.pipeline.cfg.block_height_m
         self.lidar_noise = (inst.lidar.range_noise_m, inst.lidar.angular_step_rad)
-        self.filter = HeaveFilter(self.cfg.filter)
+        self.filter = HeaveFilter(self.cfg.filter)  # C + l, C the lowest point's clearance
+        self.height_filter = HeaveFilter(self.cfg.filter)  # h + l, h the underside centre's height over the deck
         self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps)
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
         self.hoist = (math.nan, math.nan)  # the rope's length and rate (the hook tracker's) at the last frame
@@ -89,18 +92,20 @@ class LiftChain:
                 line = rope_line_xy(p_hook, obs.underside_centre_m[2])
                 self.landing.update(frame.t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
                 row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s)))
-                with out.times.stage("lift.filter"):  # the wave part C + l: the rope paid out is the operator's
+                with out.times.stage("lift.filter"):  # the wave parts C + l and h + l: the rope paid out is the operator's
                     row["filter"] = self.filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.clearance_m + self.hoist[0],
                                                                 obs.sigma_m, CLEARANCE_SOURCE))
-        row.update(outputs.estimate_row(*self.filter.estimate(frame.t_s), *self.hoist))
+                    self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self.hoist[0],
+                                                       obs.centre_height_sigma_m, HEIGHT_SOURCE))
+        row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s), *self.hoist))
         self.rows.append(row)
         return out
 
     def finish(self) -> LiftResult:
         hook = self.hook.finish()
         rows = outputs.as_columns(self.rows)
-        forecasts = touchdown_forecasts(rows["t"], rows["clearance_m"], rows["hoist_m"], self.cfg.horizon_s,
-                                        self.cfg.forecast_history_s)
+        forecasts = touchdown_forecasts(rows["t"], rows["height_m"], rows["hoist_m"], self.cfg.horizon_s,
+                                        self.cfg.forecast_history_s, rows["height_m"] - rows["clearance_m"])
         return LiftResult(hook, rows, forecasts)
 
     def outputs(self, out: Path, result: LiftResult) -> list[str]:
@@ -113,7 +118,7 @@ class LiftChain:
         k = self.hook.kpis(result.hook, outputs.until_touchdown(truth), windows)
         if truth is not None and "contact" in truth.columns:
             k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
-        k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, self.filter)
+        k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, (self.filter, self.height_filter))
         return k
 
     def report(self, out: Path, kpis: dict, result: LiftResult, truth: Truth | None) -> list[str]:

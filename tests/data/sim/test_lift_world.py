@@ -74,8 +74,11 @@ def test_the_load_hangs_on_the_rope_below_the_block_until_it_lands(landing):
     # the load's axis is the rope's line: its underside centre below_hook further down it
     p_tip = np.column_stack([tr[f"tip_{a}"][before] for a in "xyz"]) + sim._vessel_translation(t[before])
     assert np.allclose(p_load, p_tip + r_hook + sim.below_hook_m * u, atol=1e-9)
-    C = np.asarray(tr["clearance"])
+    C, h = np.asarray(tr["clearance"]), np.asarray(tr["centre_clearance"])
     assert np.all(C[before] > -1e-3) and np.all(C[t >= t_td] == 0.0)
+    # the centre lies above the lowest corner by no more than the load's half diagonal's tilt
+    assert np.all(h[before] >= C[before]) and np.all(h[before] - C[before] < 0.5)
+    assert np.allclose(np.asarray(tr["relative_vz"]), np.gradient(h, t), atol=1e-9)
     assert np.all(np.asarray(tr["contact"])[t >= t_td] == 1.0) and np.all(np.asarray(tr["contact"])[before] == 0.0)
 
 
