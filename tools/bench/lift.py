@@ -13,7 +13,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from boomtip.tools.bench.process import CLI, _open, _process_wall_s
+from boomtip.tools.bench.process import CLI, open_recording, process_wall_s
 
 __all__ = ["bench_lift"]
 
@@ -40,16 +40,16 @@ def bench_lift(scenario: str = "lift", duration_s: float | None = None, repeats:
     with tempfile.TemporaryDirectory(prefix="boomtip-bench-lift-") as tmp:
         folder = Path(tmp)
         rec = _simulate(scenario, duration_s, folder)
-        seconds = float(_open(rec, None).duration_s)
+        seconds = float(open_recording(rec, None).duration_s)
         runs: dict[str, list[float]] = {"lift": [], "hook_alone": [], "lift_workers_1": []}
         apt_ms, accuracy = [], {}
         for _ in range(repeats):  # interleaved: a machine's drift falls on all alike
-            runs["lift"].append(_process_wall_s(rec, folder / "out", None, []))
+            runs["lift"].append(process_wall_s(rec, folder / "out", None, []))
             kpis = json.loads((folder / "out" / "kpis.json").read_text())
             apt_ms.append(kpis["hook"]["segmentation"]["apt_ms"])
             accuracy = _accuracy(kpis)
-            runs["hook_alone"].append(_process_wall_s(rec, folder / "out", None, ["--set", "processing.chain=hook"]))
-            runs["lift_workers_1"].append(_process_wall_s(rec, folder / "out", 1, []))
+            runs["hook_alone"].append(process_wall_s(rec, folder / "out", None, ["--set", "processing.chain=hook"]))
+            runs["lift_workers_1"].append(process_wall_s(rec, folder / "out", 1, []))
     out: dict = {"recording": f"{scenario}, {seconds:g} s", "recording_s": seconds, "repeats": repeats}
     for name, walls in runs.items():
         wall = statistics.median(walls)

@@ -33,7 +33,7 @@ def _simulate(scenario: str, duration_s: float, folder: Path) -> Path:
     return rec
 
 
-def _process_wall_s(recording: Path, out: Path, workers: int | None, extra: list[str]) -> float:
+def process_wall_s(recording: Path, out: Path, workers: int | None, extra: list[str]) -> float:
     args = ["process", str(recording), "-o", str(out), "--force", *extra]
     if workers is not None:
         args += ["--workers", str(workers)]
@@ -45,7 +45,7 @@ def _process_wall_s(recording: Path, out: Path, workers: int | None, extra: list
     return wall
 
 
-def _open(recording: Path, installation: Path | None):
+def open_recording(recording: Path, installation: Path | None):
     from boomtip.data.io.installation_file import load_installation
     from boomtip.data.io.loaders import open_source
 
@@ -57,7 +57,7 @@ def _kiss_icp_wall_s(recording: Path, installation: Path | None) -> tuple[float,
     from boomtip.tools.bench.feeder import plain_kiss_icp
 
     t0 = time.perf_counter()
-    source, kiss, frames = _open(recording, installation), plain_kiss_icp(), 0
+    source, kiss, frames = open_recording(recording, installation), plain_kiss_icp(), 0
     for frame in source:
         if frame.sensor != "lidar" or frame.error is not None or len(frame) == 0:
             continue
@@ -84,16 +84,16 @@ def bench_process(scenario: str = "sts-loaded", duration_s: float = 20.0, repeat
     with tempfile.TemporaryDirectory(prefix="boomtip-bench-process-") as tmp:
         folder = Path(tmp)
         rec = recording if recording is not None else _simulate(scenario, duration_s, folder)
-        seconds = float(_open(rec, installation).duration_s)
+        seconds = float(open_recording(rec, installation).duration_s)
         runs: dict[str, list[float]] = {"default": [], "workers_1": [], "kiss_icp": []}
         lidar_frames, apt_ms, accuracy = 0, [], {}
         for _ in range(repeats):  # interleaved: a machine's drift falls on all three alike
-            runs["default"].append(_process_wall_s(rec, folder / "out", None, extra))
+            runs["default"].append(process_wall_s(rec, folder / "out", None, extra))
             kpis = json.loads((folder / "out" / "kpis.json").read_text())
             apt = (kpis.get("feeder") or {}).get("apt_ms")
             apt_ms.append(float("nan") if apt is None else apt)
             accuracy = _accuracy(kpis)
-            runs["workers_1"].append(_process_wall_s(rec, folder / "out", 1, extra))
+            runs["workers_1"].append(process_wall_s(rec, folder / "out", 1, extra))
             wall, lidar_frames = _kiss_icp_wall_s(rec, installation)
             runs["kiss_icp"].append(wall)
     out: dict = {"recording": str(recording) if recording else f"{scenario}, {duration_s:g} s, " + ", ".join(DEFAULT_LIDAR),
