@@ -97,7 +97,8 @@ class LiftChain:
                                                                 obs.sigma_m, CLEARANCE_SOURCE))
                     self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self.hoist[0],
                                                        obs.centre_height_sigma_m, HEIGHT_SOURCE))
-        row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s), *self.hoist))
+        row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s), *self.hoist,
+                                        self.cfg.lost_sigma_m))
         self.rows.append(row)
         return out
 

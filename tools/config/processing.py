@@ -54,6 +54,8 @@ class LiftProcessing(StrictModel):
     landing_offset_rate_sigma_mps: float = Field(0.05, gt=0, description="how fast the load's centre may wander from "
                                                  "the rope's line (the slings' give, the load turning): the landing "
                                                  "point's filter (fusion.landing_filter)")
+    lost_sigma_m: float = Field(0.1, gt=0, description="a clearance whose sigma exceeds this is lost: left empty in "
+                                "lift_estimates.csv with the reason (no frame has held it for a while)")
     horizon_s: float = Field(8.0, gt=0, le=60, description="the touchdown forecast's horizon")
     forecast_history_s: float = Field(40.0, gt=5, le=600, description="the forecast's AR model is fitted to this much "
                                       "of the recent relative motion")

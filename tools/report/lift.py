@@ -24,10 +24,13 @@ from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path
 
 SCORED_CLEARANCE_M = (0.0, 10.0)  # the last 10 m of the lowering, before touchdown
 FORECAST_LEAD_SCORED_S = 2.0
-COLUMNS = ("t", "status", "clearance_meas_m", "sigma_meas_m", "lowest_x_m", "lowest_y_m", "lowest_z_m", "deck_z_m",
+COLUMNS = ("t", "status", "estimate", "clearance_meas_m", "sigma_meas_m", "lowest_x_m", "lowest_y_m", "lowest_z_m", "deck_z_m",
            "centre_x_m", "centre_y_m", "height_meas_m", "landing_x_m", "landing_y_m", "landing_z_m", "landing_sigma_m",
            "n_load", "n_deck", "clearance_m", "clearance_rate_mps", "sigma_m", "sigma_rate_mps", "height_m",
            "relative_vz_mps", "sigma_relative_vz_mps", "hoist_m")
+
+
+TEXT_COLUMNS = ("status", "estimate")  # the frame's measurement status; the estimate's: ok, lost, no clearance yet
 
 
 def observation_row(obs: LoadClearance) -> dict:
@@ -43,12 +46,15 @@ def landing_row(landing_xy: np.ndarray, var_m2: float) -> dict:
 
 
 def estimate_row(clearance: tuple[np.ndarray, np.ndarray], height: tuple[np.ndarray, np.ndarray], hoist_m: float,
-                 hoist_rate_mps: float) -> dict:
+                 hoist_rate_mps: float, lost_sigma_m: float) -> dict:
     """C, h and their rates from the filters' wave parts C + l, h + l (x, P each) and the rope's
-    length and rate."""
+    length and rate; left empty, with the reason, when C's sigma exceeds `lost_sigma_m`."""
     (x, P), (xh, Ph) = clearance, height
-    return {"clearance_m": float(x[0]) - hoist_m, "clearance_rate_mps": float(x[1]) - hoist_rate_mps,
-            "sigma_m": float(math.sqrt(max(P[0, 0], 0.0))), "sigma_rate_mps": float(math.sqrt(max(P[1, 1], 0.0))),
+    sigma = float(math.sqrt(max(P[0, 0], 0.0)))
+    if not sigma <= lost_sigma_m:  # NaN too: no clearance measured yet
+        return {"estimate": "lost" if math.isfinite(x[0]) else "no clearance yet", "sigma_m": sigma, "hoist_m": hoist_m}
+    return {"estimate": "ok", "clearance_m": float(x[0]) - hoist_m, "clearance_rate_mps": float(x[1]) - hoist_rate_mps,
+            "sigma_m": sigma, "sigma_rate_mps": float(math.sqrt(max(P[1, 1], 0.0))),
             "height_m": float(xh[0]) - hoist_m, "relative_vz_mps": float(xh[1]) - hoist_rate_mps,
             "sigma_relative_vz_mps": float(math.sqrt(max(Ph[1, 1], 0.0))), "hoist_m": hoist_m}
 
@@ -56,7 +62,7 @@ def estimate_row(clearance: tuple[np.ndarray, np.ndarray], height: tuple[np.ndar
 def as_columns(rows: list[dict]) -> dict[str, np.ndarray]:
     out = {}
     for c in COLUMNS:
-        if c == "status":
+        if c in TEXT_COLUMNS:
             out[c] = np.array([r.get(c, "") for r in rows], dtype=object)
         else:
             out[c] = np.array([r.get(c, math.nan) for r in rows], dtype=float)
@@ -65,11 +71,12 @@ def as_columns(rows: list[dict]) -> dict[str, np.ndarray]:
 
 def write_estimates(path: Path, cols: dict[str, np.ndarray]) -> None:
     """lift_estimates.csv: a row per LiDAR frame; lengths in metres, the lowest point and the
-    deck's height in the levelled frame at the boom tip."""
+    deck's height in the levelled frame at the boom tip; `status` the frame's measurement's,
+    `estimate` the filtered one's (ok, lost: its sigma beyond processing.lift.lost_sigma_m)."""
     with atomic_text_file(path) as fh:
         fh.write(",".join(COLUMNS) + "\n")
         for k in range(len(cols["t"])):
-            fh.write(",".join(str(cols[c][k]) if c == "status" else f"{cols[c][k]:.6g}" for c in COLUMNS) + "\n")
+            fh.write(",".join(str(cols[c][k]) if c in TEXT_COLUMNS else f"{cols[c][k]:.6g}" for c in COLUMNS) + "\n")
 
 
 def write_forecasts(path: Path, f: TouchdownForecasts) -> None:
@@ -135,22 +142,27 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
     t, status = rows["t"], rows["status"]
     n = len(t)
     k: dict = {"frames": n, "clearance_found_fraction": float(np.mean(status == "ok")) if n else 0.0,
+               "lost_fraction": float(np.mean(rows["estimate"] == "lost")) if n else 0.0,
                "statuses": {s: int(np.count_nonzero(status == s)) for s in sorted(set(status.tolist()))},
                "consistency": {name: block for filt in filters for name, block in consistency_block(_innovations(filt)).items()}}
     if truth is None or "clearance" not in truth.columns:
         k["note"] = "no truth: the clearance and its forecast are in lift_estimates.csv and lift_forecast.csv"
         return k
-    m = _scored(truth, t)
+    scored = _scored(truth, t)
+    m = scored & (rows["estimate"] == "ok")  # the lost ones are counted apart, not scored
     C_true, rate_true = truth.at("clearance", t), truth.at("clearance_rate", t)
     err, err_meas = rows["clearance_m"] - C_true, rows["clearance_meas_m"] - C_true
-    z = err / rows["sigma_m"]
+
+    def within(e: np.ndarray, sigma: np.ndarray) -> float:
+        return float(np.mean(np.abs(e[m]) <= 3.0 * sigma[m])) if m.any() else math.nan
+
     k["clearance"] = {"rmse_m": _rms(err[m]), "max_abs_m": float(np.nanmax(np.abs(err[m]))) if m.any() else math.nan,
-                      "measured_rmse_m": _rms(err_meas[m]), "within_3sigma": float(np.mean(np.abs(z[m]) <= 3.0)) if m.any() else math.nan,
-                      "samples": int(np.count_nonzero(m)), "scored": f"true clearance in ({SCORED_CLEARANCE_M[0]:g}, "
-                      f"{SCORED_CLEARANCE_M[1]:g}] m before touchdown"}
+                      "measured_rmse_m": _rms(err_meas[scored]), "within_3sigma": within(err, rows["sigma_m"]),
+                      "samples": int(np.count_nonzero(m)), "lost_fraction": float(np.mean(~m[scored])) if scored.any() else math.nan,
+                      "scored": f"true clearance in ({SCORED_CLEARANCE_M[0]:g}, {SCORED_CLEARANCE_M[1]:g}] m before touchdown"}
     k["clearance_rate"] = {"rmse_mps": _rms((rows["clearance_rate_mps"] - rate_true)[m])}
     err_v = rows["relative_vz_mps"] - truth.at("relative_vz", t)
-    k["relative_velocity"] = {"rmse_mps": _rms(err_v[m]), "within_3sigma": float(np.mean(np.abs(err_v[m]) <= 3 * rows["sigma_relative_vz_mps"][m])) if m.any() else math.nan,
+    k["relative_velocity"] = {"rmse_mps": _rms(err_v[m]), "within_3sigma": within(err_v, rows["sigma_relative_vz_mps"]),
                               "what": "the underside centre's vertical velocity relative to the deck below it"}
     # the landing point (the underside's centre dropped onto the deck) relative to the tip, world axes
     land_true = np.column_stack([truth.at("landing_rel_x", t), truth.at("landing_rel_y", t)])
