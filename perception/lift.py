@@ -2,7 +2,8 @@
 pipeline's: z up, origin at the boom tip, metres): the clearance C from the load's lowest point
 down to the deck, and where that point would touch the deck.
 
-    points below the block, about the rope's line continued   -> the load (within its radius)
+    points below the block, about the rope's line continued   -> the load (within its radius,
+                                                                  connected to the rope's line)
                                                                   and the deck (a ring beyond it)
     deck ring -> its dominant height (or about the last deck) -> a plane fitted, outliers out
     load      -> with its model: the top face's plane, its rectangle and the underside's lowest
@@ -21,6 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from boomtip.perception.geometry import plane_sigma_at
 
@@ -46,6 +50,11 @@ class LiftConfig(BaseModel):
     min_top_points: int = Field(8, ge=4)
     top_fraction: float = Field(0.5, gt=0, le=1, description="the top face holds at least this share of the load's points")
     outlier_sigmas: float = Field(3.0, gt=0, description="plane residuals beyond this many robust sigmas are left out")
+    cluster_beams: float = Field(3.0, gt=0, description="the load is what connects to the rope's line with gaps of at "
+                                 "most this many beam spacings (at the hook's range)")
+    min_cluster_gap_m: float = Field(0.5, gt=0, description="and never less than this")
+    core_radius_m: float = Field(1.0, gt=0, description="of the connected groups, the load has the most points this close "
+                                 "to the rope's line")
 
 
 @dataclass
@@ -158,6 +167,9 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     # The load: inside its footprint, below the block, clear of the deck under it.
     deck_under = deck_coef[0] + pts[:, :2] @ deck_coef[1:]
     load = below & (d <= inner) & (pts[:, 2] > deck_under + cfg.above_deck_m)
+    if np.count_nonzero(load) >= cfg.min_top_points:  # what hangs from the hook, not the cargo beside it
+        load = _hanging(pts, load, d, max(cfg.cluster_beams * float(np.linalg.norm(hook_m)) * angular_step_rad,
+                                          cfg.min_cluster_gap_m), cfg.core_radius_m)
     n_load = int(np.count_nonzero(load))
     ring_idx, load_idx = np.flatnonzero(ring)[near][deck_in], np.flatnonzero(load)
     masks = dict(load_mask=_mask(points_level, pts, load_idx), deck_mask=_mask(points_level, pts, ring_idx))
@@ -186,6 +198,21 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     sigma_centre_height = math.hypot(under.sigma_centre_m, deck_sigma(centre[:2]))
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
                          _height_at(deck_coef, centre[:2]), sigma_centre_height, n_load, len(deck_pts), **masks)
+
+
+def _hanging(pts: np.ndarray, candidates: np.ndarray, d: np.ndarray, gap_m: float, core_m: float) -> np.ndarray:
+    """Of the candidate points, the connected group (no gap wider than gap_m) with the most
+    points within core_m of the rope's line: the load that hangs there, not the cargo or
+    bulwark within its radius, nor a sling's few points."""
+    idx = np.flatnonzero(candidates)
+    pairs = cKDTree(pts[idx]).query_pairs(gap_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(idx), len(idx)))
+    n, label = connected_components(graph, directed=False)
+    core = np.bincount(label[d[idx] <= core_m], minlength=n)
+    best = int(np.argmax(core)) if core.any() else int(label[np.argmin(d[idx])])
+    out = np.zeros(len(pts), bool)
+    out[idx[label == best]] = True
+    return out
 
 
 def _mask(points_level: np.ndarray, finite_pts: np.ndarray, idx: np.ndarray) -> np.ndarray:

@@ -116,3 +116,16 @@ def test_height_plane_leaves_the_outliers_out():
     coef, keep = height_plane(np.column_stack([xy, z]), 3.0)
     assert np.allclose(coef, [1.0, 0.1, -0.05], atol=3e-3)
     assert not keep[:10].any() and keep[10:].mean() > 0.97
+
+
+def test_without_a_model_cargo_within_the_search_radius_is_not_taken_for_the_load():
+    deck = (-80.0, 0.02, -0.012)
+    pts, C_true, centre = scene(deck=deck, tilt=(0.0, 0.0))
+    # a crate 2 m high on the deck, 5 m from the load's axis: inside the 8 m a model-less search covers
+    g = np.arange(-1.0, 1.0, 0.4)
+    cx, cy = np.meshgrid(g, g)
+    xy = np.column_stack([cx.ravel(), cy.ravel()]) + centre[:2] + [5.0, 0.0]
+    crate = np.column_stack([xy, _deck_z(xy, deck) + 2.0])
+    obs = measure_clearance(np.vstack([pts, crate]), HOOK, BLOCK_M, None, LiftConfig(), range_noise_m=NOISE_M)
+    assert obs.ok and obs.clearance_m > C_true + SIZE[2] - 0.1  # the load's top, not the crate's 2 m
+    assert not obs.load_mask[len(pts):].any()
