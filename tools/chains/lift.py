@@ -28,6 +28,7 @@ from boomtip.fusion.heave_filter import HeaveFilter, Measurement
 from boomtip.fusion.landing_filter import LandingOffsetFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
 from boomtip.perception.lift import LoadClearance, measure_clearance, rope_line_xy
+from boomtip.tools.chains.chain import NullVisualiser
 from boomtip.tools.chains.hook import HookChain, HookFrameResult, HookResult
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.config.processing import Processing
@@ -127,8 +128,15 @@ class LiftChain:
         return sorted(set(names) | set(outputs.write_lift_report(out, kpis["lift"], result, truth)))
 
     def visualiser(self, path: Path, source: FrameSource):
-        return self.hook.visualiser(path, source)
+        from boomtip.tools.report.recording.lift import LiftRerunLogger
+
+        return LiftRerunLogger(path, source, gate_radius_m=self.hook.pipeline.cfg.prior_radius_m)
 
     def visualise_result(self, viz, result: LiftResult, truth: Truth | None) -> None:
-        self.hook.visualise_result(viz, result.hook, truth)
+        self.hook.visualise_result(viz, result.hook, outputs.until_touchdown(truth))
+        if isinstance(viz, NullVisualiser):
+            return
+        rows = result.rows
+        truth_m = truth.at("clearance", rows["t"]) if truth is not None and "clearance" in truth.columns else None
+        viz.log_clearance(rows["t"], rows["clearance_m"], rows["sigma_m"], truth_m)
 

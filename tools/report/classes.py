@@ -35,6 +35,8 @@ CLASSES = (
     DetectionClass(16, "feeder_vessel", "feeder vessel", "#4b6e91"),
     DetectionClass(17, "boom", "boom", "#b4a050"),
     DetectionClass(18, "cargo", "cargo and load", "#b46e3c"),
+    DetectionClass(19, "load", "the load under the hook (the lift)", "#ff5ad2"),
+    DetectionClass(20, "clearance", "the clearance: the load's lowest point to the deck, and the landing point", "#00e6e6"),
 )
 _BY_NAME = {c.name: c for c in CLASSES}
 

@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -20,7 +24,7 @@ SHORT = ["--duration", "45"]
 @pytest.fixture(scope="module")
 def lift_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("lift") / "run"
-    r = CliRunner().invoke(app, ["run", "-s", "lift", *SHORT, "--out", str(out)])
+    r = CliRunner().invoke(app, ["run", "-s", "lift", *SHORT, "--out", str(out), "--rerun"])
     assert r.exit_code == 0, r.output
     return out
 
@@ -47,6 +51,18 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
         assert next(csv.reader(fh))[:5] == ["t_issue", "lead_s", "clearance_m", "height_m", "relative_vz_mps"]
     assert (lift_run / "plots" / "lift_clearance.png").is_file()
     assert "## The lift" in (lift_run / "report.md").read_text()
+
+
+def test_the_recording_draws_the_load_the_deck_the_clearance_and_the_landing_point(lift_run):
+    rerun_cli = Path(sys.executable).with_name("rerun")
+    if not rerun_cli.exists():
+        pytest.skip("rerun's command line is not installed beside this interpreter")
+    listing = subprocess.run([str(rerun_cli), "rrd", "print", str(lift_run / "boomtip.rrd")], capture_output=True,
+                             text=True, timeout=120, env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert listing.returncode == 0, listing.stderr
+    for entity in ("/detections/lift/load", "/detections/lift/deck", "/detections/lift/clearance",
+                   "/detections/lift/landing", "/estimates/lift/clearance", "/truth/lift/clearance", "/detections/hook/segment"):
+        assert entity in listing.stdout, entity
 
 
 def test_a_lift_recording_is_processed_with_its_truth(tmp_path):
