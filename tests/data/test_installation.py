@@ -40,3 +40,16 @@ def test_a_beam_wider_than_the_scans_spacing_is_refused_with_its_key():
         Installation.model_validate({"lidar": {"beam_divergence_mrad": 9.0}})
     with pytest.raises(ScenarioError, match="beam_divergence_mrad"):
         load_scenario("sts-loaded", ["lidar.pattern=spinning", "lidar.channels=128", "lidar.beam_divergence_mrad=6.5"])
+
+
+def test_a_load_model_without_dimensions_is_refused_naming_the_key():
+    with pytest.raises(ValidationError, match=r"installation\.lift\.load_model\.size_m"):
+        Installation.model_validate({"lift": {"load_model": {"kind": "box"}}})
+    with pytest.raises(ValidationError, match="three positive lengths"):
+        Installation.model_validate({"lift": {"load_model": {"kind": "box", "size_m": [2.0, 0.0, 1.0]}}})
+
+
+def test_a_load_models_size_and_mass_default_to_its_kinds():
+    model = Installation.model_validate({"lift": {"load_model": {"kind": "container40"}}}).lift.load_model
+    assert model.dimensions() == (12.192, 2.438, 2.591) and model.mass() == 28000.0
+    assert Installation.model_validate({"lift": {"load_model": None}}).lift.load_model is None
