@@ -25,6 +25,10 @@ APPROACH_START_S = 1.0
 APPROACH_RATE_FRACTION, APPROACH_ACC_FRACTION = 0.25, 0.1
 
 
+class LiftProgramError(ValueError):
+    """A programme the crane and the feeder cannot carry out: the message names the key."""
+
+
 class LiftPlan:
     """The programme's joint targets and its times, from the world and the true crane."""
 
@@ -37,7 +41,7 @@ class LiftPlan:
         d = target - c[:2]
         reach = (float(np.hypot(*d)) - params.b) / params.L
         if not 0.0 < reach < 1.0:
-            raise ValueError(f"world.lift.program.target_deck_m {list(prog.target_deck_m)}: the spot lies "
+            raise LiftProgramError(f"world.lift.program.target_deck_m {list(prog.target_deck_m)}: the spot lies "
                              f"{np.hypot(*d):.1f} m from the slewing axis, beyond the boom's reach "
                              f"({params.b:g} m to {params.b + params.L:g} m)")
         self.slew_rad, self.luff_rad = math.atan2(d[1], d[0]), math.acos(reach)
@@ -46,7 +50,7 @@ class LiftPlan:
         below_hook = s.installation.crane.block_height_m + lift.sling_height_m + lift.size()[2]
         self.rope_at = lambda clearance_m: tip_z - deck_z - below_hook - clearance_m
         if self.rope_at(prog.start_clearance_m) <= 1.0:
-            raise ValueError(f"world.lift.program.start_clearance_m = {prog.start_clearance_m:g} m: the load would hang "
+            raise LiftProgramError(f"world.lift.program.start_clearance_m = {prog.start_clearance_m:g} m: the load would hang "
                              f"above the boom tip ({tip_z - deck_z:.1f} m above the deck)")
         lim = JointLimits()
         self.t_lower_s = prog.lower_start_s
@@ -77,7 +81,7 @@ class LiftPlan:
         x0, x1 = open_deck_x(s)
         y_max = g.beam_m / 2 - BULWARK_THICKNESS_M
         if not (x0 + half <= x <= x1 - half and abs(y) + half <= y_max):
-            raise ValueError(f"world.lift.program.target_deck_m {[x, y]}: a {lift.size()[0]:g} x {lift.size()[1]:g} m "
+            raise LiftProgramError(f"world.lift.program.target_deck_m {[x, y]}: a {lift.size()[0]:g} x {lift.size()[1]:g} m "
                              f"load there would not lie on the feeder's open deck (x {x0:.1f}..{x1:.1f} m, "
                              f"|y| < {y_max:.1f} m, feeder body frame)")
 

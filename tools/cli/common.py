@@ -26,7 +26,8 @@ SetOpt = typer.Option(None, "--set", help="Override a scenario key: dotted.key=v
 # the errors that mean bad input, by module: looked up only in the modules already imported (an
 # error class never imported cannot have been raised), so that the command line starts without them
 USER_ERRORS = {"boomtip.tools.config.scenario": "ScenarioError", "boomtip.data.io.recording": "RecordingError",
-               "boomtip.data.io.pcd": "PcdError", "boomtip.tools.chains.chain": "ChainError"}
+               "boomtip.data.io.pcd": "PcdError", "boomtip.tools.chains.chain": "ChainError",
+               "boomtip.data.sim.lift_programme": "LiftProgramError"}
 
 INTERRUPTED_RUN = "no output was replaced and no input was touched; the run's partial results were removed"
 INTERRUPTED_STUDY = "no input was touched; the finished runs are in runs.csv: --resume does the rest"

@@ -93,3 +93,10 @@ def test_without_a_load_model_the_chain_says_what_its_clearance_is(tmp_path):
     # the lowest point seen is the load's top: a load's height (2.6 m) above the truth's clearance
     assert all(r["estimate"] in ("ok", "lost", "no clearance yet") for r in rows)
     assert 13.0 < float(rows[-1]["clearance_m"]) < 15.5
+
+
+def test_a_programme_that_lands_off_the_deck_is_refused_naming_the_key(tmp_path):
+    r = CliRunner().invoke(app, ["run", "-s", "lift", "--set", "world.lift.program.target_deck_m=[40,0]", "--out",
+                                 str(tmp_path / "x")])
+    assert r.exit_code == 2 and "world.lift.program.target_deck_m" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "x").exists()
