@@ -52,6 +52,15 @@ def clearance_to_deck(vertices_world: np.ndarray, centre_world: np.ndarray, R_fe
     return clearance, np.einsum("mji,mj->mi", R_feeder, touch - p_feeder)[:, :2], touch
 
 
+def _gradient_apart(v: np.ndarray, dt_s: float, split: np.ndarray) -> np.ndarray:
+    """np.gradient of v on either side of where the mask `split` turns on, each side alone."""
+    out = np.zeros_like(v)
+    for side in (~split, split):
+        if np.count_nonzero(side) >= 2:
+            out[side] = np.gradient(v[side], dt_s)
+    return out
+
+
 class LiftSimulation(HookSimulation):
     """A lift scenario simulated in memory: LiDAR frames, MRU and encoder logs, the hook's and
     the load's truth."""
@@ -173,9 +182,11 @@ class LiftSimulation(HookSimulation):
                             ("contact", (tc >= t_td).astype(float))):
                 files.append(name, v)
         dt = 1.0 / self.scenario.world.truth_rate_hz
-        files.replace("clearance_rate", np.gradient(files.read("clearance"), dt))
-        files.replace("relative_vz", np.gradient(files.read("centre_clearance"), dt))
         landed = t >= t_td
+        # rates on each side of the touchdown apart: the load lies down flat there (a step in
+        # the centre's height), which a difference across it would make a spike
+        files.replace("clearance_rate", _gradient_apart(files.read("clearance"), dt, landed))
+        files.replace("relative_vz", _gradient_apart(files.read("centre_clearance"), dt, landed))
         if landed.any():  # the slack rope: the hook's reference point as the scene poses it
             r = self._hook_rel_tip(t)
             for k, a in enumerate("xyz"):
