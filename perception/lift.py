@@ -195,7 +195,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     sigma_centre = max(float(np.linalg.norm(centre)) * angular_step_rad / math.sqrt(24.0), range_noise_m)
     sigma_place = sigma_centre * float(np.linalg.norm(under.gradient - deck_coef[1:]))
     sigma = math.sqrt(under.sigma_corner_m**2 + deck_sigma(lowest[:2]) ** 2 + sigma_place**2)
-    sigma_centre_height = math.hypot(under.sigma_centre_m, deck_sigma(centre[:2]))
+    sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
                          _height_at(deck_coef, centre[:2]), sigma_centre_height, n_load, len(deck_pts), **masks)
 

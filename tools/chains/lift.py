@@ -27,6 +27,7 @@ from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.fusion.heave_filter import HeaveFilter, Measurement
 from boomtip.fusion.landing_filter import LandingOffsetFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
+from boomtip.fusion.touchdown import TouchdownDetector
 from boomtip.perception.lift import LoadClearance, measure_clearance, rope_line_xy
 from boomtip.tools.chains.chain import NullVisualiser
 from boomtip.tools.chains.hook import HookChain, HookFrameResult, HookResult
@@ -68,6 +69,7 @@ class LiftChain:
         self.filter = HeaveFilter(self.cfg.filter)  # C + l, C the lowest point's clearance
         self.height_filter = HeaveFilter(self.cfg.filter)  # h + l, h the underside centre's height over the deck
         self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps)
+        self.touchdown = TouchdownDetector(self.cfg.landed_hold_s)
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
         self.hoist = (math.nan, math.nan)  # the rope's length and rate (the hook tracker's) at the last frame
         self.rows: list[dict] = []
@@ -88,6 +90,10 @@ class LiftChain:
                                                         self.cfg.detector, self.deck_z_m, *self.lidar_noise)
                 self.hoist = self.hook.tracker.hoist()
             row.update(outputs.observation_row(obs))
+            if obs.ok and self.touchdown.update(frame.t_s, obs.clearance_m, obs.sigma_m):
+                row.update(outputs.landed_row(obs, self.touchdown.landed_s, *self.hoist))
+                self.rows.append(row)
+                return out
             if obs.ok:
                 self.deck_z_m = obs.deck_z_m
                 line = rope_line_xy(p_hook, obs.underside_centre_m[2])
@@ -98,8 +104,11 @@ class LiftChain:
                                                                 obs.sigma_m, CLEARANCE_SOURCE))
                     self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self.hoist[0],
                                                        obs.centre_height_sigma_m, HEIGHT_SOURCE))
-        row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s), *self.hoist,
-                                        self.cfg.lost_sigma_m))
+        if self.touchdown.landed_s is not None:  # landed: the filters stopped
+            row.update(outputs.landed_row(None, self.touchdown.landed_s, *self.hoist))
+        else:
+            row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s),
+                                            *self.hoist, self.cfg.lost_sigma_m))
         self.rows.append(row)
         return out
 
@@ -120,7 +129,8 @@ class LiftChain:
         k = self.hook.kpis(result.hook, outputs.until_touchdown(truth), windows)
         if truth is not None and "contact" in truth.columns:
             k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
-        k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, (self.filter, self.height_filter))
+        k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, (self.filter, self.height_filter),
+                                      self.touchdown.landed_s)
         return k
 
     def report(self, out: Path, kpis: dict, result: LiftResult, truth: Truth | None) -> list[str]:

@@ -56,6 +56,8 @@ class LiftProcessing(StrictModel):
                                                  "point's filter (fusion.landing_filter)")
     lost_sigma_m: float = Field(0.1, gt=0, description="a clearance whose sigma exceeds this is lost: left empty in "
                                 "lift_estimates.csv with the reason (no frame has held it for a while)")
+    landed_hold_s: float = Field(0.5, gt=0, description="the load has landed once its measured clearance has stayed at "
+                                 "zero (within 3 sigma, or 3 cm) this long (fusion.touchdown)")
     horizon_s: float = Field(8.0, gt=0, le=60, description="the touchdown forecast's horizon")
     forecast_history_s: float = Field(40.0, gt=5, le=600, description="the forecast's AR model is fitted to this much "
                                       "of the recent relative motion")

@@ -30,7 +30,7 @@ COLUMNS = ("t", "status", "estimate", "clearance_meas_m", "sigma_meas_m", "lowes
            "relative_vz_mps", "sigma_relative_vz_mps", "hoist_m")
 
 
-TEXT_COLUMNS = ("status", "estimate")  # the frame's measurement status; the estimate's: ok, lost, no clearance yet
+TEXT_COLUMNS = ("status", "estimate")  # the frame's measurement status; the estimate's: ok, lost, no clearance yet, landed
 
 
 def observation_row(obs: LoadClearance) -> dict:
@@ -39,6 +39,12 @@ def observation_row(obs: LoadClearance) -> dict:
             "deck_z_m": obs.deck_z_m, "centre_x_m": obs.landing_m[0], "centre_y_m": obs.landing_m[1],
             "height_meas_m": obs.centre_clearance_m,
             "landing_z_m": obs.landing_m[2], "n_load": obs.n_load, "n_deck": obs.n_deck}
+
+
+def landed_row(obs: LoadClearance | None, landed_s: float, hoist_m: float, hoist_rate_mps: float) -> dict:
+    """A frame after the load has landed: the filters stopped; the clearance as measured."""
+    return {"estimate": f"landed at {landed_s:.2f} s", "clearance_m": obs.clearance_m if obs is not None else math.nan,
+            "sigma_m": obs.sigma_m if obs is not None else math.nan, "hoist_m": hoist_m}
 
 
 def landing_row(landing_xy: np.ndarray, var_m2: float) -> dict:
@@ -119,10 +125,13 @@ def until_touchdown(truth: Truth | None) -> Truth | None:
     return truth if t_td is None else TruthUntil(truth, t_td)
 
 
-def _innovations(filt: HeaveFilter) -> Innovations:
+def _innovations(filt: HeaveFilter, until_s: float | None) -> Innovations:
+    """The filter's innovations while the load hung (until it was found landed, if it was: the
+    landing itself is a step no smooth model follows)."""
     inn = Innovations()
     for t_acq, source, nis, scale in filt.innovations():
-        inn.add(source, t_acq, nis, 1, scale)
+        if until_s is None or t_acq < until_s:
+            inn.add(source, t_acq, nis, 1, scale)
     return inn
 
 
@@ -138,13 +147,15 @@ def _rms(e: np.ndarray) -> float:
 
 
 def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth | None,
-              filters: tuple[HeaveFilter, ...]) -> dict:
+              filters: tuple[HeaveFilter, ...], landed_s: float | None) -> dict:
     t, status = rows["t"], rows["status"]
     n = len(t)
     k: dict = {"frames": n, "clearance_found_fraction": float(np.mean(status == "ok")) if n else 0.0,
                "lost_fraction": float(np.mean(rows["estimate"] == "lost")) if n else 0.0,
+               "landed_detected_s": landed_s,
                "statuses": {s: int(np.count_nonzero(status == s)) for s in sorted(set(status.tolist()))},
-               "consistency": {name: block for filt in filters for name, block in consistency_block(_innovations(filt)).items()}}
+               "consistency": {name: block for filt in filters
+                               for name, block in consistency_block(_innovations(filt, landed_s)).items()}}
     if truth is None or "clearance" not in truth.columns:
         k["note"] = "no truth: the clearance and its forecast are in lift_estimates.csv and lift_forecast.csv"
         return k
@@ -158,7 +169,10 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
 
     k["clearance"] = {"rmse_m": _rms(err[m]), "max_abs_m": float(np.nanmax(np.abs(err[m]))) if m.any() else math.nan,
                       "measured_rmse_m": _rms(err_meas[scored]), "within_3sigma": within(err, rows["sigma_m"]),
-                      "samples": int(np.count_nonzero(m)), "lost_fraction": float(np.mean(~m[scored])) if scored.any() else math.nan,
+                      "samples": int(np.count_nonzero(m)),
+                      "lost_fraction": float(np.mean(rows["estimate"][scored] == "lost")) if scored.any() else math.nan,
+                      "landed_early_fraction": float(np.mean([e.startswith("landed") for e in rows["estimate"][scored]]))
+                      if scored.any() else math.nan,
                       "scored": f"true clearance in ({SCORED_CLEARANCE_M[0]:g}, {SCORED_CLEARANCE_M[1]:g}] m before touchdown"}
     k["clearance_rate"] = {"rmse_mps": _rms((rows["clearance_rate_mps"] - rate_true)[m])}
     err_v = rows["relative_vz_mps"] - truth.at("relative_vz", t)

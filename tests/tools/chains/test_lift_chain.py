@@ -41,7 +41,8 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     assert lift["landing_point"]["rmse_m"] < 0.1 < lift["landing_point"]["measured_rmse_m"] + 0.1
     fc = lift["forecast"]
     assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1 <= fc["rmse_mps_at_2s_with_hoist_changes"] + 0.1
-    assert not lift["consistency"]["lidar_clearance"]["flagged"]
+    assert not lift["consistency"]["lidar_clearance"]["flagged"] and not lift["consistency"]["lidar_height"]["flagged"]
+    assert lift["landed_detected_s"] is None  # 45 s: the load still hangs
     assert "touchdown" in k["hook"]["estimators_note"]
     with open(lift_run / "lift_estimates.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -91,7 +92,7 @@ def test_without_a_load_model_the_chain_says_what_its_clearance_is(tmp_path):
     with open(out / "lift_estimates.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     # the lowest point seen is the load's top: a load's height (2.6 m) above the truth's clearance
-    assert all(r["estimate"] in ("ok", "lost", "no clearance yet") for r in rows)
+    assert all(r["estimate"] in ("ok", "lost", "no clearance yet") or r["estimate"].startswith("landed at") for r in rows)
     assert 13.0 < float(rows[-1]["clearance_m"]) < 15.5
 
 
@@ -100,3 +101,19 @@ def test_a_programme_that_lands_off_the_deck_is_refused_naming_the_key(tmp_path)
                                  str(tmp_path / "x")])
     assert r.exit_code == 2 and "world.lift.program.target_deck_m" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "x").exists()
+
+
+def test_the_landing_is_found_when_it_happens_and_the_filters_stop_there(tmp_path):
+    out = tmp_path / "run"
+    short_lift = ["duration_s=25", "world.lift.program.start_clearance_m=3", "world.lift.program.pause_clearance_m=1",
+                  "world.lift.program.lower_start_s=2", "world.lift.program.wait_s=0"]
+    r = CliRunner().invoke(app, ["run", "-s", "lift", *sum((["--set", s] for s in short_lift), []), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    lift = json.loads((out / "kpis.json").read_text())["lift"]
+    assert lift["touchdown_s"] is not None and abs(lift["landed_detected_s"] - lift["touchdown_s"]) < 0.5
+    assert lift["clearance"]["landed_early_fraction"] == 0.0
+    assert not any(c["flagged"] for c in lift["consistency"].values())
+    with open(out / "lift_estimates.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    after = [r for r in rows if float(r["t"]) > lift["landed_detected_s"] + 0.6]
+    assert after and all(r["estimate"].startswith("landed at") for r in after)
