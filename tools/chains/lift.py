@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, Truth
+from boomtip.fusion.consistency import flagged_notes
 from boomtip.fusion.heave_filter import HeaveFilter, Measurement
 from boomtip.fusion.landing_filter import LandingOffsetFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
@@ -131,6 +132,10 @@ class LiftChain:
             k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
         k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, (self.filter, self.height_filter),
                                       self.touchdown.landed_s)
+        k.setdefault("consistency", {})["lift"] = consistency = k["lift"].pop("consistency")
+        notes = flagged_notes(consistency, "lift")
+        if notes:
+            k["warnings"] = k.get("warnings", []) + notes
         return k
 
     def report(self, out: Path, kpis: dict, result: LiftResult, truth: Truth | None) -> list[str]:

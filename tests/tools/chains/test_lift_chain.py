@@ -41,7 +41,8 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     assert lift["landing_point"]["rmse_m"] < 0.1 < lift["landing_point"]["measured_rmse_m"] + 0.1
     fc = lift["forecast"]
     assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1 <= fc["rmse_mps_at_2s_with_hoist_changes"] + 0.1
-    assert not lift["consistency"]["lidar_clearance"]["flagged"] and not lift["consistency"]["lidar_height"]["flagged"]
+    consistency = k["consistency"]["lift"]
+    assert not consistency["lidar_clearance"]["flagged"] and not consistency["lidar_height"]["flagged"]
     assert lift["landed_detected_s"] is None  # 45 s: the load still hangs
     assert "touchdown" in k["hook"]["estimators_note"]
     with open(lift_run / "lift_estimates.csv", newline="") as fh:
@@ -109,10 +110,11 @@ def test_the_landing_is_found_when_it_happens_and_the_filters_stop_there(tmp_pat
                   "world.lift.program.lower_start_s=2", "world.lift.program.wait_s=0"]
     r = CliRunner().invoke(app, ["run", "-s", "lift", *sum((["--set", s] for s in short_lift), []), "--out", str(out)])
     assert r.exit_code == 0, r.output
-    lift = json.loads((out / "kpis.json").read_text())["lift"]
+    k = json.loads((out / "kpis.json").read_text())
+    lift = k["lift"]
     assert lift["touchdown_s"] is not None and abs(lift["landed_detected_s"] - lift["touchdown_s"]) < 0.5
     assert lift["clearance"]["landed_early_fraction"] == 0.0
-    assert not any(c["flagged"] for c in lift["consistency"].values())
+    assert not any(c["flagged"] for c in k["consistency"]["lift"].values())
     with open(out / "lift_estimates.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     after = [r for r in rows if float(r["t"]) > lift["landed_detected_s"] + 0.6]
