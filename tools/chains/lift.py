@@ -9,7 +9,8 @@ hoist pays out rope l and swing with the waves. Two filters (the relative-heave 
 a value, its rate and acceleration) follow the wave parts C + l and h + l, smooth narrow-band
 motions; C, h and their rates are those less the hook tracker's l and its rate (the hoist
 encoder filtered). A constant-acceleration model would otherwise have to follow the hoist's
-starts and stops as jerks.
+starts and stops as jerks. Once the load has landed (fusion.touchdown) the filters stop: the
+landing is a step no smooth model follows, and the rows say "landed at T".
 
 Built from the installation (the LiDAR, the crane, the block's and the load's models) and the
 processing settings; never from the simulated world.
@@ -101,8 +102,8 @@ class LiftChain:
                 self.landing.update(frame.t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
                 row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s)))
                 with out.times.stage("lift.filter"):  # the wave parts C + l and h + l: the rope paid out is the operator's
-                    row["filter"] = self.filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.clearance_m + self.hoist[0],
-                                                                obs.sigma_m, CLEARANCE_SOURCE))
+                    self.filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.clearance_m + self.hoist[0], obs.sigma_m,
+                                                CLEARANCE_SOURCE))
                     self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self.hoist[0],
                                                        obs.centre_height_sigma_m, HEIGHT_SOURCE))
         if self.touchdown.landed_s is not None:  # landed: the filters stopped
