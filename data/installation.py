@@ -266,8 +266,8 @@ class LoadModel(StrictModel):
 
 
 class LiftSpec(StrictModel):
-    load_model: LoadModel | None = Field(LoadModel(), description="the load's known model; null: unknown (the "
-                                         "clearance from its lowest points seen)")
+    load_model: LoadModel | None = Field(None, description="the load the crane lowers, as known (kind, size, mass); "
+                                         "null: unknown (the lift's clearance from its lowest points seen)")
 
 
 class Installation(StrictModel):

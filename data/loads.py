@@ -22,6 +22,7 @@ STANDARD_SIZE_M: dict[str, tuple[float, float, float]] = {
     "blade_section": (14.0, 3.6, 3.2),
 }
 STANDARD_MASS_KG: dict[str, float] = {"container20": 20000.0, "container40": 28000.0, "blade_section": 18000.0}
+BOX_MASS_KG = 10000.0  # a box given no mass
 
 
 def load_size(kind: str, size_m: tuple[float, float, float] | None, key: str) -> tuple[float, float, float]:
@@ -37,5 +38,5 @@ def load_size(kind: str, size_m: tuple[float, float, float] | None, key: str) ->
 
 
 def load_mass(kind: str, mass_kg: float | None) -> float:
-    """The load's mass: as given, else the kind's typical one (a box: 10 t)."""
-    return float(mass_kg) if mass_kg is not None else STANDARD_MASS_KG.get(kind, 10000.0)
+    """The load's mass: as given, else the kind's typical one (a box: BOX_MASS_KG)."""
+    return float(mass_kg) if mass_kg is not None else STANDARD_MASS_KG.get(kind, BOX_MASS_KG)

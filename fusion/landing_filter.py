@@ -25,10 +25,10 @@ GATE_SIGMAS = 5.0  # an offset beyond this many sigmas of the prediction is anot
 class LandingOffsetFilter:
     """The load centre's horizontal offset (m, levelled frame) from the rope's line."""
 
-    def __init__(self, rate_sigma_mps: float, initial_sigma_m: float = 1.0) -> None:
+    def __init__(self, rate_sigma_mps: float) -> None:
         self.q = rate_sigma_mps**2
-        self.x = np.full(2, np.nan)
-        self.P = initial_sigma_m**2
+        self.x = np.full(2, np.nan)  # until the first offset, which sets it with its own variance
+        self.P = math.inf
         self.t_s = math.nan
 
     def update(self, t_s: float, offset_m: np.ndarray, sigma_m: float) -> bool:

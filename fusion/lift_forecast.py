@@ -24,6 +24,7 @@ __all__ = ["TouchdownForecasts", "touchdown_forecasts"]
 FORECAST_DT_S = 0.2  # the wave part resampled at this step (a 9 s wave: 45 samples a period)
 AR_ORDER = 24  # 4.8 s of memory: half a wave period and more
 ISSUE_EVERY_S = 0.5  # a forecast issued this often
+STALE_STEPS = 2  # a grid point with no sample for this many steps is in a gap: no forecast, no fit across it
 
 
 @dataclass
@@ -54,14 +55,20 @@ def touchdown_forecasts(t_s: np.ndarray, height_m: np.ndarray, hoist_m: np.ndarr
         return TouchdownForecasts(np.zeros(0), lead, empty, empty, empty, empty, empty)
     t, h, l = t_s[ok], height_m[ok], hoist_m[ok]
     grid = np.arange(t[0], t[-1] + 1e-9, FORECAST_DT_S)
-    y = np.interp(grid, t, h + l)
-    lg = np.interp(grid, t, l)
-    og = np.interp(grid, t, offset_m[ok])
+    # each grid point takes the last sample at or before it (no sample after it ever reaches a
+    # forecast issued there); a point whose last sample is older than STALE_STEPS is in a gap
+    last = np.searchsorted(t, grid + 1e-9, "right") - 1
+    fresh = grid - t[last] <= STALE_STEPS * FORECAST_DT_S
+    y, lg, og = (h + l)[last], l[last], offset_m[ok][last]
     n_hist = int(round(history_s / FORECAST_DT_S))
     issues, out = [], []
     stride = max(int(round(ISSUE_EVERY_S / FORECAST_DT_S)), 1)
     for k in range(max(3 * AR_ORDER, 2), len(grid), stride):  # one small fit per issue (a few hundred a run)
-        hist = y[max(0, k + 1 - n_hist):k + 1]
+        start = max(0, k + 1 - n_hist)
+        gap = np.flatnonzero(~fresh[start:k + 1])
+        if not fresh[k] or (len(gap) and k - (start + gap[-1]) < 3 * AR_ORDER):
+            continue  # in a gap, or too little since one to fit
+        hist = y[start + (gap[-1] + 1 if len(gap) else 0):k + 1]
         model = fit_ar(hist, AR_ORDER, FORECAST_DT_S)
         if model is None:
             continue

@@ -32,6 +32,8 @@ __all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "
 
 STATUS_OK = "ok"
 MAX_REFITS = 5  # a plane refitted without its outliers at most this often
+MAD_FLOOR_M = 1e-4  # a plane's robust sigma never below this (points exactly on it would reject all else)
+LOWEST_SEEN_POINTS = 5  # without a model: the load's bottom is the mean of its few lowest points
 
 
 class LiftConfig(BaseModel):
@@ -94,8 +96,8 @@ class LoadClearance:
 
 def height_plane(points: np.ndarray, outlier_sigmas: float) -> tuple[np.ndarray, np.ndarray] | None:
     """z = a + b x + c y by least squares, refitted without the points beyond `outlier_sigmas`
-    robust (MAD) sigmas until the inliers settle (a few rounds): ((a, b, c), the inliers' mask,
-    the set the coefficients were fitted to); None with < 4 points."""
+    robust (MAD) sigmas until the inliers settle (a few rounds): ((a, b, c), the inliers' mask);
+    None with < 4 points."""
     keep = np.ones(len(points), bool)
     for k in range(MAX_REFITS):
         if np.count_nonzero(keep) < 4:
@@ -104,7 +106,7 @@ def height_plane(points: np.ndarray, outlier_sigmas: float) -> tuple[np.ndarray,
         coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(len(p)), p[:, 0], p[:, 1]]), p[:, 2], rcond=None)
         resid = points[:, 2] - (coef[0] + points[:, :2] @ coef[1:])
         mad = float(np.median(np.abs(resid[keep] - np.median(resid[keep]))))
-        inliers = np.abs(resid) <= outlier_sigmas * max(1.4826 * mad, 1e-4)
+        inliers = np.abs(resid) <= outlier_sigmas * max(1.4826 * mad, MAD_FLOOR_M)
         if np.array_equal(inliers, keep) or k == MAX_REFITS - 1:
             break
         keep = inliers
@@ -181,7 +183,8 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
         return LoadClearance("no top face on the load", n_load=n_load, n_deck=len(deck_pts), **masks)
     # the lowest point is the one nearest the deck below it (a rolling deck is not level)
     cand = under.candidates
-    lowest = cand[np.argmin(cand[:, 2] - (deck_coef[0] + cand[:, :2] @ deck_coef[1:]))]
+    k_low = int(np.argmin(cand[:, 2] - (deck_coef[0] + cand[:, :2] @ deck_coef[1:])))
+    lowest = cand[k_low]
     deck_z, centre = _height_at(deck_coef, lowest[:2]), under.centre
     plane = _as_plane(deck_coef)
 
@@ -194,7 +197,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     # faces' slopes differ
     sigma_centre = max(float(np.linalg.norm(centre)) * angular_step_rad / math.sqrt(24.0), range_noise_m)
     sigma_place = sigma_centre * float(np.linalg.norm(under.gradient - deck_coef[1:]))
-    sigma = math.sqrt(under.sigma_corner_m**2 + deck_sigma(lowest[:2]) ** 2 + sigma_place**2)
+    sigma = math.sqrt(under.sigma_candidates_m[k_low] ** 2 + deck_sigma(lowest[:2]) ** 2 + sigma_place**2)
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
                          _height_at(deck_coef, centre[:2]), sigma_centre_height, n_load, len(deck_pts), **masks)
@@ -230,7 +233,7 @@ class _Underside:
 
     candidates: np.ndarray
     centre: np.ndarray
-    sigma_corner_m: float
+    sigma_candidates_m: np.ndarray  # each candidate's height's
     sigma_centre_m: float
     gradient: np.ndarray
 
@@ -264,15 +267,15 @@ def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], 
         q = (xy - mean) @ evecs
         return s_fit * math.sqrt(1.0 / len(top) + float(np.sum(q**2 / np.maximum(evals * (len(top) - 1), 1e-9))))
 
-    return _Underside(corners, np.append(c, coef[0] + c @ coef[1:]) - height * n, sigma_at(corners_xy[0]), sigma_at(c),
-                      coef[1:])
+    return _Underside(corners, np.append(c, coef[0] + c @ coef[1:]) - height * n,
+                      np.array([sigma_at(xy) for xy in corners_xy]), sigma_at(c), coef[1:])
 
 
 def _lowest_seen(load: np.ndarray, range_noise_m: float) -> _Underside:
     """Without a model: the load's lowest points seen (their few lowest, averaged: one point's
     noise is not the load's bottom), and its points' centroid for the underside's centre."""
-    k = min(5, len(load))
+    k = min(LOWEST_SEEN_POINTS, len(load))
     low = load[np.argsort(load[:, 2])[:k]]
     sigma = max(float(np.std(low[:, 2])), range_noise_m) / math.sqrt(k)
-    return _Underside(low.mean(axis=0)[None, :], np.append(load[:, :2].mean(axis=0), low[:, 2].mean()), sigma, sigma,
-                      np.zeros(2))
+    return _Underside(low.mean(axis=0)[None, :], np.append(load[:, :2].mean(axis=0), low[:, 2].mean()), np.array([sigma]),
+                      sigma, np.zeros(2))

@@ -19,6 +19,7 @@ from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import BULWARK_THICKNESS_M, open_deck_x
 
 SETTLE_S = 10.0  # after the hoist stops: the load rests on the deck, the rope slack
+MIN_ROPE_M = 1.0  # the shortest rope the programme may start from
 APPROACH_START_S = 1.0
 # a load is brought in gently: its slew and luff at these fractions of the drives' rate and
 # acceleration limits (at the limits, a 2 deg slew sets a 60 m pendulum swinging by metres)
@@ -49,7 +50,7 @@ class LiftPlan:
         deck_z = feeder.position_m[2] + feeder.freeboard_m
         below_hook = s.installation.crane.block_height_m + lift.sling_height_m + lift.size()[2]
         self.rope_at = lambda clearance_m: tip_z - deck_z - below_hook - clearance_m
-        if self.rope_at(prog.start_clearance_m) <= 1.0:
+        if self.rope_at(prog.start_clearance_m) <= MIN_ROPE_M:
             raise LiftProgramError(f"world.lift.program.start_clearance_m = {prog.start_clearance_m:g} m: the load would hang "
                              f"above the boom tip ({tip_z - deck_z:.1f} m above the deck)")
         lim = JointLimits()

@@ -41,6 +41,19 @@ def test_a_forecast_uses_only_what_came_before_it():
     assert np.array_equal(a.clearance_m[before], b.clearance_m[before])
 
 
+def test_nothing_after_a_gap_reaches_a_forecast_issued_before_its_end_and_none_is_issued_in_it():
+    hoist = np.zeros_like(T)
+    C = 5.0 + waves(T)
+    C[(T > 33.0) & (T < 40.0)] = np.nan
+    a = touchdown_forecasts(T, C, hoist, 8.0, 40.0)
+    later = C.copy()
+    later[T >= 40.0] += 3.0
+    b = touchdown_forecasts(T, later, hoist, 8.0, 40.0)
+    before = a.t_issue < 40.0
+    assert np.array_equal(a.t_issue, b.t_issue) and np.array_equal(a.clearance_m[before], b.clearance_m[before])
+    assert not np.any((a.t_issue > 33.5) & (a.t_issue < 40.0))
+
+
 def test_gaps_and_nans_are_skipped_and_too_little_gives_no_forecast():
     C = 5.0 + waves(T)
     C[100:300] = np.nan

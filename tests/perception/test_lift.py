@@ -63,12 +63,13 @@ def test_the_clearance_and_the_landing_point_are_found_within_their_sigmas(seed)
 
 
 def test_the_lowest_point_is_the_corner_nearest_the_deck_below_not_the_lowest_in_height():
-    # The load tilts down towards +x (its -x end 8 cm higher); the deck rises to +x much faster,
-    # so the corner nearest the deck is at +x's far side but the lowest in height is elsewhere.
-    pts, C_true, _ = scene(deck=(-80.0, 0.08, 0.0), yaw=0.0, tilt=(0.03, 0.0))
+    # The load tilts down towards -x (its +x end 18 cm higher); the deck rises towards +x four
+    # times faster, so the corner nearest the deck is at +x though the lowest in height is at -x.
+    deck = (-80.0, 0.12, 0.0)
+    pts, C_true, centre = scene(deck=deck, yaw=0.0, tilt=(-0.03, 0.0))
     obs = measure_clearance(pts, HOOK, BLOCK_M, SIZE, LiftConfig(), range_noise_m=NOISE_M, angular_step_rad=0.4 / 70)
     assert obs.ok and abs(obs.clearance_m - C_true) <= 3 * obs.sigma_m
-    assert obs.lowest_point_m[0] > HOOK[0]  # the +x end, the deck's high side, though the load's low end is -x
+    assert obs.lowest_point_m[0] > centre[0] + 2.0  # the +x end
 
 
 def test_without_a_model_the_clearance_is_to_the_lowest_point_seen():
@@ -91,6 +92,13 @@ def test_nan_points_change_nothing_and_their_masks_index_the_frame():
     assert b.clearance_m == a.clearance_m
     assert len(b.load_mask) == len(with_nan) and not b.load_mask[100:105].any()
     assert np.array_equal(with_nan[b.load_mask], pts[a.load_mask])
+
+
+def test_the_corners_lowest_in_height_lie_at_the_other_end_in_that_scene():
+    # the scene above, checked: without the deck's slope the lowest corner is the -x one
+    pts, _, centre = scene(deck=(-80.0, 0.0, 0.0), yaw=0.0, tilt=(-0.03, 0.0))
+    obs = measure_clearance(pts, HOOK, BLOCK_M, SIZE, LiftConfig(), range_noise_m=NOISE_M)
+    assert obs.ok and obs.lowest_point_m[0] < centre[0] - 2.0
 
 
 @pytest.mark.parametrize("pts, status", [

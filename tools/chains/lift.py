@@ -92,8 +92,8 @@ class LiftChain:
                                                         self.cfg.detector, self.deck_z_m, *self.lidar_noise)
                 self.hoist = self.hook.tracker.hoist()
             row.update(outputs.observation_row(obs))
-            if obs.ok and self.touchdown.update(frame.t_s, obs.clearance_m, obs.sigma_m):
-                row.update(outputs.landed_row(obs, self.touchdown.landed_s, *self.hoist))
+            if self.touchdown.update(frame.t_s, obs.clearance_m, obs.sigma_m):  # a frame without one breaks the run
+                row.update(outputs.landed_row(obs if obs.ok else None, self.touchdown.landed_s, self.hoist[0]))
                 self.rows.append(row)
                 return out
             if obs.ok:
@@ -106,8 +106,10 @@ class LiftChain:
                                                 CLEARANCE_SOURCE))
                     self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self.hoist[0],
                                                        obs.centre_height_sigma_m, HEIGHT_SOURCE))
+        else:
+            self.touchdown.update(frame.t_s, math.nan, math.nan)
         if self.touchdown.landed_s is not None:  # landed: the filters stopped
-            row.update(outputs.landed_row(None, self.touchdown.landed_s, *self.hoist))
+            row.update(outputs.landed_row(None, self.touchdown.landed_s, self.hoist[0]))
         else:
             row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s),
                                             *self.hoist, self.cfg.lost_sigma_m))

@@ -49,8 +49,8 @@ class LiftProcessing(StrictModel):
     its forecast."""
 
     detector: LiftConfig = LiftConfig()
-    filter: HeaveFilterConfig = Field(HeaveFilterConfig(), description="the clearance's filter (C, its rate and "
-                                      "acceleration; the relative-heave filter's model)")
+    filter: HeaveFilterConfig = Field(HeaveFilterConfig(), description="both lift filters' tuning (the relative-heave "
+                                      "filter's model), on the wave parts C + l and h + l")
     landing_offset_rate_sigma_mps: float = Field(0.05, gt=0, description="how fast the load's centre may wander from "
                                                  "the rope's line (the slings' give, the load turning): the landing "
                                                  "point's filter (fusion.landing_filter)")

@@ -23,6 +23,7 @@ from boomtip.perception.lift import LoadClearance
 from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path, save
 
 SCORED_CLEARANCE_M = (0.0, 10.0)  # the last 10 m of the lowering, before touchdown
+PLOTTED_FORECAST_EVERY = 8  # of the forecasts' issues (every 0.5 s): one in 4 s drawn
 FORECAST_LEAD_SCORED_S = 2.0
 COLUMNS = ("t", "status", "estimate", "clearance_meas_m", "sigma_meas_m", "lowest_x_m", "lowest_y_m", "lowest_z_m", "deck_z_m",
            "centre_x_m", "centre_y_m", "height_meas_m", "landing_x_m", "landing_y_m", "landing_z_m", "landing_sigma_m",
@@ -41,7 +42,7 @@ def observation_row(obs: LoadClearance) -> dict:
             "landing_z_m": obs.landing_m[2], "n_load": obs.n_load, "n_deck": obs.n_deck}
 
 
-def landed_row(obs: LoadClearance | None, landed_s: float, hoist_m: float, hoist_rate_mps: float) -> dict:
+def landed_row(obs: LoadClearance | None, landed_s: float, hoist_m: float) -> dict:
     """A frame after the load has landed: the filters stopped; the clearance as measured."""
     return {"estimate": f"landed at {landed_s:.2f} s", "clearance_m": obs.clearance_m if obs is not None else math.nan,
             "sigma_m": obs.sigma_m if obs is not None else math.nan, "hoist_m": hoist_m}
@@ -249,12 +250,12 @@ def _plot(out: Path, result, truth: Truth | None):
     rows, f = result.rows, result.forecasts
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     t = rows["t"]
-    ax[0].plot(t, rows["clearance_m"], lw=1, label="C (filtered)")
+    ax[0].plot(t, rows["clearance_m"], lw=1, label="C (filtered; measured once landed)")
     ax[1].plot(t, rows["clearance_rate_mps"], lw=1, label="C rate (filtered)")
     if truth is not None and "clearance" in truth.columns:
         ax[0].plot(t, truth.at("clearance", t), **TRUTH_STYLE)
         ax[1].plot(t, truth.at("clearance_rate", t), **TRUTH_STYLE)
-    for i in range(0, len(f.t_issue), 8):  # every 4th second: a forecast's path
+    for i in range(0, len(f.t_issue), PLOTTED_FORECAST_EVERY):  # a forecast's path every few seconds
         ax[0].plot(f.t_issue[i] + f.lead_s, f.clearance_m[i], color="tab:orange", lw=0.6, alpha=0.7)
     ax[0].set_ylabel("clearance (m)")
     ax[1].set_ylabel("rate (m/s)")

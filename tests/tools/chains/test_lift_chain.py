@@ -38,9 +38,10 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     assert c["rmse_m"] < 0.015 and c["max_abs_m"] < 0.05 and c["within_3sigma"] > 0.95
     assert lift["clearance_rate"]["rmse_mps"] < 0.08
     assert lift["relative_velocity"]["rmse_mps"] < 0.06 and lift["relative_velocity"]["within_3sigma"] > 0.95
-    assert lift["landing_point"]["rmse_m"] < 0.1 < lift["landing_point"]["measured_rmse_m"] + 0.1
+    assert lift["landing_point"]["rmse_m"] < 0.1 and lift["landing_point"]["rmse_m"] < lift["landing_point"]["measured_rmse_m"]
     fc = lift["forecast"]
-    assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1 <= fc["rmse_mps_at_2s_with_hoist_changes"] + 0.1
+    assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1
+    assert fc["rmse_mps_at_2s"] < fc["rmse_mps_at_2s_with_hoist_changes"]  # the hoist starts lowering at 16 s
     consistency = k["consistency"]["lift"]
     assert not consistency["lidar_clearance"]["flagged"] and not consistency["lidar_height"]["flagged"]
     assert lift["landed_detected_s"] is None  # 45 s: the load still hangs
