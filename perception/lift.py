@@ -145,7 +145,8 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     """The clearance in one levelled frame, about the hook's reference point `hook_m` (the hook
     filter's estimate, levelled frame); `deck_prior_z_m` the deck's last height there, if any.
     The LiDAR's range noise and angular step size the sigmas."""
-    pts = points_level[np.all(np.isfinite(points_level), axis=1)] if len(points_level) else points_level
+    finite = np.flatnonzero(np.all(np.isfinite(points_level), axis=1)) if len(points_level) else np.zeros(0, int)
+    pts = points_level[finite]
     if len(pts) == 0 or not np.all(np.isfinite(hook_m)) or hook_m[2] >= 0:
         return LoadClearance("no points or no hook")
     # The load hangs on the rope's line continued below the hook: its axis at each point's height.
@@ -174,7 +175,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
                                           cfg.min_cluster_gap_m), cfg.core_radius_m)
     n_load = int(np.count_nonzero(load))
     ring_idx, load_idx = np.flatnonzero(ring)[near][deck_in], np.flatnonzero(load)
-    masks = dict(load_mask=_mask(points_level, pts, load_idx), deck_mask=_mask(points_level, pts, ring_idx))
+    masks = dict(load_mask=_mask(len(points_level), finite[load_idx]), deck_mask=_mask(len(points_level), finite[ring_idx]))
     if n_load < cfg.min_top_points:
         return LoadClearance("too few load points", n_load=n_load, n_deck=len(deck_pts), **masks)
     under = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m) if load_size_m
@@ -218,11 +219,10 @@ def _hanging(pts: np.ndarray, candidates: np.ndarray, d: np.ndarray, gap_m: floa
     return out
 
 
-def _mask(points_level: np.ndarray, finite_pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """A mask over the frame's points from indices among its finite ones."""
-    finite = np.flatnonzero(np.all(np.isfinite(points_level), axis=1)) if len(finite_pts) != len(points_level) else None
-    m = np.zeros(len(points_level), bool)
-    m[idx if finite is None else finite[idx]] = True
+def _mask(n: int, idx: np.ndarray) -> np.ndarray:
+    """A mask over a frame's n points, true at idx."""
+    m = np.zeros(n, bool)
+    m[idx] = True
     return m
 
 

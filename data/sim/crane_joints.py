@@ -43,7 +43,7 @@ class JointMove(BaseModel):
     a_max: float = Field(gt=0)
 
 
-def _move_timing(delta: float, v_max: float, a_max: float) -> tuple[float, float, float, float]:
+def move_timing(delta: float, v_max: float, a_max: float) -> tuple[float, float, float, float]:
     """(t_acc, t_cruise, t_total, v_peak) of a rest-to-rest trapezoidal move of |delta|."""
     d = abs(delta)
     if d <= v_max * v_max / a_max:
@@ -71,7 +71,7 @@ class JointProfile:
             if mv.t_start_s < t_free - 1e-9:
                 raise ValueError(f"move at {mv.t_start_s} s starts before the previous one ends ({t_free} s)")
             delta = mv.target - value
-            t_a, t_c, t_tot, v_p = _move_timing(delta, mv.v_max, mv.a_max)
+            t_a, t_c, t_tot, v_p = move_timing(delta, mv.v_max, mv.a_max)
             sgn = 1.0 if delta >= 0 else -1.0
             a = v_p / t_a if t_a > 0 else 0.0
             self._segments.append((mv.t_start_s, sgn, abs(delta), a, v_p, t_a, t_c))

@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from boomtip.data.crane_model import CraneParams
-from boomtip.data.sim.crane_joints import CraneJointProfiles, JointLimits, JointMove, JointProfile
+from boomtip.data.sim.crane_joints import CraneJointProfiles, JointLimits, JointMove, JointProfile, move_timing
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import BULWARK_THICKNESS_M, open_deck_x
 
@@ -55,9 +55,9 @@ class LiftPlan:
                              f"above the boom tip ({tip_z - deck_z:.1f} m above the deck)")
         lim = JointLimits()
         self.t_lower_s = prog.lower_start_s
-        t_down = _move_s(prog.start_clearance_m - prog.pause_clearance_m, prog.lower_speed_mps, lim.hoist_acc_max_m_s2)
+        t_down = move_timing(prog.start_clearance_m - prog.pause_clearance_m, prog.lower_speed_mps, lim.hoist_acc_max_m_s2)[2]
         self.t_land_s = self.t_lower_s + t_down + prog.wait_s
-        t_land = _move_s(prog.pause_clearance_m + prog.slack_m, prog.land_speed_mps, lim.hoist_acc_max_m_s2)
+        t_land = move_timing(prog.pause_clearance_m + prog.slack_m, prog.land_speed_mps, lim.hoist_acc_max_m_s2)[2]
         self.t_end_s = self.t_land_s + t_land + SETTLE_S
         acc, gentle, soft = lim.hoist_acc_max_m_s2, APPROACH_RATE_FRACTION, APPROACH_ACC_FRACTION
         self.joints = CraneJointProfiles(
@@ -86,10 +86,3 @@ class LiftPlan:
                              f"load there would not lie on the feeder's open deck (x {x0:.1f}..{x1:.1f} m, "
                              f"|y| < {y_max:.1f} m, feeder body frame)")
 
-
-def _move_s(distance_m: float, v_max: float, a_max: float) -> float:
-    """A rest-to-rest trapezoidal move's duration."""
-    d = abs(distance_m)
-    if d <= v_max * v_max / a_max:
-        return 2.0 * math.sqrt(d / a_max)
-    return v_max / a_max + d / v_max

@@ -95,8 +95,9 @@ class LiftSimulation(HookSimulation):
 
     def _hanging(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The hanging load's rotation and underside centre, and the hook's reference point (world)."""
-        p_hook = self._interp("p_tip_world", times) + self._vessel_translation(times) + self._interp("p_hook_rel_tip", times)
-        R = hanging_rotation(self._interp("p_hook_rel_tip", times), self._interp("nu", times) + self._interp("nu_f", times))
+        r_hook = self._interp("p_hook_rel_tip", times)
+        p_hook = self._interp("p_tip_world", times) + self._vessel_translation(times) + r_hook
+        R = hanging_rotation(r_hook, self._interp("nu", times) + self._interp("nu_f", times))
         return R, p_hook - self.below_hook_m * R[:, :, 2], p_hook
 
     def _clearance(self, R_load, p_load, R_f, p_f):

@@ -9,20 +9,12 @@ from __future__ import annotations
 
 import json
 import statistics
-import subprocess
 import tempfile
 from pathlib import Path
 
-from boomtip.tools.bench.process import CLI, open_recording, process_wall_s
+from boomtip.tools.bench.process import open_recording, process_wall_s, simulate_recording
 
 __all__ = ["bench_lift"]
-
-
-def _simulate(scenario: str, duration_s: float | None, folder: Path) -> Path:
-    rec = folder / "recording"
-    args = ["simulate", "-s", scenario, "-o", str(rec)] + (["--duration", str(duration_s)] if duration_s else [])
-    subprocess.run(CLI + args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    return rec
 
 
 def _accuracy(kpis: dict) -> dict:
@@ -39,7 +31,7 @@ def bench_lift(scenario: str = "lift", duration_s: float | None = None, repeats:
     with the default workers."""
     with tempfile.TemporaryDirectory(prefix="boomtip-bench-lift-") as tmp:
         folder = Path(tmp)
-        rec = _simulate(scenario, duration_s, folder)
+        rec = simulate_recording(scenario, duration_s, folder)
         seconds = float(open_recording(rec, None).duration_s)
         runs: dict[str, list[float]] = {"lift": [], "hook_alone": [], "lift_workers_1": []}
         apt_ms, accuracy = [], {}

@@ -24,10 +24,11 @@ DEFAULT_LIDAR = ("lidar.pattern=spinning", "lidar.channels=128", "lidar.columns=
 CLI = [sys.executable, "-c", "from boomtip.tools.cli import main; main()"]
 
 
-def _simulate(scenario: str, duration_s: float, folder: Path) -> Path:
+def simulate_recording(scenario: str, duration_s: float | None, folder: Path, sets: tuple[str, ...] = ()) -> Path:
+    """`boomtip simulate` into folder/recording (the scenario's duration when None), with `--set`s."""
     rec = folder / "recording"
-    args = ["simulate", "-s", scenario, "--duration", str(duration_s), "-o", str(rec)]
-    for key in DEFAULT_LIDAR:
+    args = ["simulate", "-s", scenario, "-o", str(rec)] + (["--duration", str(duration_s)] if duration_s else [])
+    for key in sets:
         args += ["--set", key]
     subprocess.run(CLI + args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     return rec
@@ -83,7 +84,7 @@ def bench_process(scenario: str = "sts-loaded", duration_s: float = 20.0, repeat
     extra = ["--installation", str(installation)] if installation else []
     with tempfile.TemporaryDirectory(prefix="boomtip-bench-process-") as tmp:
         folder = Path(tmp)
-        rec = recording if recording is not None else _simulate(scenario, duration_s, folder)
+        rec = recording if recording is not None else simulate_recording(scenario, duration_s, folder, DEFAULT_LIDAR)
         seconds = float(open_recording(rec, installation).duration_s)
         runs: dict[str, list[float]] = {"default": [], "workers_1": [], "kiss_icp": []}
         lidar_frames, apt_ms, accuracy = 0, [], {}

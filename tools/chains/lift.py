@@ -83,7 +83,7 @@ class LiftChain:
         res = self.hook.process(frame)
         if res is None:
             return None
-        out = LiftFrameResult(**{k: getattr(res, k) for k in res.__dataclass_fields__})
+        out = LiftFrameResult(**vars(res))
         row = {"t": frame.t_s, "status": res.row.get("status", "no levelled frame")}
         if res.points_level is not None and self.hook.tracker is not None:
             with out.times.stage("lift.clearance"):
