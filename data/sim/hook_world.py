@@ -35,6 +35,7 @@ from boomtip.data.sim.world import in_windows
 BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
 # the crane truth's tracks kept (on disk): the frames' poses (_scene_poses), the encoders and the truth table
 TRUTH_CHUNK = 4096  # truth rows made at a time
+RATE_STEP_S = 0.0025  # the radar's velocities by central differences over +-this (the truth's tracks: 200 Hz or more)
 ENCODER_STREAM_ID = SENSOR_IDS["mru"] + 10  # the encoders' noise stream (after the sensors' ids)
 KEPT_TRACKS = ("roll", "pitch", "nu", "mu", "l", "nu_f", "a", "b", "p_tip_world", "p_hook_world", "v_hook_world",
                "p_hook_rel_tip", "v_hook_rel_tip")
@@ -332,8 +333,25 @@ class HookSimulation(Simulation):
     def lidar_frame(self, index: int, t_s: float) -> Frame:
         return self._lidar_frame_from(index, t_s, self._scene_poses)
 
-    def radar_frame(self, index: int, t_s: float) -> Frame:  # refused by the scenario: the hook scene has no radar
-        raise NotImplementedError("hook scenarios simulate no radar (set radar.enabled: false)")
+    def _radar_hits(self, t_s: float):
+        """As in Simulation, with the bodies' and the sensor's velocities by central differences of
+        their poses over +-RATE_STEP_S: the crane's truth is a table, not a closed form. Every hit
+        point keeps its place in its body (scaled: the rope's length) from t - step to t + step."""
+        R_ws, p_ws, Rs, ps, scales = self._scene_poses(t_s + np.array([-RATE_STEP_S, 0.0, RATE_STEP_S]), "radar")
+        dirs_w = self.radar_pattern.dirs_sensor @ R_ws[1].T
+        origins_w = np.broadcast_to(p_ws[1], dirs_w.shape)
+        hits = self.world.caster.cast(origins_w, dirs_w, [R[1:2] for R in Rs], [p[1:2] for p in ps],
+                                      scale_body=[None if sc is None else sc[1:2] for sc in scales])
+        scales = [np.ones((3, 3)) if sc is None else np.asarray(sc) for sc in scales]
+        v_sensor = (p_ws[2] - p_ws[0]) / (2 * RATE_STEP_S)
+        p_hit = origins_w + dirs_w * np.where(hits.hit, hits.range_m, 0.0)[:, None]
+        v_hit = np.broadcast_to(v_sensor, dirs_w.shape).copy()
+        for b in np.unique(hits.body[hits.hit]):
+            m = hits.hit & (hits.body == b)
+            local = ((p_hit[m] - ps[b][1]) @ Rs[b][1]) / scales[b][1]  # the body's own frame
+            ends = [ps[b][k] + (local * scales[b][k]) @ Rs[b][k].T for k in (0, 2)]
+            v_hit[m] = (ends[1] - ends[0]) / (2 * RATE_STEP_S)
+        return R_ws[1], origins_w, dirs_w, hits, p_hit, v_hit, v_sensor
 
     # -- logs ----------------------------------------------------------------------------
     def _mru_log(self) -> MruLog:

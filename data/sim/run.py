@@ -44,15 +44,13 @@ class SimulatedRun(StrictModel):
         if self.world.hook.enabled and not self.installation.lidar.enabled:
             raise ValueError("world.hook.enabled needs installation.lidar.enabled")
         if self.world.hook.enabled and self.installation.radar.enabled:
-            raise ValueError("the hook scene simulates no radar: set installation.radar.enabled: false")
+            raise ValueError("the hook chain uses no radar: set installation.radar.enabled: false")
         if self.world.lift.enabled:
             if self.world.hook.enabled:
                 raise ValueError("world.lift.enabled is a scene of its own (the hook scene's crane over the feeder): "
                                  "set world.hook.enabled: false")
             if not self.installation.lidar.enabled:
                 raise ValueError("world.lift.enabled needs installation.lidar.enabled")
-            if self.installation.radar.enabled:
-                raise ValueError("the lift scene simulates no radar yet: set installation.radar.enabled: false")
         return self
 
     @model_validator(mode="after")

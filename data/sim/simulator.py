@@ -325,24 +325,27 @@ class Simulation(FrameSource):
         return Frame("lidar", index, t_s, points, fields)
 
     def radar_frame(self, index: int, t_s: float) -> Frame:
-        w = self.world
-        cfg, pat = w.radar, self.radar_pattern
-        states = w.body_states(np.array([t_s]))
-        R_ws, p_ws = w.sensor_pose(states[0], "radar")
-        dirs_w = pat.dirs_sensor @ R_ws[0].T
-        origins_w = np.broadcast_to(p_ws[0], dirs_w.shape)
-        Rs, ps = w.poses(states, 1)
-        hits = w.caster.cast(origins_w, dirs_w, Rs, ps)
-        p_hit, v_hit, v_sensor = self._hit_motion(hits, dirs_w, origins_w, states)
-        range_rate = np.einsum("ij,ij->i", dirs_w, v_hit - v_sensor)
+        w, cfg = self.world, self.world.radar
+        R_ws, origins_w, dirs_w, hits, p_hit, v_hit, v_sensor = self._radar_hits(t_s)
         rng, ghosts = self._rng("radar", index), None
         if cfg.multipath_probability > 0:
             echoes = hits.hit & (hits.body != (-1 if w.sea_index is None else w.sea_index)) & (hits.range_m <= cfg.max_range_m)
-            ghosts = multipath_ghosts(cfg, p_hit, v_hit, echoes, origins_w[0], v_sensor, R_ws[0], rng)
-        points, fields = radar_measure(
-            cfg, hits, pat, range_rate, w.faces, w.sea_index, self.scenario.world.sea.clutter_probability, rng, ghosts
-        )
+            ghosts = multipath_ghosts(cfg, p_hit, v_hit, echoes, origins_w[0], v_sensor, R_ws, rng)
+        points, fields = radar_measure(cfg, hits, self.radar_pattern, np.einsum("ij,ij->i", dirs_w, v_hit - v_sensor), w.faces,
+                                       w.sea_index, self.scenario.world.sea.clutter_probability, rng, ghosts)
         return Frame("radar", index, t_s, points, fields)
+
+    def _radar_hits(self, t_s: float):
+        """The radar's rays at true time t_s: the sensor's rotation (3,3), the rays' origins and directions
+        (K,3, world), their hits, the hit points and velocities and the sensor's velocity."""
+        w = self.world
+        states = w.body_states(np.array([t_s]))
+        R_ws, p_ws = w.sensor_pose(states[0], "radar")
+        dirs_w = self.radar_pattern.dirs_sensor @ R_ws[0].T
+        origins_w = np.broadcast_to(p_ws[0], dirs_w.shape)
+        hits = w.caster.cast(origins_w, dirs_w, *w.poses(states, 1))
+        p_hit, v_hit, v_sensor = self._hit_motion(hits, dirs_w, origins_w, states)
+        return R_ws[0], origins_w, dirs_w, hits, p_hit, v_hit, v_sensor
 
     def _hit_motion(self, hits, dirs_w, origins_w, states) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The hit points (world), their velocities (the sensor's where a beam met nothing: no

@@ -105,3 +105,22 @@ def test_a_frame_sees_the_load_its_slings_and_the_deck_below(landing):
     assert np.count_nonzero(lab == int(Label.LOAD)) > 30
     assert np.count_nonzero(lab == int(Label.FEEDER_DECK)) > 500
     assert np.count_nonzero(lab == int(Label.HOOK)) > 3
+
+
+def test_the_radar_sees_the_load_and_the_deck_with_their_true_range_rates(landing):
+    t = 5.0  # lowering
+    _, origins, dirs, hits, p_hit, v_hit, v_sensor = landing._radar_hits(t)
+    names = [b.name for b in landing.world.bodies]
+    feeder = hits.hit & (hits.body == names.index("feeder"))
+    assert np.count_nonzero(feeder) > 500 and np.count_nonzero(hits.hit & (hits.body == names.index("load"))) > 10
+    # the feeder's motion in closed form: the central differences of its poses agree to well below the radar's noise
+    exact = landing.world.feeder_motion.states(np.array([t])).point_velocity(p_hit[feeder], 0)
+    assert np.abs(v_hit[feeder] - exact).max() < 1e-4
+    # the load's points move with the load's pose (its truth's, turning and all), differenced over 2 ms
+    load = hits.hit & (hits.body == names.index("load"))
+    R, c = landing.load_pose(np.array([t - 0.001, t, t + 0.001]))
+    local = (p_hit[load] - c[1]) @ R[1]
+    v_rigid = ((local @ R[2].T + c[2]) - (local @ R[0].T + c[0])) / 0.002
+    assert np.abs(v_hit[load] - v_rigid).max() < 1e-3
+    f = landing.radar_frame(3, t)
+    assert {"range", "range_rate", "label"} <= set(f.fields) and np.count_nonzero(f.fields["label"] == int(Label.LOAD)) > 5

@@ -75,7 +75,7 @@ def test_the_hook_scene_runs_with_a_lidar_and_no_radar():
 
 def test_the_hook_scene_refuses_a_radar():
     assert _errors(world=HOOK) == [
-        ((), "Value error, the hook scene simulates no radar: set installation.radar.enabled: false")]
+        ((), "Value error, the hook chain uses no radar: set installation.radar.enabled: false")]
 
 
 def test_the_hook_scene_needs_a_lidar():
@@ -92,7 +92,7 @@ def test_without_the_hook_scene_any_sensor_set_is_accepted():
 
 def test_assigning_a_radar_installation_to_a_hook_run_is_refused():
     run = SimulatedRun(world=HOOK, installation=NO_RADAR)
-    with pytest.raises(ValidationError, match="simulates no radar"):
+    with pytest.raises(ValidationError, match="uses no radar"):
         run.installation = {"radar": {"enabled": True}}
 
 
