@@ -122,3 +122,8 @@ class HookTracker:
         """Hook position relative to the tip (world axes) and its covariance now (after corrections)."""
         p, _, cov_p, _ = self.filter.hook_position_velocity_covariance()
         return p, cov_p
+
+    def velocity(self) -> tuple[np.ndarray, np.ndarray]:
+        """Hook velocity relative to the tip (world axes, m/s) and its covariance now."""
+        _, v, _, cov_v = self.filter.hook_position_velocity_covariance()
+        return v, cov_v

@@ -26,7 +26,7 @@ from boomtip.perception.hook_types import HookConfig
 from boomtip.perception.rope import RopeConfig, RopeFix, fit_rope
 from boomtip.perception.timing import StageTimes
 
-__all__ = ["HookPipeline", "LevelledFrame", "detection_sigma_m", "sigma_across"]
+__all__ = ["HookPipeline", "LevelledFrame", "detection_sigma_m", "level_at_tip", "sigma_across"]
 
 HOOK_SEED_SALT = 7  # the run's seed, this and the frame's index: the block fit's random draws
 ROPE_SEED_SALT = 8  # likewise for the rope's
@@ -56,6 +56,15 @@ class LevelledFrame:
     sensor_level: np.ndarray
 
 
+def level_at_tip(points_sensor: np.ndarray, T_tip_sensor: np.ndarray, roll_rad: float, pitch_rad: float,
+                 heading_rad: float) -> LevelledFrame:
+    """A sensor's points in the levelled frame at the tip (z up, world axes), from its mount on
+    the tip and the tip's attitude."""
+    R_tip = rpy_matrix(np.array([roll_rad, pitch_rad, 0.0])) @ rpy_matrix(np.array([0.0, 0.0, heading_rad]))
+    T = T_tip_sensor
+    return LevelledFrame(points_sensor @ (R_tip @ T[:3, :3]).T + R_tip @ T[:3, 3], R_tip @ T[:3, 3])
+
+
 class HookPipeline:
     def __init__(self, installation: Installation, detector: HookConfig | None = None, rope: RopeConfig | None = None,
                  seed: int = 0, detect: Callable[..., HookDetection] = detect_hook) -> None:
@@ -73,9 +82,7 @@ class HookPipeline:
 
     def level(self, points_sensor: np.ndarray, roll_rad: float, pitch_rad: float, heading_rad: float) -> LevelledFrame:
         """The frame's points in the levelled frame at the tip, from the tip's attitude."""
-        R_tip = rpy_matrix(np.array([roll_rad, pitch_rad, 0.0])) @ rpy_matrix(np.array([0.0, 0.0, heading_rad]))
-        T = self.T_tip_sensor
-        return LevelledFrame(points_sensor @ (R_tip @ T[:3, :3]).T + R_tip @ T[:3, 3], R_tip @ T[:3, 3])
+        return level_at_tip(points_sensor, self.T_tip_sensor, roll_rad, pitch_rad, heading_rad)
 
     def rope(self, frame: LevelledFrame, p_pred: np.ndarray, sigma_across_m: float, hoist_m: float, index: int,
              times: StageTimes) -> RopeFix:

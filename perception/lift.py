@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from boomtip.perception.geometry import plane_sigma_at
 
-__all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy"]
+__all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy", "footprint_radius_m"]
 
 STATUS_OK = "ok"
 MAX_REFITS = 5  # a plane refitted without its outliers at most this often
@@ -75,6 +75,8 @@ class LoadClearance:
     centre_height_sigma_m: float = math.nan  # the centre's height above the deck: its 1-sigma
     n_load: int = 0
     n_deck: int = 0
+    deck_plane: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # z = a + b x + c y about the load
+    candidates_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the underside's corners (or lowest seen)
     load_mask: np.ndarray | None = None
     deck_mask: np.ndarray | None = None
 
@@ -131,6 +133,12 @@ def rope_line_xy(hook_m: np.ndarray, z_m: np.ndarray | float) -> np.ndarray:
     return hook_m[:2] + (z[..., None] - hook_m[2]) * (hook_m[:2] / hook_m[2])
 
 
+def footprint_radius_m(load_size_m: tuple[float, float, float] | None, cfg: LiftConfig) -> float:
+    """How far from the rope's line the load reaches: half its diagonal, or the search's radius
+    without a model."""
+    return 0.5 * math.hypot(*load_size_m[:2]) if load_size_m else cfg.unknown_load_radius_m
+
+
 def _dominant(z: np.ndarray, bin_m: float) -> float:
     """The centre of the most populated height bin."""
     lo = math.floor(z.min() / bin_m)
@@ -151,7 +159,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
         return LoadClearance("no points or no hook")
     # The load hangs on the rope's line continued below the hook: its axis at each point's height.
     d = np.linalg.norm(pts[:, :2] - rope_line_xy(hook_m, pts[:, 2]), axis=1)
-    radius = 0.5 * math.hypot(*load_size_m[:2]) if load_size_m else cfg.unknown_load_radius_m
+    radius = footprint_radius_m(load_size_m, cfg)
     below = pts[:, 2] < hook_m[2] - block_height_m - cfg.below_block_m
     inner = radius + cfg.load_margin_m
     ring = below & (d > inner) & (d < inner + cfg.deck_ring_m)
@@ -201,7 +209,8 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     sigma = math.sqrt(under.sigma_candidates_m[k_low] ** 2 + deck_sigma(lowest[:2]) ** 2 + sigma_place**2)
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
-                         _height_at(deck_coef, centre[:2]), sigma_centre_height, n_load, len(deck_pts), **masks)
+                         _height_at(deck_coef, centre[:2]), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
+                         **masks)
 
 
 def _hanging(pts: np.ndarray, candidates: np.ndarray, d: np.ndarray, gap_m: float, core_m: float) -> np.ndarray:

@@ -6,13 +6,15 @@ and the deck below it (perception.lift); at the end, the touchdown forecast
 The clearance C (the lowest point's) and the height h (the underside centre's above the deck,
 which moves with the relative vertical motion alone, not with the load's tilting) fall as the
 hoist pays out rope l and swing with the waves. Two filters (the relative-heave filter's model:
-a value, its rate and acceleration) follow the wave parts C + l and h + l, smooth narrow-band
-motions; C, h and their rates are those less the hook tracker's l and its rate (the hoist
-encoder filtered). A constant-acceleration model would otherwise have to follow the hoist's
-starts and stops as jerks. Once the load has landed (fusion.touchdown) the filters stop: the
-landing is a step no smooth model follows, and the rows say "landed at T".
+a value, its rate and acceleration) follow them. With a radar, each scan's Doppler measures their
+rates (perception.lift_radar) and the filters follow C and h themselves, hoist and all. Without
+one, they follow the wave parts C + l and h + l, smooth narrow-band motions, and C, h and their
+rates are those less the hook tracker's l and its rate (the hoist encoder filtered): a constant-
+acceleration model fed heights alone would have to follow the hoist's starts and stops as jerks.
+Once the load has landed (fusion.touchdown) the filters stop: the landing is a step no smooth
+model follows, and the rows say "landed at T".
 
-Built from the installation (the LiDAR, the crane, the block's and the load's models) and the
+Built from the installation (the LiDAR, the radar, the crane, the block's and the load's models) and the
 processing settings; never from the simulated world.
 """
 
@@ -31,6 +33,7 @@ from boomtip.fusion.landing_filter import LandingOffsetFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
 from boomtip.fusion.touchdown import TouchdownDetector
 from boomtip.perception.lift import LoadClearance, measure_clearance, rope_line_xy
+from boomtip.perception.lift_radar import ClearanceRatePipeline
 from boomtip.tools.chains.chain import NullVisualiser
 from boomtip.tools.chains.hook import HookChain, HookFrameResult, HookResult
 from boomtip.tools.chains.resources import RunResources
@@ -38,6 +41,7 @@ from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import lift as outputs
 
 CLEARANCE_SOURCE, HEIGHT_SOURCE = "lidar_clearance", "lidar_height"
+RATE_SOURCE, HEIGHT_RATE_SOURCE = "radar_clearance_rate", "radar_height_rate"
 
 
 @dataclass
@@ -75,11 +79,24 @@ class LiftChain:
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
         self.hoist = (math.nan, math.nan)  # the rope's length and rate (the hook tracker's) at the last frame
         self.rows: list[dict] = []
+        # the radar: the clearance's rates from its Doppler, about the last LiDAR fix
+        self.radar = ClearanceRatePipeline(inst, self.cfg.radar, self.cfg.detector, self.load_size_m, self.block_height_m,
+                                           processing.seed, processing.heave.doppler_band_sigmas,
+                                           processing.heave.doppler_band_floor_mps) \
+            if inst.radar.enabled and self.cfg.radar.enabled else None
 
     def frames(self, source: FrameSource):
         return self.hook.frames(source)
 
     def process(self, frame: Frame) -> LiftFrameResult | None:
+        if frame.sensor == "radar":
+            if self.radar is not None and self.touchdown.landed_s is None:  # landed: the filters stopped
+                rate = self.radar.process(frame)
+                if rate.ok:
+                    self.filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.clearance_rate_mps, rate.sigma_mps, RATE_SOURCE))
+                    self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.centre_rate_mps,
+                                                       rate.centre_sigma_mps, HEIGHT_RATE_SOURCE))
+            return None
         res = self.hook.process(frame)
         if res is None:
             return None
@@ -98,13 +115,15 @@ class LiftChain:
                 return out
             if obs.ok:
                 self.deck_z_m = obs.deck_z_m
+                if self.radar is not None:
+                    self.radar.add_fix(frame.t_s, obs, self.hook.tracker.tip_attitude(), p_hook, self.hook.tracker.velocity()[0])
                 line = rope_line_xy(p_hook, obs.underside_centre_m[2])
                 self.landing.update(frame.t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
                 row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s)))
                 with out.times.stage("lift.filter"):  # the wave parts C + l and h + l: the rope paid out is the operator's
-                    self.filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.clearance_m + self.hoist[0], obs.sigma_m,
+                    self.filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.clearance_m + self._offset()[0], obs.sigma_m,
                                                 CLEARANCE_SOURCE))
-                    self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self.hoist[0],
+                    self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self._offset()[0],
                                                        obs.centre_height_sigma_m, HEIGHT_SOURCE))
         else:
             self.touchdown.update(frame.t_s, math.nan, math.nan)
@@ -112,9 +131,15 @@ class LiftChain:
             row.update(outputs.landed_row(None, self.touchdown.landed_s, self.hoist[0]))
         else:
             row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s),
-                                            *self.hoist, self.cfg.lost_sigma_m))
+                                            self._offset(), self.hoist[0], self.cfg.lost_sigma_m))
         self.rows.append(row)
         return out
+
+    def _offset(self) -> tuple[float, float]:
+        """What the filters' states hold beyond C and h (and its rate): the rope's length l when
+        they follow the wave parts C + l, h + l (no radar); nothing when the radar measures the
+        rates (C and h then; the tracker's l, differenced, would add its jitter to the rates)."""
+        return (0.0, 0.0) if self.radar is not None else self.hoist
 
     def finish(self) -> LiftResult:
         hook = self.hook.finish()
@@ -135,6 +160,8 @@ class LiftChain:
             k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
         k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, (self.filter, self.height_filter),
                                       self.touchdown.landed_s)
+        if self.radar is not None:
+            k["lift"]["radar"] = outputs.radar_kpis(self.radar.statuses, self.radar.times_ms)
         k.setdefault("consistency", {})["lift"] = consistency = k["lift"].pop("consistency")
         notes = flagged_notes(consistency, "lift")
         if notes:

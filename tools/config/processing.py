@@ -18,6 +18,7 @@ from boomtip.fusion.solutions import FusionConfig
 from boomtip.perception.feeder_pipeline import FeederPipelineConfig
 from boomtip.perception.hook_types import HookConfig
 from boomtip.perception.lift import LiftConfig
+from boomtip.perception.lift_doppler import LiftRadarConfig
 from boomtip.perception.pipeline import PipelineConfig
 from boomtip.perception.rope import RopeConfig
 
@@ -49,6 +50,7 @@ class LiftProcessing(StrictModel):
     its forecast."""
 
     detector: LiftConfig = LiftConfig()
+    radar: LiftRadarConfig = Field(LiftRadarConfig(), description="the clearance's rate from the radar's Doppler")
     filter: HeaveFilterConfig = Field(HeaveFilterConfig(), description="both lift filters' tuning (the relative-heave "
                                       "filter's model), on the wave parts C + l and h + l")
     landing_offset_rate_sigma_mps: float = Field(0.05, gt=0, description="how fast the load's centre may wander from "

@@ -52,17 +52,19 @@ def landing_row(landing_xy: np.ndarray, var_m2: float) -> dict:
     return {"landing_x_m": float(landing_xy[0]), "landing_y_m": float(landing_xy[1]), "landing_sigma_m": math.sqrt(var_m2)}
 
 
-def estimate_row(clearance: tuple[np.ndarray, np.ndarray], height: tuple[np.ndarray, np.ndarray], hoist_m: float,
-                 hoist_rate_mps: float, lost_sigma_m: float) -> dict:
-    """C, h and their rates from the filters' wave parts C + l, h + l (x, P each) and the rope's
-    length and rate; left empty, with the reason, when C's sigma exceeds `lost_sigma_m`."""
+def estimate_row(clearance: tuple[np.ndarray, np.ndarray], height: tuple[np.ndarray, np.ndarray],
+                 offset: tuple[float, float], hoist_m: float, lost_sigma_m: float) -> dict:
+    """C, h and their rates from the filters' states C + o, h + o (x, P each) less the offset o
+    and its rate (the rope's length and rate when the filters follow the wave parts, else 0);
+    left empty, with the reason, when C's sigma exceeds `lost_sigma_m`."""
+    offset_m, offset_rate_mps = offset
     (x, P), (xh, Ph) = clearance, height
     sigma = float(math.sqrt(max(P[0, 0], 0.0)))
     if not sigma <= lost_sigma_m:  # NaN too: no clearance measured yet
         return {"estimate": "lost" if math.isfinite(x[0]) else "no clearance yet", "sigma_m": sigma, "hoist_m": hoist_m}
-    return {"estimate": "ok", "clearance_m": float(x[0]) - hoist_m, "clearance_rate_mps": float(x[1]) - hoist_rate_mps,
+    return {"estimate": "ok", "clearance_m": float(x[0]) - offset_m, "clearance_rate_mps": float(x[1]) - offset_rate_mps,
             "sigma_m": sigma, "sigma_rate_mps": float(math.sqrt(max(P[1, 1], 0.0))),
-            "height_m": float(xh[0]) - hoist_m, "relative_vz_mps": float(xh[1]) - hoist_rate_mps,
+            "height_m": float(xh[0]) - offset_m, "relative_vz_mps": float(xh[1]) - offset_rate_mps,
             "sigma_relative_vz_mps": float(math.sqrt(max(Ph[1, 1], 0.0))), "hoist_m": hoist_m}
 
 
@@ -188,6 +190,13 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
     k["touchdown_s"] = touchdown_time(truth)
     k["forecast"] = _forecast_kpis(f, truth)
     return k
+
+
+def radar_kpis(statuses: dict[str, int], times_ms: list[float]) -> dict:
+    """The radar scans' share that gave the clearance's rate, why the others did not, and their time."""
+    n = sum(statuses.values())
+    return {"scans": n, "rate_fraction": statuses.get("ok", 0) / n if n else 0.0, "statuses": dict(sorted(statuses.items())),
+            "time_ms": float(np.median(times_ms)) if times_ms else math.nan}
 
 
 def touchdown_time(truth: Truth) -> float | None:
