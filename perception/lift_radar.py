@@ -51,25 +51,26 @@ class ClearanceRatePipeline:
         self.deck_spin.add(t_s, np.array([-fix.deck_plane[1], -fix.deck_plane[2], 1.0]))
         self.last_fix = (t_s, fix, tip_attitude, hook_m, hook_velocity_mps)
 
-    def process(self, frame: Frame) -> ClearanceRate:
+    def process(self, frame: Frame) -> tuple[ClearanceRate, np.ndarray | None]:
+        """The scan's rates, and its detections levelled (None when it was not levelled)."""
         times = StageTimes()
         with times.stage("lift.radar"):
-            out = self._rates(frame)
+            out, points_level = self._rates(frame)
         self.statuses[out.status] = self.statuses.get(out.status, 0) + 1
         self.times_ms.append(times.total())
-        return out
+        return out, points_level
 
-    def _rates(self, frame: Frame) -> ClearanceRate:
+    def _rates(self, frame: Frame) -> tuple[ClearanceRate, np.ndarray | None]:
         if frame.error is not None:
-            return ClearanceRate(f"unreadable frame: {frame.error}")
+            return ClearanceRate(f"unreadable frame: {frame.error}"), None
         if self.last_fix is None or abs(frame.t_s - self.last_fix[0]) > self.cfg.max_fix_age_s:
-            return ClearanceRate("no recent LiDAR fix of the load and deck")
+            return ClearanceRate("no recent LiDAR fix of the load and deck"), None
         inputs = doppler_inputs(frame, self.cfg.preprocess)
         if inputs is None:
-            return ClearanceRate("frame has no range_rate field")
+            return ClearanceRate("frame has no range_rate field"), None
         _, fix, attitude, hook_m, hook_v = self.last_fix
         levelled = level_at_tip(inputs[0], self.T_tip_radar, *attitude)
         return measure_clearance_rate(
             levelled.points_level, levelled.sensor_level, inputs[1], fix, self.footprint_radius_m, self.load_height_m, hook_m,
             hook_v, self.deck_spin.omega(frame.t_s), self.block_height_m, self.cfg, self.range_rate_noise_mps,
-            np.random.default_rng([self.seed, RADAR_SEED_SALT, frame.index]))
+            np.random.default_rng([self.seed, RADAR_SEED_SALT, frame.index])), levelled.points_level

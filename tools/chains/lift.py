@@ -33,6 +33,7 @@ from boomtip.fusion.landing_filter import LandingOffsetFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
 from boomtip.fusion.touchdown import TouchdownDetector
 from boomtip.perception.lift import LoadClearance, measure_clearance, rope_line_xy
+from boomtip.perception.lift_doppler import ClearanceRate
 from boomtip.perception.lift_radar import ClearanceRatePipeline
 from boomtip.tools.chains.chain import NullVisualiser
 from boomtip.tools.chains.hook import HookChain, HookFrameResult, HookResult
@@ -49,6 +50,16 @@ class LiftFrameResult(HookFrameResult):
     """A LiDAR frame's hook work and the load's clearance in it."""
 
     clearance: LoadClearance | None = None
+
+
+@dataclass
+class LiftRadarFrame:
+    """A radar scan's detections (levelled frame; None when not levelled) and the rates from it."""
+
+    t_s: float
+    points_level: np.ndarray | None
+    rate: ClearanceRate
+    sensor: str = "radar"
 
 
 @dataclass
@@ -88,15 +99,16 @@ class LiftChain:
     def frames(self, source: FrameSource):
         return self.hook.frames(source)
 
-    def process(self, frame: Frame) -> LiftFrameResult | None:
+    def process(self, frame: Frame) -> LiftFrameResult | LiftRadarFrame | None:
         if frame.sensor == "radar":
-            if self.radar is not None and self.touchdown.landed_s is None:  # landed: the filters stopped
-                rate = self.radar.process(frame)
-                if rate.ok:
-                    self.filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.clearance_rate_mps, rate.sigma_mps, RATE_SOURCE))
-                    self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.centre_rate_mps,
-                                                       rate.centre_sigma_mps, HEIGHT_RATE_SOURCE))
-            return None
+            if self.radar is None or self.touchdown.landed_s is not None:  # landed: the filters stopped
+                return None
+            rate, points_level = self.radar.process(frame)
+            if rate.ok:
+                self.filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.clearance_rate_mps, rate.sigma_mps, RATE_SOURCE))
+                self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.centre_rate_mps,
+                                                   rate.centre_sigma_mps, HEIGHT_RATE_SOURCE))
+            return LiftRadarFrame(frame.t_s, points_level, rate)
         res = self.hook.process(frame)
         if res is None:
             return None

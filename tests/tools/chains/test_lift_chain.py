@@ -69,7 +69,8 @@ def test_the_recording_draws_the_load_the_deck_the_clearance_and_the_landing_poi
                              text=True, timeout=120, env={**os.environ, "RERUN_ANALYTICS": "0"})
     assert listing.returncode == 0, listing.stderr
     for entity in ("/detections/lift/load", "/detections/lift/deck", "/detections/lift/clearance",
-                   "/detections/lift/landing", "/estimates/lift/clearance", "/truth/lift/clearance", "/detections/hook/segment"):
+                   "/detections/lift/landing", "/detections/lift/radar_load", "/detections/lift/radar_deck",
+                   "/estimates/lift/clearance", "/truth/lift/clearance", "/detections/hook/segment"):
         assert entity in listing.stdout, entity
 
 

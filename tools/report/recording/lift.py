@@ -1,6 +1,7 @@
-"""The lift chain's recording: the hook's (tools/report/recording/hook.py) and, per frame, the
-load's points, the deck's ring about it, the clearance's line from the load's lowest point down
-to the deck, and the landing point; the clearance and its estimate as series."""
+"""The lift chain's recording: the hook's (tools/report/recording/hook.py) and, per LiDAR frame,
+the load's points, the deck's ring about it, the clearance's line from the load's lowest point
+down to the deck, and the landing point; per radar scan, the load's and the deck's detections
+its rates came from; the clearance and its estimate as series."""
 
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ DECK_POINTS = 400  # of the deck's ring drawn per frame
 
 class LiftRerunLogger(HookRerunLogger):
     def log_frame(self, res) -> None:
+        if getattr(res, "sensor", None) == "radar":
+            self._log_radar(res)
+            return
         super().log_frame(res)
         obs = getattr(res, "clearance", None) if res is not None else None
         if obs is None or res.points_level is None:
@@ -34,6 +38,18 @@ class LiftRerunLogger(HookRerunLogger):
         else:
             rec.clear("detections/lift/clearance")
             rec.clear("detections/lift/landing")
+
+    def _log_radar(self, res) -> None:
+        """A radar scan's detections on the load and on the deck (those its rates came from)."""
+        rate, rec = res.rate, self.recording
+        rec.time(res.t_s)
+        if res.points_level is None or rate.load_mask is None:
+            rec.clear("detections/lift/radar_load")
+            rec.clear("detections/lift/radar_deck")
+            return
+        deck = res.points_level[rate.deck_mask]
+        rec.points("detections/lift/radar_load", res.points_level[rate.load_mask], "load", 0.15)
+        rec.points("detections/lift/radar_deck", deck[:: max(1, len(deck) // DECK_POINTS)], "deck", 0.12)
 
     def log_clearance(self, t_s: np.ndarray, estimate_m: np.ndarray, sigma_m: np.ndarray, truth_m: np.ndarray | None) -> None:
         """The filtered clearance with its 3-sigma band, and the truth's."""
