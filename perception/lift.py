@@ -34,6 +34,7 @@ STATUS_OK = "ok"
 MAX_REFITS = 5  # a plane refitted without its outliers at most this often
 MAD_FLOOR_M = 1e-4  # a plane's robust sigma never below this (points exactly on it would reject all else)
 LOWEST_SEEN_POINTS = 5  # without a model: the load's bottom is the mean of its few lowest points
+SEARCH_DEPTH_M = 40.0  # the load and its deck are looked for this far below the hook at most
 
 
 class LiftConfig(BaseModel):
@@ -153,13 +154,19 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     """The clearance in one levelled frame, about the hook's reference point `hook_m` (the hook
     filter's estimate, levelled frame); `deck_prior_z_m` the deck's last height there, if any.
     The LiDAR's range noise and angular step size the sigmas."""
-    finite = np.flatnonzero(np.all(np.isfinite(points_level), axis=1)) if len(points_level) else np.zeros(0, int)
-    pts = points_level[finite]
-    if len(pts) == 0 or not np.all(np.isfinite(hook_m)) or hook_m[2] >= 0:
+    if len(points_level) == 0 or not np.all(np.isfinite(hook_m)) or hook_m[2] >= 0:
         return LoadClearance("no points or no hook")
+    radius = footprint_radius_m(load_size_m, cfg)
+    # Only the points in a box about the rope's line reach the load or its deck ring: a few
+    # comparisons cull most of the cloud (and its NaNs, which compare false) before any distance.
+    reach = radius + cfg.load_margin_m + cfg.deck_ring_m + float(np.hypot(*hook_m[:2])) / -hook_m[2] * SEARCH_DEPTH_M
+    x, y = points_level[:, 0], points_level[:, 1]
+    finite = np.flatnonzero((np.abs(x - hook_m[0]) < reach) & (np.abs(y - hook_m[1]) < reach) & np.isfinite(points_level[:, 2]))
+    pts = points_level[finite]
+    if len(pts) == 0:
+        return LoadClearance("no points about the hook")
     # The load hangs on the rope's line continued below the hook: its axis at each point's height.
     d = np.linalg.norm(pts[:, :2] - rope_line_xy(hook_m, pts[:, 2]), axis=1)
-    radius = footprint_radius_m(load_size_m, cfg)
     below = pts[:, 2] < hook_m[2] - block_height_m - cfg.below_block_m
     inner = radius + cfg.load_margin_m
     ring = below & (d > inner) & (d < inner + cfg.deck_ring_m)
