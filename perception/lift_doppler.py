@@ -32,6 +32,7 @@ __all__ = ["LiftRadarConfig", "ClearanceRate", "measure_clearance_rate", "load_s
 
 STATUS_OK = "ok"
 MAD_TO_SIGMA = 1.4826
+RIVAL_SIGMAS = 3.0  # a corner this many of the clearance's sigmas above the lowest may still be the lowest
 
 
 class LiftRadarConfig(BaseModel):
@@ -102,17 +103,21 @@ def _load_vertical(b: np.ndarray, rate: np.ndarray, v_horizontal: np.ndarray, no
 
 
 def measure_clearance_rate(points_level: np.ndarray, origin_level: np.ndarray, range_rate_mps: np.ndarray,
-                           fix: LoadClearance, footprint_radius_m: float, height_m: float, hook_m: np.ndarray, hook_velocity_mps: np.ndarray,
-                           deck_spin_radps: np.ndarray | None, block_height_m: float, cfg: LiftRadarConfig,
-                           range_rate_noise_mps: float, rng: np.random.Generator) -> ClearanceRate:
+                           fix: LoadClearance, footprint_radius_m: float, height_m: float, hook_m: np.ndarray,
+                           hook_velocity_mps: np.ndarray, hook_velocity_cov: np.ndarray, deck_spin_radps: np.ndarray | None,
+                           block_height_m: float, cfg: LiftRadarConfig, range_rate_noise_mps: float,
+                           rng: np.random.Generator) -> ClearanceRate:
     """The rates of one scan: its detections levelled (points_level (N,3), the radar at
     origin_level), their range rates (positive receding); the LiDAR's last fix of the load and
-    deck, the load's reach from the rope's line and its height (inf: unknown); the hook (position, velocity relative to the tip) and the
-    deck's spin (None: unknown, taken as none with its sigma)."""
+    deck, the load's reach from the rope's line and its height (inf: unknown); the hook
+    (position, velocity relative to the tip and its covariance) and the deck's spin (None:
+    unknown, taken as none with its sigma)."""
+    if not fix.ok:
+        return ClearanceRate("no LiDAR fix of the load and deck")
     ok = np.all(np.isfinite(points_level), axis=1) & np.isfinite(range_rate_mps)
     pts, rate = points_level[ok], range_rate_mps[ok]
-    if not fix.ok or len(pts) < cfg.min_load_points:
-        return ClearanceRate("no load fix or too few detections")
+    if len(pts) < cfg.min_load_points:
+        return ClearanceRate(f"too few detections: {len(pts)} in the scan")
     rel = pts - origin_level
     b = rel / np.linalg.norm(rel, axis=1, keepdims=True)
     d = np.linalg.norm(pts[:, :2] - rope_line_xy(hook_m, pts[:, 2]), axis=1)
@@ -133,28 +138,36 @@ def measure_clearance_rate(points_level: np.ndarray, origin_level: np.ndarray, r
     if load_fit is None or deck_fit is None:
         return ClearanceRate("no Doppler fit of the load or the deck", n_load=n_load, n_deck=n_deck)
     vz_load, sigma_load, inliers = load_fit
+    # the hook's horizontal velocity, common to every load detection, reaches the vertical
+    # through their mean beam's tilt: an error that no number of detections averages out
+    b_mean = b[load][inliers].mean(axis=0)
+    tilt = b_mean[:2] / b_mean[2]
+    var_load = sigma_load**2 + float(tilt @ hook_velocity_cov[:2, :2] @ tilt)
     seen = pts[load][inliers].mean(axis=0)  # where the load's mean velocity holds
     spin_deck = np.zeros(3) if deck_spin_radps is None else deck_spin_radps
     spin_deck_sigma = cfg.deck_spin_sigma_radps if deck_spin_radps is not None else cfg.unknown_deck_spin_sigma_radps
-    u_deck, var_u_deck = deck_fit.velocity_sensor, float(deck_fit.covariance[2, 2])
-
+    u_deck, cov_u_deck = deck_fit.velocity_sensor, deck_fit.covariance
     slope = fix.deck_plane[1:]  # dz/dx, dz/dy of the deck
+    # the height above the deck straight below a point rises at minus the deck's velocity there
+    # along a = (slope, -1): its vertical, less its slope times how fast it slides under the point
+    a = np.array([slope[0], slope[1], -1.0])
 
     def closing(point: np.ndarray) -> tuple[float, float]:
         v_load = vz_load + _vertical_at(spin_load, point - seen)
         below = np.array([point[0], point[1], fix.deck_plane[0] + point[:2] @ slope])  # the deck's point under it
-        v_deck = u_deck + np.cross(spin_deck, below - origin_level)
-        # the height above the deck straight below a point: the deck there rises at its vertical
-        # velocity less its slope times how fast the point moves along it
+        lever = below - origin_level
+        v_deck = u_deck + np.cross(spin_deck, lever)
         v_load_along = hook_velocity_mps[:2] + np.cross(spin_load, point - hook_m)[:2]
-        lever = float(np.linalg.norm((point - origin_level)[:2]))
-        rate = v_load - float(v_deck[2]) + float(slope @ (v_deck[:2] - v_load_along))
-        return rate, math.sqrt(sigma_load**2 + var_u_deck + (spin_deck_sigma * lever) ** 2)
+        rate = v_load + float(a @ v_deck) - float(slope @ v_load_along)
+        # a . (w x lever) = w . (lever x a): the spin's error through the whole lever, the slope's way too
+        var = var_load + float(a @ cov_u_deck @ a) + (spin_deck_sigma * float(np.linalg.norm(np.cross(lever, a)))) ** 2
+        return rate, math.sqrt(var)
 
     (c_dot, s_c), (h_dot, s_h) = closing(lowest), closing(centre)
-    # which corner is the lowest is itself uncertain when another lies within the fix's 3 sigma of
+    # which corner is the lowest is itself uncertain when another lies within the fix's sigmas of
     # it: the rate is then any of theirs (the deck's spin and the load's tilting tell them apart)
-    rivals = [p for p in fix.candidates_m if _clearance_of(p, fix.deck_plane) <= fix.clearance_m + 3.0 * fix.sigma_m]
+    rivals = [p for p in fix.candidates_m
+              if _clearance_of(p, fix.deck_plane) <= fix.clearance_m + RIVAL_SIGMAS * fix.sigma_m]
     spread = max((abs(closing(p)[0] - c_dot) for p in rivals), default=0.0)
     s_c = math.hypot(s_c, spread)
     load_idx, deck_idx = np.flatnonzero(ok)[load][inliers], np.flatnonzero(ok)[deck][deck_fit.inlier_mask]

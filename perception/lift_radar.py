@@ -1,7 +1,9 @@
 """Radar scans -> the clearance's rates (perception.lift_doppler), about the LiDAR's last fix of
-the load and the deck: the scan levelled at the tip with that frame's attitude (a scan lies a
-few tens of milliseconds from it: the tip turns by microradians meanwhile), and the deck's spin
-from the fixes' deck planes over time. Built from the installation (the radar's mount and noise,
+the load and the deck: the scan levelled at the tip with that frame's attitude (a scan lies
+within `max_fix_age_s` of it, tens of milliseconds at the sensors' rates: the waves turn the tip
+by a fraction of a milliradian meanwhile, which tilts the relative horizontal velocity into the
+vertical by as much, a millimetre a second), and the deck's spin from the fixes' deck planes
+over time. Built from the installation (the radar's mount and noise,
 the load's model, the block) and the settings; never from the simulated world."""
 
 from __future__ import annotations
@@ -41,15 +43,16 @@ class ClearanceRatePipeline:
         self.load_height_m = load_size_m[2] if load_size_m else math.inf
         self.block_height_m = block_height_m
         self.deck_spin = NormalRate(DECK_SPIN_WINDOW_S)
-        self.last_fix: tuple | None = None  # (t, LoadClearance, tip attitude, hook position, hook velocity)
+        self.last_fix: tuple | None = None  # (t, LoadClearance, tip attitude, hook position, its velocity and covariance)
         self.statuses: dict[str, int] = {}
         self.times_ms: list[float] = []
 
     def add_fix(self, t_s: float, fix: LoadClearance, tip_attitude: tuple[float, float, float], hook_m: np.ndarray,
-                hook_velocity_mps: np.ndarray) -> None:
-        """A LiDAR frame's fix (ok), the tip's attitude it was levelled with and the hook then."""
+                hook_velocity: tuple[np.ndarray, np.ndarray]) -> None:
+        """A LiDAR frame's fix (ok), the tip's attitude it was levelled with and the hook then
+        (its position; its velocity and that's covariance, relative to the tip)."""
         self.deck_spin.add(t_s, np.array([-fix.deck_plane[1], -fix.deck_plane[2], 1.0]))
-        self.last_fix = (t_s, fix, tip_attitude, hook_m, hook_velocity_mps)
+        self.last_fix = (t_s, fix, tip_attitude, hook_m, hook_velocity)
 
     def process(self, frame: Frame) -> tuple[ClearanceRate, np.ndarray | None]:
         """The scan's rates, and its detections levelled (None when it was not levelled)."""
@@ -68,9 +71,9 @@ class ClearanceRatePipeline:
         inputs = doppler_inputs(frame, self.cfg.preprocess)
         if inputs is None:
             return ClearanceRate("frame has no range_rate field"), None
-        _, fix, attitude, hook_m, hook_v = self.last_fix
+        _, fix, attitude, hook_m, (hook_v, hook_v_cov) = self.last_fix
         levelled = level_at_tip(inputs[0], self.T_tip_radar, *attitude)
         return measure_clearance_rate(
             levelled.points_level, levelled.sensor_level, inputs[1], fix, self.footprint_radius_m, self.load_height_m, hook_m,
-            hook_v, self.deck_spin.omega(frame.t_s), self.block_height_m, self.cfg, self.range_rate_noise_mps,
+            hook_v, hook_v_cov, self.deck_spin.omega(frame.t_s), self.block_height_m, self.cfg, self.range_rate_noise_mps,
             np.random.default_rng([self.seed, RADAR_SEED_SALT, frame.index])), levelled.points_level

@@ -3,6 +3,7 @@ velocity is known, the rates must be the height's own derivative, slope and spin
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,6 +15,7 @@ from boomtip.perception.lift_doppler import LiftRadarConfig, load_spin, measure_
 ORIGIN = np.array([1.5, -0.6, -0.8])  # the radar, levelled frame at the tip
 HOOK = np.array([0.3, -0.2, -50.0])
 HOOK_V = np.array([0.12, -0.05, -0.4])  # relative to the tip: swinging and lowered
+HOOK_V_COV = np.diag([0.02, 0.02, 0.01]) ** 2  # the hook tracker's
 DECK_PLANE = np.array([-62.0, 0.02, -0.03])  # z = a + b x + c y: rolled and pitched
 DECK_U = np.array([0.35, -0.2, 0.6])  # the deck's velocity relative to the radar at the radar's origin
 DECK_SPIN = np.array([0.015, -0.01, 0.002])
@@ -72,7 +74,7 @@ def test_the_rates_are_the_heights_derivatives_slope_and_spins_included():
     pts, rate = _scene(rng)
     centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
     lowest = centre + np.array([3.0, 1.2, 0.0])
-    out = measure_clearance_rate(pts, ORIGIN, rate, _fix(lowest, centre), 3.3, 2.6, HOOK, HOOK_V, DECK_SPIN, 1.0,
+    out = measure_clearance_rate(pts, ORIGIN, rate, _fix(lowest, centre), 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
                                  LiftRadarConfig(), 0.01, rng)
     assert out.ok, out.status
     assert out.clearance_rate_mps == pytest.approx(_height_rate(lowest), abs=2e-4)
@@ -90,7 +92,7 @@ def test_noisy_rates_give_a_sigma_that_covers_the_error():
         pts, rate = _scene(rng, n_load=25)
         rate = rate + 0.049 * rng.standard_normal(len(rate))
         centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
-        out = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, DECK_SPIN, 1.0,
+        out = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
                                      LiftRadarConfig(), 0.049, rng)
         errors.append(out.centre_rate_mps - _height_rate(centre))
         sigmas.append(out.centre_sigma_mps)
@@ -103,12 +105,15 @@ def test_too_few_detections_or_no_fix_say_why():
     rng = np.random.default_rng(0)
     pts, rate = _scene(rng, n_load=3)
     centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
-    out = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, None, 1.0,
+    out = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, None, 1.0,
                                  LiftRadarConfig(), 0.049, rng)
     assert not out.ok and out.status == "too few detections: 3 on the load, 600 on the deck"
-    out = measure_clearance_rate(pts, ORIGIN, rate, LoadClearance("too few load points"), 3.3, 2.6, HOOK, HOOK_V, None,
+    out = measure_clearance_rate(pts, ORIGIN, rate, LoadClearance("too few load points"), 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, None,
                                  1.0, LiftRadarConfig(), 0.049, rng)
-    assert not out.ok and math.isnan(out.clearance_rate_mps)
+    assert not out.ok and out.status == "no LiDAR fix of the load and deck" and math.isnan(out.clearance_rate_mps)
+    empty = measure_clearance_rate(np.zeros((0, 3)), ORIGIN, np.zeros(0), _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V,
+                                   HOOK_V_COV, None, 1.0, LiftRadarConfig(), 0.049, rng)
+    assert empty.status == "too few detections: 0 in the scan"
 
 
 def test_nan_detections_are_left_out():
@@ -117,6 +122,54 @@ def test_nan_detections_are_left_out():
     pts[:5] = np.nan
     rate[5:10] = np.nan
     centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
-    out = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, DECK_SPIN, 1.0,
+    out = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
                                  LiftRadarConfig(), 0.01, rng)
     assert out.ok and out.n_deck == 590 and np.isfinite(out.centre_rate_mps)
+
+
+def _corners(centre):
+    return centre + np.array([[sx * 3.0, sy * 1.2, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+
+
+def test_a_corner_nearly_as_low_widens_the_rate_by_the_difference_of_theirs():
+    rng = np.random.default_rng(4)
+    pts, rate = _scene(rng)
+    centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
+    corners = _corners(centre)
+    heights = corners[:, 2] - _deck_z(corners[:, :2])
+    low = int(np.argmin(heights))
+    alone = dataclasses.replace(_fix(corners[low], centre), candidates_m=corners[[low]])
+    tied = dataclasses.replace(_fix(corners[low], centre), candidates_m=corners, sigma_m=1.0)  # every corner within 3 sigma
+    a = measure_clearance_rate(pts, ORIGIN, rate, alone, 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
+                               LiftRadarConfig(), 0.01, np.random.default_rng(0))
+    b = measure_clearance_rate(pts, ORIGIN, rate, tied, 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
+                               LiftRadarConfig(), 0.01, np.random.default_rng(0))
+    rates = [_height_rate(c) for c in corners]
+    assert a.clearance_rate_mps == pytest.approx(b.clearance_rate_mps) == pytest.approx(rates[low], abs=2e-4)
+    assert b.sigma_mps == pytest.approx(math.hypot(a.sigma_mps, max(abs(r - rates[low]) for r in rates)), rel=1e-3)
+
+
+def test_an_unknown_deck_spin_costs_its_sigma_through_the_whole_lever():
+    rng = np.random.default_rng(5)
+    pts, rate = _scene(rng)
+    centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
+    cfg = LiftRadarConfig()
+    known = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN,
+                                   1.0, cfg, 0.01, np.random.default_rng(0))
+    unknown = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, None,
+                                     1.0, cfg, 0.01, np.random.default_rng(0))
+    # the spin left out is an error the sigma must cover, and it does: through the slope, 60 m of
+    # lever turn a spin of a hundredth of a radian a second into millimetres to centimetres a second
+    error = abs(unknown.centre_rate_mps - _height_rate(centre))
+    assert error > 0.005 and error < 3 * unknown.centre_sigma_mps
+    assert unknown.centre_sigma_mps > 10 * known.centre_sigma_mps
+
+
+def test_without_a_load_model_the_load_is_whatever_hangs_above_the_deck():
+    rng = np.random.default_rng(6)
+    pts, rate = _scene(rng)
+    centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z)  # without a model: the lowest seen is the top
+    out = measure_clearance_rate(pts, ORIGIN, rate, _fix(centre, centre), 8.0, math.inf, HOOK, HOOK_V, HOOK_V_COV,
+                                 DECK_SPIN, 1.0, LiftRadarConfig(), 0.01, rng)
+    assert out.ok and out.n_load == 40
+    assert out.centre_rate_mps == pytest.approx(_height_rate(centre), abs=2e-4)

@@ -4,13 +4,9 @@ and the deck below it (perception.lift); at the end, the touchdown forecast
 (fusion.lift_forecast) and the hook's estimators.
 
 The clearance C (the lowest point's) and the height h (the underside centre's above the deck,
-which moves with the relative vertical motion alone, not with the load's tilting) fall as the
-hoist pays out rope l and swing with the waves. Two filters (the relative-heave filter's model:
-a value, its rate and acceleration) follow them. With a radar, each scan's Doppler measures their
-rates (perception.lift_radar) and the filters follow C and h themselves, hoist and all. Without
-one, they follow the wave parts C + l and h + l, smooth narrow-band motions, and C, h and their
-rates are those less the hook tracker's l and its rate (the hoist encoder filtered): a constant-
-acceleration model fed heights alone would have to follow the hoist's starts and stops as jerks.
+which moves with the relative vertical motion alone, not with the load's tilting) are followed
+by two filters (fusion.clearance_filters): with the radar's rates (perception.lift_radar), C and
+h themselves; without, the wave parts C + l and h + l (l the rope paid out, the hook tracker's).
 Once the load has landed (fusion.touchdown) the filters stop: the landing is a step no smooth
 model follows, and the rows say "landed at T".
 
@@ -28,7 +24,7 @@ import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.fusion.consistency import flagged_notes
-from boomtip.fusion.heave_filter import HeaveFilter, Measurement
+from boomtip.fusion.clearance_filters import ClearanceFilters
 from boomtip.fusion.landing_filter import LandingOffsetFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
 from boomtip.fusion.touchdown import TouchdownDetector
@@ -83,8 +79,7 @@ class LiftChain:
         self.cfg = processing.lift
         self.block_height_m = self.hook.pipeline.cfg.block_height_m
         self.lidar_noise = (inst.lidar.range_noise_m, inst.lidar.angular_step_rad)
-        self.filter = HeaveFilter(self.cfg.filter)  # C + l, C the lowest point's clearance
-        self.height_filter = HeaveFilter(self.cfg.filter)  # h + l, h the underside centre's height over the deck
+        self.filters = ClearanceFilters(self.cfg.filter, (CLEARANCE_SOURCE, HEIGHT_SOURCE, RATE_SOURCE, HEIGHT_RATE_SOURCE))
         self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps)
         self.touchdown = TouchdownDetector(self.cfg.landed_hold_s)
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
@@ -101,13 +96,14 @@ class LiftChain:
 
     def process(self, frame: Frame) -> LiftFrameResult | LiftRadarFrame | None:
         if frame.sensor == "radar":
-            if self.radar is None or self.touchdown.landed_s is not None:  # landed: the filters stopped
+            if self.radar is None:
                 return None
+            if self.touchdown.landed_s is not None:  # the filters stopped (the scan drawn as nothing)
+                return LiftRadarFrame(frame.t_s, None, ClearanceRate("landed"))
             rate, points_level = self.radar.process(frame)
             if rate.ok:
-                self.filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.clearance_rate_mps, rate.sigma_mps, RATE_SOURCE))
-                self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D_dot", rate.centre_rate_mps,
-                                                   rate.centre_sigma_mps, HEIGHT_RATE_SOURCE))
+                self.filters.add_rates(frame.t_s, (rate.clearance_rate_mps, rate.sigma_mps),
+                                       (rate.centre_rate_mps, rate.centre_sigma_mps))
             return LiftRadarFrame(frame.t_s, points_level, rate)
         res = self.hook.process(frame)
         if res is None:
@@ -128,30 +124,22 @@ class LiftChain:
             if obs.ok:
                 self.deck_z_m = obs.deck_z_m
                 if self.radar is not None:
-                    self.radar.add_fix(frame.t_s, obs, self.hook.tracker.tip_attitude(), p_hook, self.hook.tracker.velocity()[0])
+                    self.radar.add_fix(frame.t_s, obs, self.hook.tracker.tip_attitude(), p_hook, self.hook.tracker.velocity())
                 line = rope_line_xy(p_hook, obs.underside_centre_m[2])
                 self.landing.update(frame.t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
                 row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s)))
-                with out.times.stage("lift.filter"):  # the wave parts C + l and h + l: the rope paid out is the operator's
-                    self.filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.clearance_m + self._offset()[0], obs.sigma_m,
-                                                CLEARANCE_SOURCE))
-                    self.height_filter.add(Measurement(frame.t_s, frame.t_s, "D", obs.centre_clearance_m + self._offset()[0],
-                                                       obs.centre_height_sigma_m, HEIGHT_SOURCE))
+                with out.times.stage("lift.filter"):
+                    self.filters.add_heights(frame.t_s, (obs.clearance_m, obs.sigma_m),
+                                             (obs.centre_clearance_m, obs.centre_height_sigma_m), self.hoist)
         else:
             self.touchdown.update(frame.t_s, math.nan, math.nan)
         if self.touchdown.landed_s is not None:  # landed: the filters stopped
             row.update(outputs.landed_row(None, self.touchdown.landed_s, self.hoist[0]))
         else:
-            row.update(outputs.estimate_row(self.filter.estimate(frame.t_s), self.height_filter.estimate(frame.t_s),
-                                            self._offset(), self.hoist[0], self.cfg.lost_sigma_m))
+            row.update(outputs.estimate_row(*self.filters.estimates(frame.t_s), self.filters.offset(self.hoist), self.hoist[0],
+                                            self.cfg.lost_sigma_m))
         self.rows.append(row)
         return out
-
-    def _offset(self) -> tuple[float, float]:
-        """What the filters' states hold beyond C and h (and its rate): the rope's length l when
-        they follow the wave parts C + l, h + l (no radar); nothing when the radar measures the
-        rates (C and h then; the tracker's l, differenced, would add its jitter to the rates)."""
-        return (0.0, 0.0) if self.radar is not None else self.hoist
 
     def finish(self) -> LiftResult:
         hook = self.hook.finish()
@@ -170,10 +158,12 @@ class LiftChain:
         k = self.hook.kpis(result.hook, outputs.until_touchdown(truth), windows)
         if truth is not None and "contact" in truth.columns:
             k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
-        k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, (self.filter, self.height_filter),
-                                      self.touchdown.landed_s)
+        k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, self.filters.filters(), self.touchdown.landed_s)
         if self.radar is not None:
-            k["lift"]["radar"] = outputs.radar_kpis(self.radar.statuses, self.radar.times_ms)
+            k["lift"]["radar"] = outputs.radar_kpis(self.radar.statuses, self.radar.times_ms, self.filters.restarts)
+            if not self.filters.ever_followed_rates:
+                k["warnings"] = k.get("warnings", []) + [
+                    "the radar gave no clearance rate (lift.radar.statuses say why): the rates are the LiDAR's heights' alone"]
         k.setdefault("consistency", {})["lift"] = consistency = k["lift"].pop("consistency")
         notes = flagged_notes(consistency, "lift")
         if notes:

@@ -52,7 +52,7 @@ class LiftProcessing(StrictModel):
     detector: LiftConfig = LiftConfig()
     radar: LiftRadarConfig = Field(LiftRadarConfig(), description="the clearance's rate from the radar's Doppler")
     filter: HeaveFilterConfig = Field(HeaveFilterConfig(), description="both lift filters' tuning (the relative-heave "
-                                      "filter's model), on the wave parts C + l and h + l")
+                                      "filter's model), on C and h with the radar's rates, else on C + l and h + l")
     landing_offset_rate_sigma_mps: float = Field(0.05, gt=0, description="how fast the load's centre may wander from "
                                                  "the rope's line (the slings' give, the load turning): the landing "
                                                  "point's filter (fusion.landing_filter)")

@@ -128,11 +128,11 @@ def until_touchdown(truth: Truth | None) -> Truth | None:
     return truth if t_td is None else TruthUntil(truth, t_td)
 
 
-def _innovations(filt: HeaveFilter, until_s: float | None) -> Innovations:
-    """The filter's innovations while the load hung (until it was found landed, if it was: the
+def _innovations(filters: list[HeaveFilter], until_s: float | None) -> Innovations:
+    """The filters' innovations while the load hung (until it was found landed, if it was: the
     landing itself is a step no smooth model follows)."""
     inn = Innovations()
-    for t_acq, source, nis, scale in filt.innovations():
+    for t_acq, source, nis, scale in sorted(i for filt in filters for i in filt.innovations()):
         if until_s is None or t_acq < until_s:
             inn.add(source, t_acq, nis, 1, scale)
     return inn
@@ -150,15 +150,14 @@ def _rms(e: np.ndarray) -> float:
 
 
 def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth | None,
-              filters: tuple[HeaveFilter, ...], landed_s: float | None) -> dict:
+              filters: list[HeaveFilter], landed_s: float | None) -> dict:
     t, status = rows["t"], rows["status"]
     n = len(t)
     k: dict = {"frames": n, "clearance_found_fraction": float(np.mean(status == "ok")) if n else 0.0,
                "lost_fraction": float(np.mean(rows["estimate"] == "lost")) if n else 0.0,
                "landed_detected_s": landed_s,
                "statuses": {s: int(np.count_nonzero(status == s)) for s in sorted(set(status.tolist()))},
-               "consistency": {name: block for filt in filters
-                               for name, block in consistency_block(_innovations(filt, landed_s)).items()}}
+               "consistency": consistency_block(_innovations(filters, landed_s))}
     if truth is None or "clearance" not in truth.columns:
         k["note"] = "no truth: the clearance and its forecast are in lift_estimates.csv and lift_forecast.csv"
         return k
@@ -192,11 +191,12 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
     return k
 
 
-def radar_kpis(statuses: dict[str, int], times_ms: list[float]) -> dict:
-    """The radar scans' share that gave the clearance's rate, why the others did not, and their time."""
+def radar_kpis(statuses: dict[str, int], times_ms: list[float], filter_restarts: int) -> dict:
+    """The radar scans' share that gave the clearance's rate, why the others did not, their time,
+    and how often the filters began again between following C and h and the wave parts."""
     n = sum(statuses.values())
     return {"scans": n, "rate_fraction": statuses.get("ok", 0) / n if n else 0.0, "statuses": dict(sorted(statuses.items())),
-            "time_ms": float(np.median(times_ms)) if times_ms else math.nan}
+            "time_ms": float(np.median(times_ms)) if times_ms else math.nan, "filter_restarts": filter_restarts}
 
 
 def touchdown_time(truth: Truth) -> float | None:

@@ -40,7 +40,7 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     assert lift["clearance_rate"]["rmse_mps"] < 0.03
     assert lift["relative_velocity"]["rmse_mps"] < 0.015 and lift["relative_velocity"]["within_3sigma"] > 0.95
     radar = lift["radar"]
-    assert radar["scans"] == 900 and radar["rate_fraction"] > 0.95 and radar["time_ms"] < 20
+    assert radar["scans"] == 900 and radar["rate_fraction"] > 0.95 and radar["time_ms"] < 20 and radar["filter_restarts"] == 1
     assert lift["landing_point"]["rmse_m"] < 0.1 and lift["landing_point"]["rmse_m"] < lift["landing_point"]["measured_rmse_m"]
     fc = lift["forecast"]
     assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1
@@ -48,7 +48,8 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     consistency = k["consistency"]["lift"]
     assert not consistency["lidar_clearance"]["flagged"] and not consistency["lidar_height"]["flagged"]
     assert set(consistency) == {"lidar_clearance", "lidar_height", "radar_clearance_rate", "radar_height_rate"}
-    assert 0.3 < consistency["radar_height_rate"]["nis_per_dof"] < 2.0
+    for rates in ("radar_clearance_rate", "radar_height_rate"):
+        assert 0.3 < consistency[rates]["nis_per_dof"] < 2.0 and not consistency[rates]["flagged"]
     assert lift["landed_detected_s"] is None  # 45 s: the load still hangs
     assert "touchdown" in k["hook"]["estimators_note"]
     with open(lift_run / "lift_estimates.csv", newline="") as fh:
@@ -82,6 +83,19 @@ def test_a_lift_recording_is_processed_with_its_truth(tmp_path):
     assert r.exit_code == 0, r.output
     lift = json.loads((out / "kpis.json").read_text())["lift"]
     assert lift["frames"] == 40 and "clearance" in lift  # scored: the recording's truth is the lift's
+
+
+def test_a_radar_that_never_sees_the_load_leaves_the_rates_to_the_lidar_and_says_so(tmp_path):
+    out = tmp_path / "x"
+    r = CliRunner().invoke(app, ["run", "-s", "lift", *SHORT, "--set", "installation.radar.mount.rpy_deg=[0,0,0]",
+                                 "--out", str(out)])  # looking out level along the boom: no load, no deck
+    assert r.exit_code == 0, r.output
+    k = json.loads((out / "kpis.json").read_text())
+    radar = k["lift"]["radar"]
+    assert radar["rate_fraction"] == 0.0 and radar["filter_restarts"] == 0
+    assert any("the radar gave no clearance rate" in w for w in k["warnings"])
+    assert set(k["consistency"]["lift"]) == {"lidar_clearance", "lidar_height"}
+    assert k["lift"]["clearance"]["rmse_m"] < 0.015 and k["lift"]["relative_velocity"]["rmse_mps"] < 0.08
 
 
 def test_without_a_radar_the_rates_come_from_the_lidar_alone(tmp_path):
