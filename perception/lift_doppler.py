@@ -13,7 +13,11 @@ rates of the load's and of the deck's detections.
             the deck slides under the point (the height is over the deck straight below it)
 
 The sensor's own motion (the boom tip slewing, luffing, flexing) is in both velocities alike
-and cancels: both are relative to the same radar.
+and cancels: both are relative to the same radar. Only the hook's horizontal velocity, the
+tracker's, is relative to the tip instead: the radar's offset from it turning with the tip adds
+centimetres a second at most, which reach the vertical through the load beams' few degrees of
+tilt (a millimetre a second). The load is taken to turn with the rope's line; a load swinging
+on its slings as well turns otherwise, and its lowest corner's rate with it.
 """
 
 from __future__ import annotations
