@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from boomtip.perception.geometry import plane_sigma_at
 
-__all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy", "footprint_radius_m"]
+__all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy", "footprint_radius_m", "plane_height_at", "index_mask"]
 
 STATUS_OK = "ok"
 MAX_REFITS = 5  # a plane refitted without its outliers at most this often
@@ -107,7 +107,7 @@ def height_plane(points: np.ndarray, outlier_sigmas: float) -> tuple[np.ndarray,
             return None
         p = points[keep]
         coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(len(p)), p[:, 0], p[:, 1]]), p[:, 2], rcond=None)
-        resid = points[:, 2] - (coef[0] + points[:, :2] @ coef[1:])
+        resid = points[:, 2] - plane_height_at(coef, points[:, :2])
         mad = float(np.median(np.abs(resid[keep] - np.median(resid[keep]))))
         inliers = np.abs(resid) <= outlier_sigmas * max(1.4826 * mad, MAD_FLOOR_M)
         if np.array_equal(inliers, keep) or k == MAX_REFITS - 1:
@@ -121,6 +121,11 @@ def _as_plane(coef: np.ndarray) -> np.ndarray:
     n = np.array([-coef[1], -coef[2], 1.0])
     s = np.linalg.norm(n)
     return np.append(n / s, -coef[0] / s)
+
+
+def plane_height_at(coef: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The height z = a + b x + c y of the plane coef = (a, b, c) at xy (2,) or (N,2)."""
+    return coef[0] + xy @ coef[1:]
 
 
 def _height_at(coef: np.ndarray, xy: np.ndarray) -> float:
@@ -183,14 +188,14 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     deck_coef, deck_in = fit
     deck_pts = pts[ring][near][deck_in]
     # The load: inside its footprint, below the block, clear of the deck under it.
-    deck_under = deck_coef[0] + pts[:, :2] @ deck_coef[1:]
+    deck_under = plane_height_at(deck_coef, pts[:, :2])
     load = below & (d <= inner) & (pts[:, 2] > deck_under + cfg.above_deck_m)
     if np.count_nonzero(load) >= cfg.min_top_points:  # what hangs from the hook, not the cargo beside it
         load = _hanging(pts, load, d, max(cfg.cluster_beams * float(np.linalg.norm(hook_m)) * angular_step_rad,
                                           cfg.min_cluster_gap_m), cfg.core_radius_m)
     n_load = int(np.count_nonzero(load))
     ring_idx, load_idx = np.flatnonzero(ring)[near][deck_in], np.flatnonzero(load)
-    masks = dict(load_mask=_mask(len(points_level), finite[load_idx]), deck_mask=_mask(len(points_level), finite[ring_idx]))
+    masks = dict(load_mask=index_mask(len(points_level), finite[load_idx]), deck_mask=index_mask(len(points_level), finite[ring_idx]))
     if n_load < cfg.min_top_points:
         return LoadClearance("too few load points", n_load=n_load, n_deck=len(deck_pts), **masks)
     under = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m) if load_size_m
@@ -199,7 +204,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
         return LoadClearance("no top face on the load", n_load=n_load, n_deck=len(deck_pts), **masks)
     # the lowest point is the one nearest the deck below it (a rolling deck is not level)
     cand = under.candidates
-    k_low = int(np.argmin(cand[:, 2] - (deck_coef[0] + cand[:, :2] @ deck_coef[1:])))
+    k_low = int(np.argmin(cand[:, 2] - plane_height_at(deck_coef, cand[:, :2])))
     lowest = cand[k_low]
     deck_z, centre = _height_at(deck_coef, lowest[:2]), under.centre
     plane = _as_plane(deck_coef)
@@ -235,7 +240,7 @@ def _hanging(pts: np.ndarray, candidates: np.ndarray, d: np.ndarray, gap_m: floa
     return out
 
 
-def _mask(n: int, idx: np.ndarray) -> np.ndarray:
+def index_mask(n: int, idx: np.ndarray) -> np.ndarray:
     """A mask over a frame's n points, true at idx."""
     m = np.zeros(n, bool)
     m[idx] = True
@@ -275,15 +280,15 @@ def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], 
     length, width, height = size_m
     corners_xy = np.array([c + sx * length / 2 * e1 + sy * width / 2 * e2 for sx in (-1, 1) for sy in (-1, 1)])
     n = _as_plane(coef)[:3]
-    corners = np.column_stack([corners_xy, coef[0] + corners_xy @ coef[1:]]) - height * n
-    resid = top[:, 2] - (coef[0] + top[:, :2] @ coef[1:])
+    corners = np.column_stack([corners_xy, plane_height_at(coef, corners_xy)]) - height * n
+    resid = top[:, 2] - plane_height_at(coef, top[:, :2])
     s_fit = max(float(np.std(resid)), range_noise_m)
 
     def sigma_at(xy: np.ndarray) -> float:  # the face's fit's height there: its offset and its slopes
         q = (xy - mean) @ evecs
         return s_fit * math.sqrt(1.0 / len(top) + float(np.sum(q**2 / np.maximum(evals * (len(top) - 1), 1e-9))))
 
-    return _Underside(corners, np.append(c, coef[0] + c @ coef[1:]) - height * n,
+    return _Underside(corners, np.append(c, plane_height_at(coef, c)) - height * n,
                       np.array([sigma_at(xy) for xy in corners_xy]), sigma_at(c), coef[1:])
 
 

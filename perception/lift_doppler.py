@@ -29,7 +29,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.perception.doppler import DopplerConfig, doppler_velocity
-from boomtip.perception.lift import LoadClearance, rope_line_xy
+from boomtip.perception.lift import LoadClearance, index_mask, plane_height_at, rope_line_xy
 from boomtip.perception.preprocess import PreprocessConfig
 
 __all__ = ["LiftRadarConfig", "ClearanceRate", "measure_clearance_rate", "load_spin"]
@@ -128,7 +128,7 @@ def measure_clearance_rate(points_level: np.ndarray, origin_level: np.ndarray, r
     lowest, centre = fix.lowest_point_m, fix.underside_centre_m
     inner = footprint_radius_m + cfg.load_margin_m
     top = max(lowest[2], centre[2]) + height_m
-    deck_z = fix.deck_plane[0] + pts[:, :2] @ fix.deck_plane[1:]
+    deck_z = plane_height_at(fix.deck_plane, pts[:, :2])
     load = (d <= inner) & (pts[:, 2] >= min(lowest[2], centre[2]) - cfg.load_margin_m)
     load &= (pts[:, 2] <= min(top + cfg.load_margin_m, hook_m[2] - block_height_m)) & (pts[:, 2] >= deck_z + cfg.above_deck_m)
     deck = (d > inner) & (d <= inner + cfg.deck_ring_m) & (np.abs(pts[:, 2] - deck_z) <= cfg.deck_gate_m)
@@ -158,7 +158,7 @@ def measure_clearance_rate(points_level: np.ndarray, origin_level: np.ndarray, r
 
     def closing(point: np.ndarray) -> tuple[float, float]:
         v_load = vz_load + _vertical_at(spin_load, point - seen)
-        below = np.array([point[0], point[1], fix.deck_plane[0] + point[:2] @ slope])  # the deck's point under it
+        below = np.array([point[0], point[1], plane_height_at(fix.deck_plane, point[:2])])  # the deck's point under it
         lever = below - origin_level
         v_deck = u_deck + np.cross(spin_deck, lever)
         v_load_along = hook_velocity_mps[:2] + np.cross(spin_load, point - hook_m)[:2]
@@ -171,18 +171,8 @@ def measure_clearance_rate(points_level: np.ndarray, origin_level: np.ndarray, r
     # which corner is the lowest is itself uncertain when another lies within the fix's sigmas of
     # it: the rate is then any of theirs (the deck's spin and the load's tilting tell them apart)
     rivals = [p for p in fix.candidates_m
-              if _clearance_of(p, fix.deck_plane) <= fix.clearance_m + RIVAL_SIGMAS * fix.sigma_m]
+              if p[2] - plane_height_at(fix.deck_plane, p[:2]) <= fix.clearance_m + RIVAL_SIGMAS * fix.sigma_m]
     spread = max((abs(closing(p)[0] - c_dot) for p in rivals), default=0.0)
     s_c = math.hypot(s_c, spread)
     load_idx, deck_idx = np.flatnonzero(ok)[load][inliers], np.flatnonzero(ok)[deck][deck_fit.inlier_mask]
-    return ClearanceRate(STATUS_OK, c_dot, h_dot, s_c, s_h, n_load, n_deck, _mask(len(ok), load_idx), _mask(len(ok), deck_idx))
-
-
-def _clearance_of(point: np.ndarray, deck_plane: np.ndarray) -> float:
-    return float(point[2] - deck_plane[0] - point[:2] @ deck_plane[1:])
-
-
-def _mask(n: int, idx: np.ndarray) -> np.ndarray:
-    m = np.zeros(n, bool)
-    m[idx] = True
-    return m
+    return ClearanceRate(STATUS_OK, c_dot, h_dot, s_c, s_h, n_load, n_deck, index_mask(len(ok), load_idx), index_mask(len(ok), deck_idx))
