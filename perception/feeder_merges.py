@@ -60,7 +60,7 @@ class BackgroundMerges:
         """A merge is due (FeederModel.collect said so): run it beside the frames, or inline at a lag of 0."""
         if self._pending is not None:  # the next merge is due before the last was taken: take it first
             self._take()
-        frames, poses = self.model.merge_inputs()
+        frames, poses, samples = self.model.merge_inputs()
         n = len(frames)
         lag = self.lags.get(n, 0)
         rec = MergeRecord(n, self.frame, self.frame + lag, 0.0, 0.0, "running")
@@ -68,13 +68,13 @@ class BackgroundMerges:
         if lag == 0:
             future: Future = Future()
             try:
-                future.set_result(_timed(merged_model, frames, poses, self.model.cfg))
+                future.set_result(_timed(merged_model, frames, poses, self.model.cfg, samples))
             except Exception as e:  # noqa: BLE001 - a failed merge leaves the old model (see _take)
                 future.set_exception(e)
         else:
             if self._pool is None:
                 self._pool = self._executor or ThreadPoolExecutor(max_workers=1, thread_name_prefix="feeder-merge")
-            future = self._pool.submit(_timed, merged_model, frames, poses, self.model.cfg)
+            future = self._pool.submit(_timed, merged_model, frames, poses, self.model.cfg, samples)
         self._pending = (future, rec, self.model.keyframes)
         if lag == 0:
             self._take()

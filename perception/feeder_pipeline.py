@@ -187,7 +187,7 @@ class FeederPipeline:
         times = times if times is not None else StageTimes()
         if reg is not None:
             with times.stage("feeder.model"):
-                due = self.model.collect(structure, T_map_level)
+                due = self.model.collect(structure, T_map_level, reg.source_sampled)
             if due:
                 with times.stage("feeder.merges"):  # inline without an executor, else only started
                     self.merges.start()

@@ -133,6 +133,7 @@ class Registration6:
     fitness: float  # fraction of the frame's points matched in the keyframe
     status: str  # "ok" or why there is no registration
     kiss: bool = False  # kiss-icp registered it first (re-acquisition, or its method)
+    source_sampled: np.ndarray | None = None  # the frame as registered (icp_source): its merges register it again
 
 
 def pose_information(points_level: np.ndarray, normals_level: np.ndarray, origin_level: np.ndarray, sigma_m: float) -> np.ndarray:
@@ -179,7 +180,8 @@ def icp_refined(surface: Surface, source_level: np.ndarray, T_guess: np.ndarray,
     return res  # the refinement lost the frame (a non-finite pose, or moved off the model): the wide fit stands
 
 
-def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig) -> list[np.ndarray]:
+def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig,
+                 samples_level: list[np.ndarray | None] | None = None) -> list[np.ndarray]:
     """The frames' poses made consistent with each other: each frame registered to the merged
     cloud of the other half (even frames to the odd ones' and back: a frame in its own model
     matches itself and would not move); the first frame holds the map frame and does not move.
@@ -188,9 +190,13 @@ def align_frames(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], 
     each point's normal spans the edges of bulwarks and coamings, and a frame seen from another
     height matches its points to the wrong side of an edge. The registrations to it are then
     off by a function of the viewpoint (centimetres in y, following the feeder's height);
-    registrations to frames merged from many viewpoints are off by millimetres."""
+    registrations to frames merged from many viewpoints are off by millimetres.
+
+    `samples_level`: each frame as sampled for ICP (icp_source), where known (None: sampled here)."""
+    samples = [s if s is not None else icp_source(f, cfg) for f, s in zip(frames_level, samples_level or [None] * len(frames_level))]
+
     def register(i: int, model: Surface) -> np.ndarray:
-        res = icp_refined(model, icp_source(frames_level[i], cfg), poses[i], cfg)
+        res = icp_refined(model, samples[i], poses[i], cfg)
         ok = np.all(np.isfinite(res.T)) and len(res.source_index) >= cfg.min_points
         return res.T.copy() if ok else poses[i]
 
@@ -234,10 +240,12 @@ class MergedModel:
         self.frames, self.poses, self.cloud, self.surface = state["frames"], state["poses"], cloud, surface_of(cloud)
 
 
-def merged_model(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig) -> MergedModel:
+def merged_model(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig,
+                 samples_level: list[np.ndarray | None] | None = None) -> MergedModel:
     """The frames aligned to each other and merged into a model (a pure function of its
-    inputs: it may run beside the frames, see tools/feeder_merge.py)."""
-    poses = align_frames(frames_level, T_map_level, cfg)
+    inputs: it may run beside the frames, see perception/feeder_merges.py). `samples_level`:
+    the frames as sampled for ICP, where known."""
+    poses = align_frames(frames_level, T_map_level, cfg, samples_level)
     cloud = merged_cloud(frames_level, poses, cfg.model_voxel_m, cfg.normal_neighbours)
     return MergedModel(len(frames_level), poses, cloud, surface_of(cloud))
 
@@ -256,7 +264,8 @@ class FeederModel:
         self.kiss_map = VoxelHashMap(self.cfg.kiss_voxel_m, 1e4, 20)
         self.kiss = Registration(max_num_iterations=100, convergence_criterion=1e-4, max_num_threads=0)
         self.keyframes = 0
-        self.collected: list[tuple[np.ndarray, np.ndarray]] = []  # (frame, level frame; its pose) for the model
+        # (frame, level frame; its pose; the frame as sampled for ICP, None until known) for the model
+        self.collected: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self.merged = False
         self.model_frames = 1  # frames the model was merged from (the first keyframe: one)
 
@@ -284,26 +293,32 @@ class FeederModel:
         self.keyframe_size = 1
         # a new keyframe is a new model: it grows and merges again from this frame (and a
         # registration's x and y wait for it as they did for the first)
-        self.collected = [(source_level, T_map_level)]
+        self.collected = [(source_level, T_map_level, None)]
         self.merged = False
         self.model_frames = 1
 
-    def collect(self, source_level: np.ndarray, T_map_level: np.ndarray) -> bool:
-        """Keep a registered frame for the model; True when it is time to merge."""
+    def collect(self, source_level: np.ndarray, T_map_level: np.ndarray, sample_level: np.ndarray | None = None) -> bool:
+        """Keep a registered frame for the model (`sample_level`: as its registration sampled it,
+        which every merge registers again); True when it is time to merge."""
         if self.merged or not self.cfg.model_merges:
             return False
-        self.collected.append((source_level, T_map_level))
+        self.collected.append((source_level, T_map_level, sample_level))
         return len(self.collected) in self.cfg.model_merges
 
-    def merge_inputs(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """What a merge needs, as of now: the collected frames and their poses (new lists, so
-        that frames collected while the merge runs elsewhere do not enter it)."""
-        return [f for f, _ in self.collected], [T for _, T in self.collected]
+    def merge_inputs(self) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+        """What a merge needs, as of now: the collected frames, their poses and their ICP samples
+        (new lists, so that frames collected while the merge runs elsewhere do not enter it). A
+        frame's sample is made once, here, when its registration did not hand it over."""
+        for i, (f, T, sample) in enumerate(self.collected):
+            if sample is None:
+                self.collected[i] = (f, T, icp_source(f, self.cfg))
+        return [f for f, _, _ in self.collected], [T for _, T, _ in self.collected], [s for _, _, s in self.collected]
 
     def merge(self) -> list[np.ndarray]:
         """The collected frames aligned to each other (the first is the keyframe's and holds
         the map frame) become the model. Returns their poses as aligned."""
-        merged = merged_model(*self.merge_inputs(), self.cfg)
+        frames, poses, samples = self.merge_inputs()
+        merged = merged_model(frames, poses, self.cfg, samples)
         self.apply_merge(merged)
         return merged.poses
 
@@ -315,7 +330,7 @@ class FeederModel:
         self.kiss_map.clear()
         self.kiss_map.add_points(np.asarray(self.keyframe.points))
         # the next merge starts from these poses
-        self.collected = [(f, T) for (f, _), T in zip(self.collected[:n], merged.poses)] + self.collected[n:]
+        self.collected = [(f, T, s) for (f, _, s), T in zip(self.collected[:n], merged.poses)] + self.collected[n:]
         self.model_frames = n
         if n >= max(self.cfg.model_merges):
             self.collected.clear()
@@ -344,6 +359,7 @@ class FeederModel:
             guess = self.kiss.align_points_to_map(source_level, self.kiss_map, T_map_level_guess, dist, dist / 3.0)
             kiss = True
         source_level = icp_source(source_level, cfg)
+        sampled = source_level
         if cfg.method != "point_to_plane":
             guess = self.kiss.align_points_to_map(source_level, self.kiss_map, guess, cfg.kiss_max_correspondence_m, cfg.kiss_kernel_m)
             kiss = True
@@ -357,4 +373,4 @@ class FeederModel:
         T_level_map = inverse(T)
         normals_level = self.surface.normals.take(res.surface_index, axis=0) @ T_level_map[:3, :3].T
         info = pose_information(source_level.take(res.source_index, axis=0), normals_level, T_level_map[:3, 3], cfg.point_sigma_m)
-        return Registration6(T.copy(), info / cfg.info_inflation, n, res.fitness, "ok", kiss)
+        return Registration6(T.copy(), info / cfg.info_inflation, n, res.fitness, "ok", kiss, sampled)
