@@ -100,6 +100,10 @@ class RegistrationConfig(BaseModel):
             raise ValueError(f"model_merges must be ascending frame counts of at least 2, got {list(v)}")
         return v
 
+    merge_max_frames: int = Field(50, ge=2, description="a merge aligns and merges at most this many of the frames collected, "
+                                  "spread evenly over them (the first, which holds the map frame, among them); the others keep "
+                                  "their poses for the next merge. A merge's time goes with the frames it aligns, its gain with "
+                                  "the viewpoints they span, which frames spread over the whole collection keep")
     model_iterations: int = Field(1, ge=1, le=10, description="rounds of aligning the model's frames to each other (a second "
                                   "gains little: each merge starts from the last one's poses)")
     merge_lag_frames: tuple[int, ...] = Field((0,), description="0: each merge runs inline (the default: see below). Else "
@@ -240,13 +244,28 @@ class MergedModel:
         self.frames, self.poses, self.cloud, self.surface = state["frames"], state["poses"], cloud, surface_of(cloud)
 
 
+def merge_choice(frames: int, max_frames: int) -> np.ndarray:
+    """Which of `frames` collected frames a merge aligns: all of them up to `max_frames`, else
+    that many spread evenly from the first (which holds the map frame) to the last."""
+    if frames <= max_frames:
+        return np.arange(frames)
+    return np.unique(np.round(np.linspace(0.0, frames - 1.0, max_frames)).astype(np.int64))
+
+
 def merged_model(frames_level: list[np.ndarray], T_map_level: list[np.ndarray], cfg: RegistrationConfig,
                  samples_level: list[np.ndarray | None] | None = None) -> MergedModel:
-    """The frames aligned to each other and merged into a model (a pure function of its
-    inputs: it may run beside the frames, see perception/feeder_merges.py). `samples_level`:
-    the frames as sampled for ICP, where known."""
-    poses = align_frames(frames_level, T_map_level, cfg, samples_level)
-    cloud = merged_cloud(frames_level, poses, cfg.model_voxel_m, cfg.normal_neighbours)
+    """The frames (at most `cfg.merge_max_frames` of them, merge_choice) aligned to each other
+    and merged into a model (a pure function of its inputs: it may run beside the frames, see
+    perception/feeder_merges.py); the frames not chosen keep their poses. `samples_level`: the
+    frames as sampled for ICP, where known."""
+    chosen = merge_choice(len(frames_level), cfg.merge_max_frames)
+    samples = samples_level or [None] * len(frames_level)
+    aligned = align_frames([frames_level[i] for i in chosen], [T_map_level[i] for i in chosen], cfg,
+                           [samples[i] for i in chosen])
+    cloud = merged_cloud([frames_level[i] for i in chosen], aligned, cfg.model_voxel_m, cfg.normal_neighbours)
+    poses = list(T_map_level)
+    for i, T in zip(chosen, aligned):
+        poses[i] = T
     return MergedModel(len(frames_level), poses, cloud, surface_of(cloud))
 
 
