@@ -5,13 +5,13 @@ through this protocol:
 
     for frame in chain.frames(source): viz.log_frame(chain.process(frame))
     result = chain.finish(); chain.outputs(out, result); chain.kpis(result, truth, windows)
-    chain.report(out, kpis, result, truth); chain.visualise_result(viz, result, truth)
+    chain.report(out, kpis, result, truth, pictures); chain.visualise_result(viz, result, truth)
 
 A chain may also split `process` into `perceive(frame)` (per-frame perception that may run
 ahead in another process; `without_clouds(perceived)` what crosses back when no cloud is
 wanted) and `fuse(perceived)` (in order, here); score how bad a frame's detection is with
-`frame_score(output, truth)`; and draw the pictured frames' detections at the end with
-`picture(out, pictures, result)` (tools/chains/pictures.py).
+`frame_score(output, truth)`, and its report then draws the pictured frames' detections
+(`pictures`, tools/chains/pictures.py).
 """
 
 from __future__ import annotations
@@ -77,8 +77,9 @@ class Chain(Protocol):
         """kpis.json's blocks: what was estimated and, with truth, how well."""
         ...
 
-    def report(self, out: Path, kpis: dict, result: Any, truth: Truth | None) -> list[str]:
-        """report.md and plots in `out`; their names."""
+    def report(self, out: Path, kpis: dict, result: Any, truth: Truth | None, pictures: Any = None) -> list[str]:
+        """report.md and plots in `out` (with the detections of the frames `pictures` chose, when
+        the chain draws them); their names."""
         ...
 
     def visualiser(self, path: Path, source: FrameSource) -> Visualiser:

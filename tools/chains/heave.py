@@ -27,6 +27,7 @@ from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeaveP
 from boomtip.tools.chains.chain import ChainError
 from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.resources import RunResources
+from boomtip.tools.report.plots import PLOTS_DIR, link_in_report
 from boomtip.tools.report.kpis import WARMUP_S, estimated_kpis, measurement_kpis, solution_kpis, truth_amplitudes
 
 MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", "sigma")
@@ -186,7 +187,16 @@ class HeaveChain:
                 f"t = {fused['first_lost_t_s']:.2f} s ({fused['first_lost_reason']}); estimates.csv leaves their D empty and says why"))
         return kpis
 
-    def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:
+    def report(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None,
+               pictures: FramePictures | None = None) -> list[str]:
+        written = self.report_text(out, kpis, result, truth)
+        if pictures is not None:
+            link_in_report(out, "Detections", self.detections_plot(out, pictures, result))
+            written += [w for w in [PLOTS_DIR] if w not in written]
+        return written
+
+    def report_text(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:
+        """report.md and its plots, without the pictured frames."""
         if truth is None:
             from boomtip.tools.report.estimates import write_estimates_report
 
@@ -199,18 +209,13 @@ class HeaveChain:
         write_report(out, kpis, result.estimates, truth, result.rows)
         return ["report.md", "plots"]
 
-    def picture(self, out: Path, pictures: FramePictures, result: HeaveResult,
-                as_frame_result: Callable[[object], FrameResult] = lambda output: output) -> list[str]:
-        """plots/detections.png (the pictured LiDAR frames' detections, every method's status), linked from report.md."""
+    def detections_plot(self, out: Path, pictures: FramePictures, result: HeaveResult,
+                        as_frame_result: Callable[[object], FrameResult] = lambda output: output) -> Path:
+        """plots/detections.png: the pictured LiDAR frames' detections, every method's status."""
         from boomtip.tools.report.detections import write_detections
-        from boomtip.tools.report.plots import PLOTS_DIR, plot_link
 
         frames = [(p.output, p.why) for p in pictures.frames(as_frame_result)]
-        path = write_detections(out, frames, result.rows, self.pipeline.p_tip["lidar"])
-        if (out / "report.md").exists():
-            with open(out / "report.md", "a", encoding="utf-8") as fh:
-                fh.write(f"\n## Detections\n\n{plot_link(path)}\n")
-        return [PLOTS_DIR]
+        return write_detections(out, frames, result.rows, self.pipeline.p_tip["lidar"])
 
     def visualiser(self, path: Path, source: FrameSource):
         from boomtip.tools.report.recording.heave import RerunLogger

@@ -238,7 +238,15 @@ class HookChain:
             warnings += flagged_notes(block, name)
         return {"hook": hook, "consistency": consistency, **({"warnings": warnings} if warnings else {})}
 
-    def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
+    def report(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None,
+               pictures: FramePictures | None = None) -> list[str]:
+        written = self.report_text(out, kpis, result, truth)
+        if pictures is not None:
+            written += [w for w in self.picture(out, pictures, result) if w not in written]
+        return written
+
+    def report_text(self, out: Path, kpis: dict, result: HookResult, truth: Truth | None) -> list[str]:
+        """report.md and its plots, without the pictured frames."""
         if not result.runs:  # the CSVs and kpis.json say what was measured
             return []
         if truth is None:
@@ -270,15 +278,13 @@ class HookChain:
     def picture(self, out: Path, pictures: FramePictures, result: HookResult) -> list[str]:
         """plots/detections.png (the pictured frames' detections, the block and rope fits' status), linked from report.md."""
         from boomtip.tools.report.hook_detections import statuses, write_hook_detections
-        from boomtip.tools.report.plots import PLOTS_DIR, plot_link
+        from boomtip.tools.report.plots import PLOTS_DIR, link_in_report
 
         rows = result.rows
         frames = [(p.output, p.why) for p in pictures.frames()]
         path = write_hook_detections(out, frames, statuses(rows["t"], rows["status"], rows["rope_status"]),
                                      self.pipeline.cfg.block_height_m)
-        if (out / "report.md").exists():
-            with open(out / "report.md", "a", encoding="utf-8") as fh:
-                fh.write(f"\n## Detections\n\n{plot_link(path)}\n")
+        link_in_report(out, "Detections", path)
         return [PLOTS_DIR]
 
     def visualiser(self, path: Path, source: FrameSource):

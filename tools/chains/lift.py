@@ -170,8 +170,8 @@ class LiftChain:
             k["warnings"] = k.get("warnings", []) + notes
         return k
 
-    def report(self, out: Path, kpis: dict, result: LiftResult, truth: Truth | None) -> list[str]:
-        names = self.hook.report(out, kpis, result.hook, outputs.until_touchdown(truth))
+    def report(self, out: Path, kpis: dict, result: LiftResult, truth: Truth | None, pictures=None) -> list[str]:
+        names = self.hook.report_text(out, kpis, result.hook, outputs.until_touchdown(truth))
         return sorted(set(names) | set(outputs.write_lift_report(out, kpis["lift"], result, truth)))
 
     def visualiser(self, path: Path, source: FrameSource):

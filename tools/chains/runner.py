@@ -157,9 +157,7 @@ def run_into(source: FrameSource, staging: Path, processing: Processing | None =
     write_json(staging / "settings.json", settings_record(source, processing, record))
     written += ["kpis.json", "settings.json"]
     if report:
-        written += chain.report(staging, kpis, result, source.truth)
-        if hasattr(chain, "picture"):  # a chain that draws one frame's detections
-            written += [w for w in chain.picture(staging, pictures, result) if w not in written]
+        written += [w for w in chain.report(staging, kpis, result, source.truth, pictures) if w not in written]
     chain.visualise_result(viz, result, source.truth)
     viz.close()
     if rerun:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["legend", "PLOTS_DIR", "plot_path", "plot_link", "TRUTH_STYLE", "save"]
+__all__ = ["legend", "PLOTS_DIR", "plot_path", "plot_link", "link_in_report", "TRUTH_STYLE", "save"]
 
 PLOTS_DIR = "plots"
 # dashed and on top: an estimate that follows the truth closely shows through its gaps
@@ -34,6 +34,14 @@ def plot_path(out: Path, name: str) -> Path:
 def plot_link(path: Path) -> str:
     """The Markdown image of a plot, relative to the report beside the plots folder."""
     return f"![{path.stem}]({PLOTS_DIR}/{path.name})"
+
+
+def link_in_report(out: Path, title: str, path: Path) -> None:
+    """A section `title` showing the plot at `path`, appended to OUT/report.md when there is one."""
+    report = Path(out) / "report.md"
+    if report.exists():
+        with open(report, "a", encoding="utf-8") as fh:
+            fh.write(f"\n## {title}\n\n{plot_link(path)}\n")
 
 
 def save(fig, path: Path) -> Path:
