@@ -38,7 +38,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
-from boomtip.perception.point_to_plane import Surface, cross_rows, icp_point_to_plane
+from boomtip.perception.point_to_plane import Correspondences, Surface, cross_rows, icp_point_to_plane
 
 
 def _o3d():
@@ -176,9 +176,12 @@ def icp_source(source_level: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
 def icp_refined(surface: Surface, source_level: np.ndarray, T_guess: np.ndarray, cfg: RegistrationConfig):
     """ICP with the wide kernel (it converges from a pose centimetres off), then refined with
     the merge's narrow one (without the near-miss correspondences)."""
-    res = icp_point_to_plane(surface, source_level, T_guess, cfg.max_correspondence_m, cfg.tukey_m, cfg.relative_change, cfg.max_iterations)
+    matcher = Correspondences(surface, source_level, cfg.max_correspondence_m)  # shared: the refinement starts where this ends
+    res = icp_point_to_plane(surface, source_level, T_guess, cfg.max_correspondence_m, cfg.tukey_m, cfg.relative_change,
+                             cfg.max_iterations, matcher)
     if cfg.merge_tukey_m > 0 and np.all(np.isfinite(res.T)):
-        fine = icp_point_to_plane(surface, source_level, res.T, cfg.max_correspondence_m, cfg.merge_tukey_m, cfg.relative_change, cfg.max_iterations)
+        fine = icp_point_to_plane(surface, source_level, res.T, cfg.max_correspondence_m, cfg.merge_tukey_m, cfg.relative_change,
+                                  cfg.max_iterations, matcher)
         if np.all(np.isfinite(fine.T)) and len(fine.source_index) >= min(cfg.min_points, len(res.source_index)):
             return fine
     return res  # the refinement lost the frame (a non-finite pose, or moved off the model): the wide fit stands

@@ -77,7 +77,7 @@ class Surface:
         return idx[:, 0].astype(np.int64), d[:, 0], gap
 
 
-class _Correspondences:
+class Correspondences:
     """The nearest surface point of each source point as the pose changes, queried again only
     for the points that may have changed it: moved by half the gap between their nearest and
     second-nearest distances (with a margin for rounding) since they were last queried."""
@@ -148,7 +148,7 @@ def cross_rows(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     out[:, 2] -= a1 * b0
 
 
-def _matches(matcher: _Correspondences, source: np.ndarray, T: np.ndarray):
+def _matches(matcher: Correspondences, source: np.ndarray, T: np.ndarray):
     moved = source @ T[:3, :3].T
     moved += T[:3, 3]
     src_i, srf_i, d2 = matcher.at(moved)
@@ -158,10 +158,14 @@ def _matches(matcher: _Correspondences, source: np.ndarray, T: np.ndarray):
 
 
 def icp_point_to_plane(surface: Surface, source: np.ndarray, T_guess: np.ndarray, max_correspondence_m: float,
-                       tukey_m: float, relative_change: float, max_iterations: int) -> IcpResult:
-    """Register source points (their own frame) to the surface from T_guess (source -> surface)."""
+                       tukey_m: float, relative_change: float, max_iterations: int,
+                       matcher: Correspondences | None = None) -> IcpResult:
+    """Register source points (their own frame) to the surface from T_guess (source -> surface).
+    `matcher`: the correspondences of an ICP of the same source to the same surface within the
+    same distance that ran before (a refinement from its pose re-queries only the points that
+    may have changed their nearest)."""
     T = np.array(T_guess, dtype=np.float64)
-    matcher = _Correspondences(surface, source, max_correspondence_m)
+    matcher = matcher if matcher is not None else Correspondences(surface, source, max_correspondence_m)
     moved, src_i, srf_i, fitness, rmse = _matches(matcher, source, T)
     it = 0
     while it < max_iterations and len(src_i) >= 6:

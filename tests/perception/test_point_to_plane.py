@@ -4,7 +4,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from boomtip.perception.point_to_plane import Surface, _Correspondences, icp_point_to_plane, rotation_zyx
+from boomtip.perception.point_to_plane import Surface, Correspondences, icp_point_to_plane, rotation_zyx
 
 
 def _structure(rng: np.random.Generator) -> np.ndarray:
@@ -90,7 +90,7 @@ def test_tracked_correspondences_are_a_full_querys(scene):
     model, src, _ = scene
     surface = Surface(np.asarray(model.points), np.asarray(model.normals))
     source = src[::3]
-    tracked = _Correspondences(surface, source, 1.0)
+    tracked = Correspondences(surface, source, 1.0)
     queried = []
     full_query = surface.nearest_two
     surface.nearest_two = lambda q: (queried.append(len(q)), full_query(q))[1]
@@ -115,7 +115,7 @@ def test_tracked_correspondences_skip_non_finite_rows(scene):
     model, src, _ = scene
     surface = Surface(np.asarray(model.points), np.asarray(model.normals))
     source = src[:50].copy()
-    tracked = _Correspondences(surface, source, 1.0)
+    tracked = Correspondences(surface, source, 1.0)
     moved = source.copy()
     moved[[3, 7]] = np.nan
     src_i, _, _ = tracked.at(moved)
