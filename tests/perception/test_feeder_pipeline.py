@@ -246,6 +246,23 @@ def test_failures_are_counted_missing_and_a_new_keyframe_taken_after_rekey_after
     assert pipe.failed_registrations == 0
 
 
+def test_a_frame_is_registered_once_the_last_registration_is_register_min_interval_s_old():
+    """At 20 Hz every other frame (the filter takes registrations closer than 0.1 s as sharing
+    their errors); a failure leaves the next frame due; every frame while there is no model."""
+    pipe = synthetic_pipeline(register_min_interval_s=0.075)
+    assert pipe.registration_due(0.0) and pipe.registration_due(0.01)  # no model yet
+    pipe.register(lidar_obs(0.0), structure(0), T_MAP_LEVEL, 0.01)  # the keyframe
+    assert not pipe.registration_due(0.05) and pipe.registration_due(0.1)
+    assert pipe.register(lidar_obs(0.1), structure(1), T_MAP_LEVEL, 0.01) is not None
+    assert not pipe.registration_due(0.15) and pipe.registration_due(0.18)
+    assert pipe.register(lidar_obs(0.2), structure(1)[:30], T_MAP_LEVEL, 0.01) is None  # failed: too few points
+    assert pipe.registration_due(0.25)  # the last success is 0.15 s old
+    obs = lidar_obs(0.25, structure(2), pipe)
+    pipe.pass_frame(obs)  # not registered: what its registration needs is let go
+    assert obs.static_keys is None and obs.sample_returns_sensor is None
+    assert synthetic_pipeline(register_min_interval_s=0.0).registration_due(0.0)
+
+
 @pytest.mark.parametrize("xy_after, merges, expected", [(50, (20, 50, 100, 200), 50), (300, (20, 200), 200), (50, (), 1)])
 def test_a_young_model_until_merged_from_register_xy_after_frames(xy_after, merges, expected):
     pipe = synthetic_pipeline(register_xy_after_frames=xy_after, registration=RegistrationConfig(model_merges=merges))

@@ -145,6 +145,10 @@ class ShipChain:
             if est.started:  # a frame without a deck: its structure has nothing to stand on
                 est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
             return
+        if not pipe.registration_due(obs.t_s):
+            pipe.pass_frame(obs)
+            est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
+            return
         T_map_level = est.map_pose()
         structure = pipe.structure(obs, T_map_level, est.deck_plane(), times)
         reg = pipe.register(obs, structure, T_map_level, est.registration_sigma_m(), times)
