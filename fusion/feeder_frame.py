@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
 from boomtip.fusion.models.relative_motion import rotation
-from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
+from boomtip.data.poses import inverse, pose_matrix, transform
 
 UPDATE_EVERY_S = 1.0  # the causal definition is recomputed this often (and at the last row)
 
@@ -121,24 +121,29 @@ def estimates_in_feeder_frame(xs: list[np.ndarray], Ps: list[np.ndarray], tips: 
                               frame: FeederFrameEstimate, sigma_level: float,
                               mru_bias_sigma_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(T, 6) poses, (T, 6) rates and (T, 12) variances of the filter's recorded states xs, Ps
-    (FeederEstimates); tips and pivots: the tip's velocity and the LiDAR's position at each."""
+    (FeederEstimates); tips and pivots: the tip's velocity and the LiDAR's position at each.
+    Every row at once."""
+    if len(xs) == 0:
+        return np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12))
     # The levelling's own uncertainty. Corrected about the LiDAR, a tilt moves the deck below it
     # sideways by its lever. The MRU's bias tilts the same sensor-to-level rotation as a mount
     # error and is calibrated with it; what it moves besides is the tip about the vessel's
     # origin, which the estimate (relative to the tip) sees only in z, by the horizontal offset.
     s_lvl, s_rz = frame.sigmas(sigma_level)
-    C, T_map_feeder, line_sigma = frame.C, frame.T_map_feeder, frame.line_sigma_rad
-    pose, rates, var = [], [], []
-    for x, P, tip, pivot in zip(xs, Ps, tips, pivots):
-        x = relative_to_tip(x, tip)
-        y, J = _feeder_pose_jacobian(x[:6], C, pivot, T_map_feeder)
-        lever = float(np.linalg.norm(y[:3] - pivot))
-        extra = np.array([(lever * s_lvl) ** 2] * 2 + [(float(np.hypot(y[0], y[1])) * mru_bias_sigma_rad) ** 2,
-                                                      s_lvl ** 2, s_lvl ** 2, line_sigma ** 2 + s_rz ** 2])
-        pose.append(y)
-        rates.append(J @ x[6:12])
-        var.append(np.concatenate([np.diag(J @ P[:6, :6] @ J.T) + extra, np.diag(J @ P[6:12, 6:12] @ J.T)]))
-    return np.array(pose), np.array(rates), np.array(var)
+    x = np.array([np.asarray(v, float)[:12] for v in xs])
+    x[:, 6:9] -= np.asarray(tips, float)  # the state's rates are the vessel's: relative to the tip
+    pivot = np.asarray(pivots, float)
+    P = np.asarray(Ps, float)
+    y, J = feeder_pose_jacobians(x[:, :6], frame.C, pivot, frame.T_map_feeder)
+    lever = np.linalg.norm(y[:, :3] - pivot, axis=1)
+    extra = np.column_stack([(lever * s_lvl) ** 2, (lever * s_lvl) ** 2, (np.hypot(y[:, 0], y[:, 1]) * mru_bias_sigma_rad) ** 2,
+                             np.full(len(y), s_lvl ** 2), np.full(len(y), s_lvl ** 2),
+                             np.full(len(y), frame.line_sigma_rad ** 2 + s_rz ** 2)])
+    # diag(J P J^T) row by row: sum over k, l of J_ik P_kl J_il
+    var_pose = np.einsum("nik,nkl,nil->ni", J, P[:, :6, :6], J) + extra
+    var_rates = np.einsum("nik,nkl,nil->ni", J, P[:, 6:12, 6:12], J)
+    rates = np.einsum("nij,nj->ni", J, x[:, 6:12])
+    return y, rates, np.concatenate([var_pose, var_rates], axis=1)
 
 
 def online_estimates(xs: list[np.ndarray], Ps: list[np.ndarray], tips: list[np.ndarray], pivots: list[np.ndarray],
@@ -199,33 +204,39 @@ def _runs(labels: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
-def relative_to_tip(x: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
-    """Pose and rates relative to the tip: the state's rates are relative to the vessel."""
-    out = np.array(x[:12], dtype=float)
-    out[6:9] -= tip_velocity
-    return out
+JACOBIAN_STEP = 1e-6  # central differences' step in the map's pose (m, rad)
 
 
-def _feeder_pose_jacobian(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray,
+def feeder_pose_jacobians(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray,
                           T_map_feeder: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The feeder frame's pose and its Jacobian (6x6, central differences) w.r.t. the map's."""
-    y = _feeder_pose(pose_map_level, C, pivot, T_map_feeder)
-    J = np.zeros((6, 6))
-    for j in range(6):
-        e = np.zeros(6)
-        e[j] = 1e-6
-        d = _feeder_pose(pose_map_level + e, C, pivot, T_map_feeder) - _feeder_pose(pose_map_level - e, C, pivot, T_map_feeder)
-        d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi
-        J[:, j] = d / 2e-6
-    return y, J
+    """The feeder frame's poses (N, 6) and their Jacobians (N, 6, 6, central differences)
+    w.r.t. the map's poses (N, 6); pivot: the LiDAR's position at each (N, 3)."""
+    n = len(pose_map_level)
+    steps = JACOBIAN_STEP * np.eye(6)
+    # each row, then each row stepped up and down along each axis: one batch of 13 N poses
+    batch = np.concatenate([pose_map_level[:, None, :], pose_map_level[:, None, :] + steps, pose_map_level[:, None, :] - steps], axis=1)
+    y = feeder_poses(batch.reshape(-1, 6), C, np.repeat(pivot, 13, axis=0), T_map_feeder).reshape(n, 13, 6)
+    d = y[:, 1:7] - y[:, 7:13]  # (N, step axis j, output i)
+    d[..., 3:] = (d[..., 3:] + np.pi) % (2 * np.pi) - np.pi
+    return y[:, 0], np.swapaxes(d, 1, 2) / (2 * JACOBIAN_STEP)
 
 
-def _feeder_pose(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray, T_map_feeder: np.ndarray) -> np.ndarray:
-    """The feeder frame's pose in the corrected heading frame: the map's pose in the level
-    frame, turned by the levelling correction about the LiDAR, composed with the feeder
-    frame's place in the map."""
-    T = pose_matrix(*pose_map_level) @ T_map_feeder
-    Tc = np.eye(4)
-    Tc[:3, :3] = C
-    Tc[:3, 3] = pivot - C @ pivot
-    return pose_vector(Tc @ T)
+def feeder_poses(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray, T_map_feeder: np.ndarray) -> np.ndarray:
+    """The feeder frame's poses (N, 6) in the corrected heading frame: the map's poses in the
+    level frame (N, 6), turned by the levelling correction C about the LiDAR (pivot, (N, 3)),
+    composed with the feeder frame's place in the map."""
+    R = rpy_matrices(pose_map_level[:, 3:])
+    R_out = C @ R @ T_map_feeder[:3, :3]  # (N, 3, 3)
+    t_map = np.einsum("nij,j->ni", R, T_map_feeder[:3, 3]) + pose_map_level[:, :3]
+    t_out = t_map @ C.T + pivot - pivot @ C.T
+    return np.column_stack([t_out, np.arctan2(R_out[:, 2, 1], R_out[:, 2, 2]),
+                            -np.arcsin(np.clip(R_out[:, 2, 0], -1.0, 1.0)), np.arctan2(R_out[:, 1, 0], R_out[:, 0, 0])])
+
+
+def rpy_matrices(rpy_rad: np.ndarray) -> np.ndarray:
+    """(N, 3, 3): R = Rz(yaw) Ry(pitch) Rx(roll) of each row of (N, 3)."""
+    cr, cp, cy = np.cos(rpy_rad).T
+    sr, sp, sy = np.sin(rpy_rad).T
+    return np.stack([np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
+                     np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
+                     np.stack([-sp, cp * sr, cp * cr], axis=-1)], axis=-2)

@@ -9,10 +9,12 @@ import math
 import numpy as np
 import pytest
 from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
-from boomtip.data.poses import pose_matrix
+from boomtip.data.poses import pose_matrix, pose_vector
 from boomtip.fusion.feeder_frame import (
     FrameData,
     estimates_in_feeder_frame,
+    feeder_pose_jacobians,
+    feeder_poses,
     frame_at,
     frame_history,
     online_estimates,
@@ -109,3 +111,26 @@ def test_each_online_row_is_in_the_definition_of_its_own_time():
     assert s_roll[-1] < 0.3 * SURVEY
     expected = np.array(s_roll)[np.searchsorted(t_up, t_rows, side="right") - 1] ** 2
     assert np.allclose(var[:, 3], expected, rtol=1e-4) and np.all(var[t_rows < 30.0, 3] >= SURVEY ** 2)
+
+
+def test_the_feeder_poses_of_many_rows_are_each_rows_transforms_composed_and_their_jacobians_its_derivatives():
+    """Row by row: the correction C about the pivot, after the map's pose, after the feeder
+    frame's place in the map (4x4s composed); the Jacobian against a one-sided difference."""
+    rng = np.random.default_rng(5)
+    poses = np.column_stack([rng.normal(0, 20, (40, 3)), rng.normal(0, 0.05, (40, 2)), rng.uniform(-3, 3, 40)])
+    pivots = rng.normal(0, 5, (40, 3))
+    C, T_mf = correction(Tilt(0.001, -0.0007, 1e-4, 30.0, 0.002)), pose_matrix(1.0, -2.0, 0.3, 0.0, 0.0, 0.4)
+    y = feeder_poses(poses, C, pivots, T_mf)
+    for row, pivot, got in zip(poses, pivots, y):
+        Tc = np.eye(4)
+        Tc[:3, :3], Tc[:3, 3] = C, pivot - C @ pivot
+        assert got == pytest.approx(pose_vector(Tc @ pose_matrix(*row) @ T_mf), abs=1e-12)
+    y0, J = feeder_pose_jacobians(poses, C, pivots, T_mf)
+    assert np.array_equal(y0, y) and J.shape == (40, 6, 6)
+    step = 1e-5
+    for j in range(6):
+        moved = poses.copy()
+        moved[:, j] += step
+        d = feeder_poses(moved, C, pivots, T_mf) - y
+        d[:, 3:] = (d[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+        assert np.allclose(J[:, :, j], d / step, rtol=0, atol=2e-4)  # the one-sided difference's own error
