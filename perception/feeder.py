@@ -65,7 +65,7 @@ class PlaneLevel:
 @dataclass
 class LidarObservation:
     t_s: float
-    sample_sensor: np.ndarray  # the frame sampled (sensor frame), masked and levelled when registered
+    sample_sensor: np.ndarray  # the frame sampled (sensor frame), masked and levelled when registered (empty when not)
     R_level_sensor: np.ndarray
     t_level_sensor: np.ndarray  # the sensor's position in the level frame
     plane: PlaneLevel | None
@@ -79,6 +79,7 @@ class LidarObservation:
     static_mask: np.ndarray | None = None  # which of those returns are static, as the test said when the frame was handed over
     spin: DeckSpin | None = None  # the deck plane and its rates from the returns' times, when they span the sweep
     noise: AttitudeNoise | None = None  # the attitude's noise as the frame was levelled
+    to_register: bool = True  # its structure is registered (else only its deck plane is fused: the pipeline's cadence)
 
 
 @dataclass

@@ -56,10 +56,10 @@ class FeederPipelineConfig(BaseModel):
                                           "viewpoints they are biased")
     rekey_after_failures: int = Field(20, ge=1, description="registrations failed in a row before a new keyframe is taken")
     register_min_interval_s: float = Field(0.075, ge=0, description="a LiDAR frame's structure is registered when the last "
-                                           "registration is at least this old (every frame at 10 Hz, every other at 20 Hz): the "
-                                           "filter takes registrations closer than its error correlation time (0.1 s) as sharing "
-                                           "their errors, so more frequent ones cost their time for no information; the deck "
-                                           "plane of every frame is fused (0: every frame registered)")
+                                           "frame registered is at least this much older (every frame at 10 Hz, every other at "
+                                           "20 Hz): the filter takes registrations closer than its error correlation time (0.1 s) "
+                                           "as sharing their errors, so more frequent ones cost their time for no information; "
+                                           "the deck plane of every frame is fused (0: every frame registered)")
     centre_line_every: int = Field(5, ge=1, description="the hull edge is looked for every this many LiDAR frames")
     hull_edge_min_points: int = Field(200, ge=10, description="the own hull's edge among the static returns counts with this "
                                       "many points on it (the calibration's rotation about the vertical)")
@@ -97,7 +97,7 @@ class FeederPipeline:
         self.lines: list[tuple[float, int]] = []  # the centre line's yaw in the map frame, every few frames
         self.hull_yaws: list[float] = []  # the own hull's edge in the level frame, every few frames
         self.lidar_frames = 0
-        self.last_registration_s = -math.inf  # the last frame registered (or taken as a keyframe)
+        self.last_registered_s = -math.inf  # the last LiDAR frame whose structure is to be registered
         self.missing: list[tuple[float, str, str]] = []  # (t, sensor, why)
 
     # -- per frame -----------------------------------------------------------------------
@@ -113,6 +113,7 @@ class FeederPipeline:
                                         heave.deck_lidar if heave is not None else None, frame.fields.get("t"), att.noise)
             with times.stage("feeder.static_count"):
                 obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
+            obs.to_register = self.registration_due(frame.t_s)
             if obs.plane is None:
                 self.missing.append((obs.t_s, "lidar", obs.status))
             # the feeder's time per LiDAR frame: this, the fusion's, and the deck stage it reuses
@@ -130,7 +131,10 @@ class FeederPipeline:
         what the fusion of these frames uses, so that the fusion may run apart from the test."""
         out, self.queue = self.queue, []
         for obs in out:
-            if isinstance(obs, LidarObservation):
+            if isinstance(obs, LidarObservation) and not obs.to_register:  # only its deck is fused: its returns let go
+                obs.static_keys = obs.sample_returns_sensor = None
+                obs.sample_sensor = np.zeros((0, 3))
+            elif isinstance(obs, LidarObservation):
                 times = StageTimes()
                 with times.stage("feeder.static_mask"):
                     obs.static_mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
@@ -162,13 +166,13 @@ class FeederPipeline:
         return obs.static_mask
 
     def registration_due(self, t_s: float) -> bool:
-        """Whether the LiDAR frame at t_s is to be registered (`register_min_interval_s`): always
-        while there is no model, or since the last registration failed."""
-        return self.model.empty or t_s - self.last_registration_s >= self.cfg.register_min_interval_s
-
-    def pass_frame(self, obs: LidarObservation) -> None:
-        """A LiDAR frame not registered (registration_due): what its registration would have needed is let go."""
-        obs.static_keys = obs.static_mask = obs.sample_returns_sensor = None
+        """Whether the LiDAR frame at t_s is to be registered (`register_min_interval_s` after the
+        last one that was): decided from the frames' times alone, where the frame is perceived,
+        so that a frame not registered costs no static test either."""
+        if t_s - self.last_registered_s < self.cfg.register_min_interval_s:
+            return False
+        self.last_registered_s = t_s
+        return True
 
     def register(self, obs: LidarObservation, structure: np.ndarray, T_map_level_guess: np.ndarray,
                  prior_sigma_m: float, times: StageTimes | None = None) -> Registration6 | None:
@@ -179,7 +183,6 @@ class FeederPipeline:
             if len(structure) >= self.model.cfg.min_points:  # a keyframe with too little to register to is no model
                 self.model.set_keyframe(structure, T_map_level_guess)
                 self.failed_registrations = 0
-                self.last_registration_s = obs.t_s
             return None
         with (times or StageTimes()).stage("feeder.registration"):
             reg = self.model.register(structure, T_map_level_guess, prior_sigma_m)
@@ -187,7 +190,6 @@ class FeederPipeline:
             self.failed_registrations += 1
             self.missing.append((obs.t_s, "lidar", f"registration: {reg.status}"))
             return None
-        self.last_registration_s = obs.t_s
         return reg
 
     @property

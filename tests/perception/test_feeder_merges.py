@@ -57,9 +57,10 @@ def test_a_merge_runs_beside_the_frames_and_is_taken_at_its_frame_waiting_for_it
     assert model.surface is not surface_before and model.model_frames == 4 and not model.merged
     assert len(model.collected) == 5 and model.collected[4][1][0, 3] == 0.123  # the frame collected meanwhile
     # the poses are those the same merge gives inline, to the bit, and within 2 mm of where they were
-    inline = real(*snapshot, model.cfg).poses
-    assert all(np.array_equal(T, A) for (_, T), A in zip(model.collected[:4], inline))
-    assert max(np.abs(T - np.eye(4)).max() for _, T in model.collected[:4]) < 2e-3
+    frames, poses, samples = snapshot
+    inline = real(frames, poses, model.cfg, samples).poses
+    assert all(np.array_equal(T, A) for (_, T, _), A in zip(model.collected[:4], inline))
+    assert max(np.abs(T - np.eye(4)).max() for _, T, _ in model.collected[:4]) < 2e-3
     merges.close()
 
 

@@ -246,21 +246,28 @@ def test_failures_are_counted_missing_and_a_new_keyframe_taken_after_rekey_after
     assert pipe.failed_registrations == 0
 
 
-def test_a_frame_is_registered_once_the_last_registration_is_register_min_interval_s_old():
+def test_a_frame_is_registered_once_the_last_registered_frame_is_register_min_interval_s_older(run):
     """At 20 Hz every other frame (the filter takes registrations closer than 0.1 s as sharing
-    their errors); a failure leaves the next frame due; every frame while there is no model."""
+    their errors), decided from the frames' times where they are perceived; a frame not to be
+    registered gets no static test and hands over no returns, its deck plane still does."""
     pipe = synthetic_pipeline(register_min_interval_s=0.075)
-    assert pipe.registration_due(0.0) and pipe.registration_due(0.01)  # no model yet
-    pipe.register(lidar_obs(0.0), structure(0), T_MAP_LEVEL, 0.01)  # the keyframe
-    assert not pipe.registration_due(0.05) and pipe.registration_due(0.1)
-    assert pipe.register(lidar_obs(0.1), structure(1), T_MAP_LEVEL, 0.01) is not None
-    assert not pipe.registration_due(0.15) and pipe.registration_due(0.18)
-    assert pipe.register(lidar_obs(0.2), structure(1)[:30], T_MAP_LEVEL, 0.01) is None  # failed: too few points
-    assert pipe.registration_due(0.25)  # the last success is 0.15 s old
-    obs = lidar_obs(0.25, structure(2), pipe)
-    pipe.pass_frame(obs)  # not registered: what its registration needs is let go
-    assert obs.static_keys is None and obs.sample_returns_sensor is None
-    assert synthetic_pipeline(register_min_interval_s=0.0).registration_due(0.0)
+    due = [pipe.registration_due(t) for t in (0.0, 0.05, 0.1, 0.15, 0.18, 0.2, 0.26)]
+    assert due == [True, False, True, False, True, False, True]
+    assert all(synthetic_pipeline(register_min_interval_s=0.0).registration_due(t) for t in (0.0, 0.0, 0.01))
+
+    sim, frames = run
+    inst = sim.meta.installation
+    heave = HeavePipeline(inst, sim.mru, PipelineConfig(), seed=0)
+    cfg = config(register_min_interval_s=0.15)
+    pipe = FeederPipeline(inst, cfg, FeederPerception(inst, cfg.perception), seed=0, heave=heave)
+    obs = []
+    for frame in frames:
+        obs += pipe.observe(frame, heave.process(frame), measured(sim, pipe, frame))
+    lidar = [o for o in obs if isinstance(o, LidarObservation)]
+    registered = [o for o in lidar if o.to_register]
+    assert len(lidar) >= 15 and 0.45 * len(lidar) <= len(registered) <= 0.55 * len(lidar)  # 10 Hz: every other frame
+    assert all(o.static_mask is not None and len(o.sample_sensor) > 1000 for o in registered)
+    assert all(o.static_mask is None and len(o.sample_sensor) == 0 and o.plane is not None for o in lidar if not o.to_register)
 
 
 @pytest.mark.parametrize("xy_after, merges, expected", [(50, (20, 50, 100, 200), 50), (300, (20, 200), 200), (50, (), 1)])

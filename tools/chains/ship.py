@@ -145,8 +145,7 @@ class ShipChain:
             if est.started:  # a frame without a deck: its structure has nothing to stand on
                 est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
             return
-        if not pipe.registration_due(obs.t_s):
-            pipe.pass_frame(obs)
+        if not obs.to_register:  # the pipeline's cadence (register_min_interval_s): its deck alone
             est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
             return
         T_map_level = est.map_pose()
