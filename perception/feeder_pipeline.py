@@ -14,7 +14,8 @@ the state. `observe` (and `ready`) touch only the per-frame side (the static tes
 frames), `structure`, `register` and `keep` only the model's: the first may run ahead in
 another process, each frame handed over with its static returns as the test said then. Through a gap in the crane MRU's log the deck and Doppler stages run on the frame
 levelled with the forecast attitude (HeavePipeline.levelled_stages), and every covariance
-carries the forecast's noise.
+carries the forecast's noise. A LiDAR frame's structure is registered only when the last one
+registered is `register_min_interval_s` older (every other frame at 20 Hz); every frame's deck is fused.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ class FeederPipeline:
                                         heave.deck_lidar if heave is not None else None, frame.fields.get("t"), att.noise)
             with times.stage("feeder.static_count"):
                 obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
-            obs.to_register = self.registration_due(frame.t_s)
+            obs.to_register = self.chosen_for_registration(frame.t_s)
             if obs.plane is None:
                 self.missing.append((obs.t_s, "lidar", obs.status))
             # the feeder's time per LiDAR frame: this, the fusion's, and the deck stage it reuses
@@ -165,10 +166,10 @@ class FeederPipeline:
             obs.static_mask = self.static.static_mask(obs.sample_returns_sensor, obs.static_keys)
         return obs.static_mask
 
-    def registration_due(self, t_s: float) -> bool:
+    def chosen_for_registration(self, t_s: float) -> bool:
         """Whether the LiDAR frame at t_s is to be registered (`register_min_interval_s` after the
-        last one that was): decided from the frames' times alone, where the frame is perceived,
-        so that a frame not registered costs no static test either."""
+        last one chosen, which it then becomes): decided from the frames' times alone, where the
+        frame is perceived, so that a frame not registered costs no static test either."""
         if t_s - self.last_registered_s < self.cfg.register_min_interval_s:
             return False
         self.last_registered_s = t_s

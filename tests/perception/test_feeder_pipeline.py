@@ -251,9 +251,9 @@ def test_a_frame_is_registered_once_the_last_registered_frame_is_register_min_in
     their errors), decided from the frames' times where they are perceived; a frame not to be
     registered gets no static test and hands over no returns, its deck plane still does."""
     pipe = synthetic_pipeline(register_min_interval_s=0.075)
-    due = [pipe.registration_due(t) for t in (0.0, 0.05, 0.1, 0.15, 0.18, 0.2, 0.26)]
+    due = [pipe.chosen_for_registration(t) for t in (0.0, 0.05, 0.1, 0.15, 0.18, 0.2, 0.26)]
     assert due == [True, False, True, False, True, False, True]
-    assert all(synthetic_pipeline(register_min_interval_s=0.0).registration_due(t) for t in (0.0, 0.0, 0.01))
+    assert all(synthetic_pipeline(register_min_interval_s=0.0).chosen_for_registration(t) for t in (0.0, 0.0, 0.01))
 
     sim, frames = run
     inst = sim.meta.installation
