@@ -112,9 +112,12 @@ class FeederPipeline:
             with times.stage("feeder.returns"):  # sampled, levelled, the deck plane taken over
                 obs = self.stages.lidar(frame.t_s, frame.points_sensor, att.rpy_rad, att.rpy_rate_radps,
                                         heave.deck_lidar if heave is not None else None, frame.fields.get("t"), att.noise)
-            with times.stage("feeder.static_count"):
-                obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
+            # the static test counts the frames registered (those it tests): at the same spacing
+            # its window holds fewer of them, alike for a fraction-of-frames test
             obs.to_register = self.chosen_for_registration(frame.t_s)
+            if obs.to_register:
+                with times.stage("feeder.static_count"):
+                    obs.static_keys = self.static.add(frame.t_s, obs.sample_returns_sensor)
             if obs.plane is None:
                 self.missing.append((obs.t_s, "lidar", obs.status))
             # the feeder's time per LiDAR frame: this, the fusion's, and the deck stage it reuses
@@ -169,7 +172,8 @@ class FeederPipeline:
     def chosen_for_registration(self, t_s: float) -> bool:
         """Whether the LiDAR frame at t_s is to be registered (`register_min_interval_s` after the
         last one chosen, which it then becomes): decided from the frames' times alone, where the
-        frame is perceived, so that a frame not registered costs no static test either."""
+        frame is perceived, so that a frame not registered costs no static test either (neither
+        counted nor tested)."""
         if t_s - self.last_registered_s < self.cfg.register_min_interval_s:
             return False
         self.last_registered_s = t_s

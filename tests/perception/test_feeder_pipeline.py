@@ -249,7 +249,8 @@ def test_failures_are_counted_missing_and_a_new_keyframe_taken_after_rekey_after
 def test_a_frame_is_registered_once_the_last_registered_frame_is_register_min_interval_s_older(run):
     """At 20 Hz every other frame (the filter takes registrations closer than 0.1 s as sharing
     their errors), decided from the frames' times where they are perceived; a frame not to be
-    registered gets no static test and hands over no returns, its deck plane still does."""
+    registered is neither counted nor tested as static and hands over no returns, its deck
+    plane still does."""
     pipe = synthetic_pipeline(register_min_interval_s=0.075)
     due = [pipe.chosen_for_registration(t) for t in (0.0, 0.05, 0.1, 0.15, 0.18, 0.2, 0.26)]
     assert due == [True, False, True, False, True, False, True]
@@ -268,6 +269,7 @@ def test_a_frame_is_registered_once_the_last_registered_frame_is_register_min_in
     assert len(lidar) >= 15 and 0.45 * len(lidar) <= len(registered) <= 0.55 * len(lidar)  # 10 Hz: every other frame
     assert all(o.static_mask is not None and len(o.sample_sensor) > 1000 for o in registered)
     assert all(o.static_mask is None and len(o.sample_sensor) == 0 and o.plane is not None for o in lidar if not o.to_register)
+    assert len(pipe.static.frames) == len(registered)  # the static test counts only the frames it tests
 
 
 @pytest.mark.parametrize("xy_after, merges, expected", [(50, (20, 50, 100, 200), 50), (300, (20, 200), 200), (50, (), 1)])
