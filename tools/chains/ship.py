@@ -141,12 +141,11 @@ class ShipChain:
     def _lidar(self, obs: LidarObservation, times: StageTimes) -> None:
         est, pipe = self.estimator, self.pipeline
         pipe.next_lidar_frame(times)
-        if not est.lidar_deck(obs.t_s, obs.tip_level, obs.tip_velocity, obs.t_level_sensor, obs.noise, deck_measurement(obs)):
-            if est.started:  # a frame without a deck: its structure has nothing to stand on
+        deck = est.lidar_deck(obs.t_s, obs.tip_level, obs.tip_velocity, obs.t_level_sensor, obs.noise, deck_measurement(obs))
+        # without a deck its structure has nothing to stand on; not to register (the pipeline's cadence): its deck alone
+        if not (deck and obs.to_register):
+            if est.started:
                 est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
-            return
-        if not obs.to_register:  # the pipeline's cadence (register_min_interval_s): its deck alone
-            est.record(obs.t_s, "lidar", obs.tip_velocity, obs.t_level_sensor, pipe.edges_known)
             return
         T_map_level = est.map_pose()
         structure = pipe.structure(obs, T_map_level, est.deck_plane(), times)
