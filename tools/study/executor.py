@@ -17,7 +17,7 @@ import json
 
 from boomtip.data.io.recording import RecordingError, check_output_folder, write_json
 from boomtip.tools.study.tasks import TIMING_KEYS, Task, run_task, summarise
-from boomtip.tools.study.worker_env import one_thread_each
+from boomtip.tools.study.worker_env import study_worker
 from boomtip.tools.report.plots import legend
 
 FIRST_COLUMNS = ("task", "seed", "status", "error", "wall_s")
@@ -40,7 +40,7 @@ def make_executor(kind: str = "local", workers: int | None = None, scheduler: st
     one thread each. The task code is the same: both are concurrent.futures executors. Each
     worker runs one task at a time on one core: its OpenMP and BLAS threads are pinned to one
     (Dask's nanny does it by default), or the workers of a pool with a worker per core would
-    fight for the cores."""
+    fight for the cores. A local worker ends with its parent, even one that is killed."""
     import os
 
     n = max(1, workers or os.cpu_count() or 1)
@@ -49,7 +49,7 @@ def make_executor(kind: str = "local", workers: int | None = None, scheduler: st
         import multiprocessing
 
         with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=one_thread_each) as pool:
+                                 initializer=study_worker) as pool:
             yield pool
     elif kind == "dask":
         import dask

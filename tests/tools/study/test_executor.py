@@ -282,3 +282,45 @@ def test_dask_runs_every_call_even_an_equal_one():
         calls = [pool.submit(time.perf_counter) for _ in range(2)]  # both held, as a study holds its tasks
         first, second = sorted(c.result() for c in calls)
     assert second > first  # dask's default (pure) would hand back the first call's result
+
+
+def _pool_then_die(pid_file: str) -> None:
+    """In a process of its own: a study's local pool, one task that says its worker's pid, then
+    this process killed as a user kills a sweep (no chance to stop the pool)."""
+    import os
+    import signal
+
+    from boomtip.tools.study.executor import make_executor
+
+    with make_executor("local", 1) as pool:
+        with open(pid_file, "w") as fh:
+            fh.write(str(pool.submit(os.getpid).result()))
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_local_worker_ends_when_the_sweep_that_started_it_is_killed(tmp_path):
+    import multiprocessing
+    import os
+    import time
+
+    from boomtip.tools.study.worker_env import PARENT_POLL_S
+
+    pid_file = tmp_path / "worker.pid"
+    parent = multiprocessing.get_context("spawn").Process(target=_pool_then_die, args=(str(pid_file),))
+    parent.start()
+    parent.join(60)
+    assert parent.exitcode == -9
+    worker = int(pid_file.read_text())
+
+    def alive() -> bool:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            return False
+        with open(f"/proc/{worker}/stat") as fh:  # a zombie is gone but for its parent's wait
+            return fh.read().split(")")[-1].split()[0] != "Z"
+
+    deadline = time.monotonic() + 5 * PARENT_POLL_S + 5.0
+    while alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive()
