@@ -25,6 +25,8 @@ from boomtip.fusion.models.relative_motion import rotation
 from boomtip.data.poses import inverse, pose_matrix, transform
 
 UPDATE_EVERY_S = 1.0  # the causal definition is recomputed this often (and at the last row)
+JACOBIAN_STEP = 1e-6  # central differences' step in the map's pose (m, rad)
+ROWS_AT_ONCE = 2048  # recorded states put in the feeder frame in one batch (a batch's arrays: ~4 MB)
 
 
 @dataclass
@@ -122,9 +124,15 @@ def estimates_in_feeder_frame(xs: list[np.ndarray], Ps: list[np.ndarray], tips: 
                               mru_bias_sigma_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(T, 6) poses, (T, 6) rates and (T, 12) variances of the filter's recorded states xs, Ps
     (FeederEstimates); tips and pivots: the tip's velocity and the LiDAR's position at each.
-    Every row at once."""
+    Vectorised over ROWS_AT_ONCE rows at a time: a long run's states stacked at once would be
+    tens of MB more at the run's peak, its end."""
     if len(xs) == 0:
         return np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12))
+    if len(xs) > ROWS_AT_ONCE:
+        parts = [estimates_in_feeder_frame(xs[a:a + ROWS_AT_ONCE], Ps[a:a + ROWS_AT_ONCE], tips[a:a + ROWS_AT_ONCE],
+                                           pivots[a:a + ROWS_AT_ONCE], frame, sigma_level, mru_bias_sigma_rad)
+                 for a in range(0, len(xs), ROWS_AT_ONCE)]  # blocks of rows, each vectorised
+        return tuple(np.concatenate(p) for p in zip(*parts))
     # The levelling's own uncertainty. Corrected about the LiDAR, a tilt moves the deck below it
     # sideways by its lever. The MRU's bias tilts the same sensor-to-level rotation as a mount
     # error and is calibrated with it; what it moves besides is the tip about the vessel's
@@ -203,8 +211,6 @@ def _runs(labels: np.ndarray) -> list[tuple[int, int]]:
     edges = np.r_[0, np.flatnonzero(np.diff(labels)) + 1, len(labels)]
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
-
-JACOBIAN_STEP = 1e-6  # central differences' step in the map's pose (m, rad)
 
 
 def feeder_pose_jacobians(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray,

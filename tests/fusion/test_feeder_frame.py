@@ -134,3 +134,17 @@ def test_the_feeder_poses_of_many_rows_are_each_rows_transforms_composed_and_the
         d = feeder_poses(moved, C, pivots, T_mf) - y
         d[:, 3:] = (d[:, 3:] + np.pi) % (2 * np.pi) - np.pi
         assert np.allclose(J[:, :, j], d / step, rtol=0, atol=2e-4)  # the one-sided difference's own error
+
+
+def test_a_long_runs_rows_are_put_in_the_feeder_frame_block_by_block_with_the_same_figures(monkeypatch):
+    from boomtip.fusion import feeder_frame
+
+    rng = np.random.default_rng(2)
+    xs = [np.r_[rng.normal(0, 0.5, 2), -40.0, rng.normal(0, 0.02, 3), rng.normal(0, 0.1, 6)] for _ in range(50)]
+    Ps = [np.diag(rng.uniform(1e-6, 1e-5, 12)) for _ in xs]
+    tips, pivots = [rng.normal(0, 0.1, 3) for _ in xs], [rng.normal(0, 1.0, 3) for _ in xs]
+    frame = frame_at(_data())
+    whole = estimates_in_feeder_frame(xs, Ps, tips, pivots, frame, SURVEY, 1e-4)
+    monkeypatch.setattr(feeder_frame, "ROWS_AT_ONCE", 7)  # 7 blocks, the last of one row
+    blocks = estimates_in_feeder_frame(xs, Ps, tips, pivots, frame, SURVEY, 1e-4)
+    assert all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(whole, blocks))
