@@ -192,7 +192,7 @@ class HeaveChain:
         written = self.report_text(out, kpis, result, truth)
         if pictures is not None:
             link_in_report(out, "Detections", self.detections_plot(out, pictures, result))
-            written += [w for w in [PLOTS_DIR] if w not in written]
+            written += [] if PLOTS_DIR in written else [PLOTS_DIR]
         return written
 
     def report_text(self, out: Path, kpis: dict, result: HeaveResult, truth: Truth | None) -> list[str]:

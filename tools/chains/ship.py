@@ -64,6 +64,7 @@ class ShipResult:
 # frames' detections: 2.3, 1.0 and 1.5 s on a 20 s sts-loaded run), to split them between two processes
 REPORT_COSTS = {"heave": 2.3, "feeder": 1.0, "detections": 1.5}
 
+
 def deck_measurement(obs: LidarObservation | RadarObservation) -> DeckMeasurement | None:
     """A frame's deck plane as the estimator takes it: with its spin when the returns' times gave one."""
     spin, plane = (obs.spin if isinstance(obs, LidarObservation) else None), obs.plane
