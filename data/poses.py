@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-__all__ = ["rpy_matrix", "pose_matrix", "pose_vector", "inverse", "transform"]
+__all__ = ["rpy_matrix", "rpy_matrices", "pose_matrix", "pose_vector", "inverse", "transform"]
 
 
 def rpy_matrix(rpy_rad) -> np.ndarray:
@@ -20,6 +20,36 @@ def rpy_matrix(rpy_rad) -> np.ndarray:
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
         [-sp, cp * sr, cp * cr],
     ])
+
+
+def rpy_matrices(rpy: np.ndarray) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) for (T,3) angles: (T,3,3)."""
+    if len(rpy) == 1:  # one instant (a frame's pose): Python floats, not 20 calls on 1-element arrays
+        roll, pitch, yaw = rpy[0].tolist()
+        cr, cp, cy, sr, sp, sy = math.cos(roll), math.cos(pitch), math.cos(yaw), math.sin(roll), math.sin(pitch), math.sin(yaw)
+        return np.array([[[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                          [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                          [-sp, cp * sr, cp * cr]]])
+    # Each angle's cosine and sine contiguous, the nine entries built in a (9, T) array and
+    # turned to (T, 3, 3) in one copy: a sweep's columns, T = 1024, twice a frame.
+    c, s = np.cos(rpy.T), np.sin(rpy.T)
+    cr, cp, cy, sr, sp, sy = c[0], c[1], c[2], s[0], s[1], s[2]
+    cysp, sysp = cy * sp, sy * sp
+    R = np.empty((9, len(rpy)))
+    np.multiply(cy, cp, out=R[0])
+    np.multiply(cysp, sr, out=R[1])
+    R[1] -= sy * cr
+    np.multiply(cysp, cr, out=R[2])
+    R[2] += sy * sr
+    np.multiply(sy, cp, out=R[3])
+    np.multiply(sysp, sr, out=R[4])
+    R[4] += cy * cr
+    np.multiply(sysp, cr, out=R[5])
+    R[5] -= cy * sr
+    np.negative(sp, out=R[6])
+    np.multiply(cp, sr, out=R[7])
+    np.multiply(cp, cr, out=R[8])
+    return np.ascontiguousarray(R.T).reshape(-1, 3, 3)
 
 
 def pose_matrix(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> np.ndarray:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
 from boomtip.fusion.models.relative_motion import rotation
-from boomtip.data.poses import inverse, pose_matrix, transform
+from boomtip.data.poses import inverse, pose_matrix, rpy_matrices, transform
 
 UPDATE_EVERY_S = 1.0  # the causal definition is recomputed this often (and at the last row)
 JACOBIAN_STEP = 1e-6  # central differences' step in the map's pose (m, rad)
@@ -237,12 +237,3 @@ def feeder_poses(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray, T
     t_out = t_map @ C.T + pivot - pivot @ C.T
     return np.column_stack([t_out, np.arctan2(R_out[:, 2, 1], R_out[:, 2, 2]),
                             -np.arcsin(np.clip(R_out[:, 2, 0], -1.0, 1.0)), np.arctan2(R_out[:, 1, 0], R_out[:, 0, 0])])
-
-
-def rpy_matrices(rpy_rad: np.ndarray) -> np.ndarray:
-    """(N, 3, 3): R = Rz(yaw) Ry(pitch) Rx(roll) of each row of (N, 3)."""
-    cr, cp, cy = np.cos(rpy_rad).T
-    sr, sp, sy = np.sin(rpy_rad).T
-    return np.stack([np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-                     np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-                     np.stack([-sp, cp * sr, cp * cr], axis=-1)], axis=-2)

@@ -128,10 +128,6 @@ def plane_height_at(coef: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return coef[0] + xy @ coef[1:]
 
 
-def _height_at(coef: np.ndarray, xy: np.ndarray) -> float:
-    return float(coef[0] + coef[1] * xy[0] + coef[2] * xy[1])
-
-
 def rope_line_xy(hook_m: np.ndarray, z_m: np.ndarray | float) -> np.ndarray:
     """Where the rope's line from the tip (the levelled frame's origin) through the hook's
     reference point lies at the height(s) z: (2,) or (N,2). The load hangs on it."""
@@ -206,11 +202,11 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     cand = under.candidates
     k_low = int(np.argmin(cand[:, 2] - plane_height_at(deck_coef, cand[:, :2])))
     lowest = cand[k_low]
-    deck_z, centre = _height_at(deck_coef, lowest[:2]), under.centre
+    deck_z, centre = float(plane_height_at(deck_coef, lowest[:2])), under.centre
     plane = _as_plane(deck_coef)
 
     def deck_sigma(xy: np.ndarray) -> float:
-        s_d = plane_sigma_at(deck_pts, plane, np.array([xy[0], xy[1], _height_at(deck_coef, xy)]))
+        s_d = plane_sigma_at(deck_pts, plane, np.array([xy[0], xy[1], float(plane_height_at(deck_coef, xy))]))
         return s_d if math.isfinite(s_d) else range_noise_m
 
     # the centre: midway between two edges, each known to a beam spacing s (uniform): s / sqrt(24);
@@ -221,7 +217,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     sigma = math.sqrt(under.sigma_candidates_m[k_low] ** 2 + deck_sigma(lowest[:2]) ** 2 + sigma_place**2)
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
-                         _height_at(deck_coef, centre[:2]), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
+                         float(plane_height_at(deck_coef, centre[:2])), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
                          **masks)
 
 

@@ -23,7 +23,7 @@ from boomtip.data.meshes import Label
 from boomtip.data.sim.hook_world import HookSimulation, StoredTruth, hanging_rotation, hook_bodies, rot_z
 from boomtip.data.sim.lift_programme import LiftPlan
 from boomtip.data.sim.load_mesh import load_parts
-from boomtip.data.sim.motion import rpy_matrices
+from boomtip.data.poses import rpy_matrices
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import Body, feeder_vessel, sea_surface
 from boomtip.data.sim.simulator import frame_times

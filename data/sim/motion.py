@@ -16,6 +16,7 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from boomtip.data.poses import rpy_matrices
 from boomtip.data.sea_spectrum import jonswap
 from boomtip.data.sim.world import DOFS, IrregularSea, Motion
 
@@ -94,36 +95,6 @@ def sine_bank(motion: Motion, irregular: IrregularSea, seed: int) -> SineBank:
         om_a = np.hstack([om_a, np.broadcast_to(w, (6, k))])
         ph_a = np.hstack([ph_a, extra_p])
     return SineBank(amp_a, om_a, ph_a)
-
-
-def rpy_matrices(rpy: np.ndarray) -> np.ndarray:
-    """R = Rz(yaw) Ry(pitch) Rx(roll) for (T,3) angles: (T,3,3)."""
-    if len(rpy) == 1:  # one instant (a frame's pose): Python floats, not 20 calls on 1-element arrays
-        roll, pitch, yaw = rpy[0].tolist()
-        cr, cp, cy, sr, sp, sy = math.cos(roll), math.cos(pitch), math.cos(yaw), math.sin(roll), math.sin(pitch), math.sin(yaw)
-        return np.array([[[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                          [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                          [-sp, cp * sr, cp * cr]]])
-    # Each angle's cosine and sine contiguous, the nine entries built in a (9, T) array and
-    # turned to (T, 3, 3) in one copy: a sweep's columns, T = 1024, twice a frame.
-    c, s = np.cos(rpy.T), np.sin(rpy.T)
-    cr, cp, cy, sr, sp, sy = c[0], c[1], c[2], s[0], s[1], s[2]
-    cysp, sysp = cy * sp, sy * sp
-    R = np.empty((9, len(rpy)))
-    np.multiply(cy, cp, out=R[0])
-    np.multiply(cysp, sr, out=R[1])
-    R[1] -= sy * cr
-    np.multiply(cysp, cr, out=R[2])
-    R[2] += sy * sr
-    np.multiply(sy, cp, out=R[3])
-    np.multiply(sysp, sr, out=R[4])
-    R[4] += cy * cr
-    np.multiply(sysp, cr, out=R[5])
-    R[5] -= cy * sr
-    np.negative(sp, out=R[6])
-    np.multiply(cp, sr, out=R[7])
-    np.multiply(cp, cr, out=R[8])
-    return np.ascontiguousarray(R.T).reshape(-1, 3, 3)
 
 
 def euler_rates_to_omega_world(rpy: np.ndarray, rpy_dot: np.ndarray) -> np.ndarray:

@@ -13,7 +13,8 @@ import numpy as np
 
 from boomtip.data.frames import BODIES, TRUTH_COLUMNS, Frame, FrameSource, MruLog, SourceMeta, Truth
 from boomtip.data.sim.footprint import cast_footprints
-from boomtip.data.sim.motion import BodyStates, ShiftedSines, ShipMotion, rpy_matrices
+from boomtip.data.poses import rpy_matrices
+from boomtip.data.sim.motion import BodyStates, ShiftedSines, ShipMotion
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
@@ -24,7 +25,6 @@ from boomtip.data.sim.truth import relative_heave, tip_states
 SENSOR_IDS = {"lidar": 1, "radar": 2, "mru": 3, "feeder_mru": 4}
 # the run's seed s gives each ship's irregular sea its own stream: s * 7 + 11 (crane), s * 7 + 13 (feeder)
 MOTION_SEED_FACTOR, CRANE_MOTION_SEED_SALT, FEEDER_MOTION_SEED_SALT = 7, 11, 13
-
 
 # numpy's SeedSequence (a pool of 4 uint32 words) and PCG64's seeding, for `FrameRng`
 _SS_INIT_A, _SS_MULT_A, _SS_INIT_B, _SS_MULT_B = 0x43B0D7E5, 0x931E8875, 0x8B51F9DD, 0x58F38DED

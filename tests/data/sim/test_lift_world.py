@@ -11,7 +11,7 @@ import pytest
 from boomtip.data.frames import LIFT_TRUTH_COLUMNS
 from boomtip.data.meshes import Label
 from boomtip.data.sim.lift_world import LiftSimulation, clearance_to_deck, height_above_deck
-from boomtip.data.sim.motion import rpy_matrices
+from boomtip.data.poses import rpy_matrices
 from boomtip.tools.config.scenario import load_scenario
 
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from boomtip.data.sim.motion import ShiftedSines, ShipMotion, euler_rates_to_omega_world, rpy_matrices
+from boomtip.data.poses import rpy_matrices
+from boomtip.data.sim.motion import ShiftedSines, ShipMotion, euler_rates_to_omega_world
 from boomtip.tools.config.scenario import load_scenario
 from boomtip.data.sim.world import DOFS, IrregularSea, Motion
 from boomtip.data.sim.scene import feeder_deck_plane_body
