@@ -78,6 +78,7 @@ class LoadClearance:
     n_deck: int = 0
     deck_plane: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # z = a + b x + c y about the load
     candidates_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the underside's corners (or lowest seen)
+    candidate_sigmas_m: np.ndarray = field(default_factory=lambda: np.zeros(0))  # their heights' 1-sigma from the face's fit
     load_mask: np.ndarray | None = None
     deck_mask: np.ndarray | None = None
 
@@ -218,7 +219,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
                          float(plane_height_at(deck_coef, centre[:2])), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
-                         **masks)
+                         under.sigma_candidates_m, **masks)
 
 
 def _hanging(pts: np.ndarray, candidates: np.ndarray, d: np.ndarray, gap_m: float, core_m: float) -> np.ndarray:

@@ -27,16 +27,17 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.special import ndtr
 
 from boomtip.perception.doppler import DopplerConfig, doppler_velocity
 from boomtip.perception.lift import LoadClearance, index_mask, plane_height_at, rope_line_xy
 from boomtip.perception.preprocess import PreprocessConfig
 
-__all__ = ["LiftRadarConfig", "ClearanceRate", "measure_clearance_rate", "load_spin"]
+__all__ = ["LiftRadarConfig", "ClearanceRate", "measure_clearance_rate", "load_spin", "chance_lowest"]
 
 STATUS_OK = "ok"
 MAD_TO_SIGMA = 1.4826
-RIVAL_SIGMAS = 3.0  # a corner this many of the clearance's sigmas above the lowest may still be the lowest
+MIN_CHANCE = 1e-3  # a corner less likely than this to be the lowest adds nothing to the rate
 
 
 class LiftRadarConfig(BaseModel):
@@ -84,6 +85,16 @@ def load_spin(hook_m: np.ndarray, hook_velocity_mps: np.ndarray) -> np.ndarray:
     """The hanging load's angular velocity (rad/s, levelled axes): it turns with the rope's line
     from the tip, r x r_dot / |r|^2 (its spin about the rope itself moves no point vertically)."""
     return np.cross(hook_m, hook_velocity_mps) / float(hook_m @ hook_m)
+
+
+def chance_lowest(heights_m: np.ndarray, sigmas_m: np.ndarray) -> np.ndarray:
+    """Each candidate's chance to be the lowest, their heights Gaussian and independent with
+    these 1-sigma: the product of its chances to lie below each other one, normalised (exact for
+    two candidates, close for a box's four corners)."""
+    below = ndtr((heights_m[None, :] - heights_m[:, None]) / np.maximum(np.hypot(sigmas_m[:, None], sigmas_m[None, :]), 1e-12))
+    np.fill_diagonal(below, 1.0)
+    chance = below.prod(axis=1)
+    return chance / chance.sum()
 
 
 def _vertical_at(omega: np.ndarray, lever_m: np.ndarray) -> float:
@@ -167,12 +178,17 @@ def measure_clearance_rate(points_level: np.ndarray, origin_level: np.ndarray, r
         var = var_load + float(a @ cov_u_deck @ a) + (spin_deck_sigma * float(np.linalg.norm(np.cross(lever, a)))) ** 2
         return rate, math.sqrt(var)
 
-    (c_dot, s_c), (h_dot, s_h) = closing(lowest), closing(centre)
-    # which corner is the lowest is itself uncertain when another lies within the fix's sigmas of
-    # it: the rate is then any of theirs (the deck's spin and the load's tilting tell them apart)
-    rivals = [p for p in fix.candidates_m
-              if p[2] - plane_height_at(fix.deck_plane, p[:2]) <= fix.clearance_m + RIVAL_SIGMAS * fix.sigma_m]
-    spread = max((abs(closing(p)[0] - c_dot) for p in rivals), default=0.0)
-    s_c = math.hypot(s_c, spread)
+    # which corner is the lowest is itself uncertain when others lie within their sigmas of it:
+    # the rate is each one's, weighted by its chance to be the lowest (their mixture's mean and
+    # spread), not the one that happened to look lowest in this fix
+    cand = fix.candidates_m if len(fix.candidates_m) else lowest[None, :]
+    sigmas = (fix.candidate_sigmas_m if len(fix.candidate_sigmas_m) == len(cand) else np.full(len(cand), fix.sigma_m))
+    chance = chance_lowest(cand[:, 2] - plane_height_at(fix.deck_plane, cand[:, :2]), sigmas)
+    likely = chance >= MIN_CHANCE
+    rates = np.array([closing(p) for p in cand[likely]])
+    w = chance[likely] / chance[likely].sum()
+    c_dot = float(w @ rates[:, 0])
+    s_c = math.sqrt(float(w @ (rates[:, 1] ** 2 + (rates[:, 0] - c_dot) ** 2)))
+    h_dot, s_h = closing(centre)
     load_idx, deck_idx = np.flatnonzero(ok)[load][inliers], np.flatnonzero(ok)[deck][deck_fit.inlier_mask]
     return ClearanceRate(STATUS_OK, c_dot, h_dot, s_c, s_h, n_load, n_deck, index_mask(len(ok), load_idx), index_mask(len(ok), deck_idx))

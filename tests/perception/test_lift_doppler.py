@@ -8,9 +8,10 @@ import math
 
 import numpy as np
 import pytest
+from scipy.special import ndtr
 
 from boomtip.perception.lift import LoadClearance
-from boomtip.perception.lift_doppler import LiftRadarConfig, load_spin, measure_clearance_rate
+from boomtip.perception.lift_doppler import LiftRadarConfig, chance_lowest, load_spin, measure_clearance_rate
 
 ORIGIN = np.array([1.5, -0.6, -0.8])  # the radar, levelled frame at the tip
 HOOK = np.array([0.3, -0.2, -50.0])
@@ -131,22 +132,47 @@ def _corners(centre):
     return centre + np.array([[sx * 3.0, sy * 1.2, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
 
 
-def test_a_corner_nearly_as_low_widens_the_rate_by_the_difference_of_theirs():
-    rng = np.random.default_rng(4)
-    pts, rate = _scene(rng)
+def _rate(pts, rate, fix):
+    return measure_clearance_rate(pts, ORIGIN, rate, fix, 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
+                                  LiftRadarConfig(), 0.01, np.random.default_rng(0))
+
+
+def test_a_clearly_lowest_corner_gives_its_own_rate():
+    pts, rate = _scene(np.random.default_rng(4))
+    centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
+    corners = _corners(centre)
+    low = int(np.argmin(corners[:, 2] - _deck_z(corners[:, :2])))
+    alone = _rate(pts, rate, dataclasses.replace(_fix(corners[low], centre), candidates_m=corners[[low]]))
+    sure = _rate(pts, rate, dataclasses.replace(_fix(corners[low], centre), candidates_m=corners, candidate_sigmas_m=np.full(4, 1e-4)))
+    assert sure.clearance_rate_mps == pytest.approx(alone.clearance_rate_mps, abs=1e-12)
+    assert sure.clearance_rate_mps == pytest.approx(_height_rate(corners[low]), abs=2e-4)
+    assert sure.sigma_mps == pytest.approx(alone.sigma_mps, rel=1e-9)
+
+
+def test_two_corners_equally_low_give_the_mean_of_their_rates_widened_by_their_difference():
+    pts, rate = _scene(np.random.default_rng(4))
     centre = np.append(HOOK[:2] * (TOP_Z / HOOK[2]), TOP_Z - 2.6)
     corners = _corners(centre)
     heights = corners[:, 2] - _deck_z(corners[:, :2])
-    low = int(np.argmin(heights))
-    alone = dataclasses.replace(_fix(corners[low], centre), candidates_m=corners[[low]])
-    tied = dataclasses.replace(_fix(corners[low], centre), candidates_m=corners, sigma_m=1.0)  # every corner within 3 sigma
-    a = measure_clearance_rate(pts, ORIGIN, rate, alone, 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
-                               LiftRadarConfig(), 0.01, np.random.default_rng(0))
-    b = measure_clearance_rate(pts, ORIGIN, rate, tied, 3.3, 2.6, HOOK, HOOK_V, HOOK_V_COV, DECK_SPIN, 1.0,
-                               LiftRadarConfig(), 0.01, np.random.default_rng(0))
-    rates = [_height_rate(c) for c in corners]
-    assert a.clearance_rate_mps == pytest.approx(b.clearance_rate_mps) == pytest.approx(rates[low], abs=2e-4)
-    assert b.sigma_mps == pytest.approx(math.hypot(a.sigma_mps, max(abs(r - rates[low]) for r in rates)), rel=1e-3)
+    i, j = np.argsort(heights)[:2]
+    corners[j, 2] -= heights[j] - heights[i]  # tied
+    corners[[k for k in range(4) if k not in (i, j)], 2] += 1.0  # the others far above
+    each = [_rate(pts, rate, dataclasses.replace(_fix(corners[k], centre), candidates_m=corners[[k]])) for k in (i, j)]
+    tied = _rate(pts, rate, dataclasses.replace(_fix(corners[i], centre), candidates_m=corners, candidate_sigmas_m=np.full(4, 0.01)))
+    r = [e.clearance_rate_mps for e in each]
+    assert abs(r[0] - r[1]) > 0.01  # the tilting load's corners part by centimetres a second
+    assert tied.clearance_rate_mps == pytest.approx(np.mean(r), abs=1e-12)
+    assert tied.sigma_mps == pytest.approx(math.sqrt(np.mean([e.sigma_mps**2 for e in each]) + (r[0] - r[1]) ** 2 / 4), rel=1e-9)
+
+
+def test_the_chance_to_be_lowest_is_the_normal_law_of_the_difference_for_two_and_sums_to_one():
+    c = chance_lowest(np.array([0.10, 0.12]), np.array([0.01, 0.02]))
+    assert c[0] == pytest.approx(ndtr(0.02 / math.hypot(0.01, 0.02)), rel=1e-12) and c.sum() == pytest.approx(1.0)
+    four = chance_lowest(np.array([0.10, 0.10, 0.10, 0.10]), np.full(4, 0.01))
+    assert four == pytest.approx(np.full(4, 0.25))
+    far = chance_lowest(np.array([0.5, 0.1, 0.9, 0.3]), np.full(4, 0.01))
+    assert far[1] == pytest.approx(1.0, abs=1e-12) and far.sum() == pytest.approx(1.0)
+    assert np.all(np.diff(chance_lowest(np.array([0.10, 0.11, 0.12]), np.full(3, 0.01))) < 0)  # lower, likelier
 
 
 def test_an_unknown_deck_spin_costs_its_sigma_through_the_whole_lever():
