@@ -112,7 +112,7 @@ class LiftChain:
         row = {"t": frame.t_s, "status": res.row.get("status", "no levelled frame")}
         if res.points_level is not None and self.hook.tracker is not None:
             with out.times.stage("lift.clearance"):
-                p_hook, _ = self.hook.tracker.estimate()
+                p_hook, cov_hook = self.hook.tracker.estimate()
                 obs = out.clearance = measure_clearance(res.points_level, p_hook, self.block_height_m, self.load_size_m,
                                                         self.cfg.detector, self.deck_z_m, *self.lidar_noise)
                 self.hoist = self.hook.tracker.hoist()
@@ -127,7 +127,10 @@ class LiftChain:
                     self.radar.add_fix(frame.t_s, obs, self.hook.tracker.tip_attitude(), p_hook, self.hook.tracker.velocity())
                 line = rope_line_xy(p_hook, obs.underside_centre_m[2])
                 self.landing.update(frame.t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
-                row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s)))
+                # the rope's line at the underside is the hook's, scaled down the rope: its variance too
+                scale = obs.underside_centre_m[2] / p_hook[2]
+                line_var = scale**2 * 0.5 * float(np.trace(cov_hook[:2, :2]))
+                row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s) + line_var))
                 with out.times.stage("lift.filter"):
                     self.filters.add_heights(frame.t_s, (obs.clearance_m, obs.sigma_m),
                                              (obs.centre_clearance_m, obs.centre_height_sigma_m), self.hoist)

@@ -53,9 +53,10 @@ class LiftProcessing(StrictModel):
     radar: LiftRadarConfig = Field(LiftRadarConfig(), description="the clearance's rate from the radar's Doppler")
     filter: HeaveFilterConfig = Field(HeaveFilterConfig(), description="both lift filters' tuning (the relative-heave "
                                       "filter's model), on C and h with the radar's rates, else on C + l and h + l")
-    landing_offset_rate_sigma_mps: float = Field(0.05, gt=0, description="how fast the load's centre may wander from "
-                                                 "the rope's line (the slings' give, the load turning): the landing "
-                                                 "point's filter (fusion.landing_filter)")
+    landing_offset_rate_sigma_mps: float = Field(0.01, gt=0, description="how fast the load's centre may wander from "
+                                                 "the rope's line (the slings' give, the load turning on them: a load "
+                                                 "slung from the hook swings with it, its centre's offset drifts by "
+                                                 "millimetres a second): the landing point's filter (fusion.landing_filter)")
     lost_sigma_m: float = Field(0.1, gt=0, description="a clearance whose sigma exceeds this is lost: left empty in "
                                 "lift_estimates.csv with the reason (no frame has held it for a while)")
     landed_hold_s: float = Field(0.5, gt=0, description="the load has landed once its measured clearance has stayed at "
