@@ -14,27 +14,22 @@ perception reports and the filter's LiDAR model h(x) = l u(a, b) predicts.
 
 from __future__ import annotations
 
-import os
-import tempfile
-from collections.abc import Mapping, Sequence
-from typing import IO, Iterator
-
 import numpy as np
 
 from boomtip.data.crane_model import CraneParams
 from boomtip.data.sim.crane_programmes import HOOK_SCENARIOS
 from boomtip.data.sim.crane_truth import crane_truth_chunks
 from boomtip.data.sim.vessel_waves import CallableVesselMotion
-from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Frame, MruLog, Truth
+from boomtip.data.frames import Frame, MruLog, Truth
 from boomtip.data.block_model import lower_block_parts, rope_mesh
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
 from boomtip.data.sim.simulator import SENSOR_IDS, SimScene, Simulation, frame_times
+from boomtip.data.sim.stored import TRUTH_CHUNK, StoredTruth, TrackFiles
 from boomtip.data.sim.world import in_windows
 
 BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
 # the crane truth's tracks kept (on disk): the frames' poses (_scene_poses), the encoders and the truth table
-TRUTH_CHUNK = 4096  # truth rows made at a time
 RATE_STEP_S = 0.0025  # the radar's velocities by central differences over +-this (the truth's tracks: 200 Hz or more)
 ENCODER_STREAM_ID = SENSOR_IDS["mru"] + 10  # the encoders' noise stream (after the sensors' ids)
 KEPT_TRACKS = ("roll", "pitch", "nu", "mu", "l", "nu_f", "a", "b", "p_tip_world", "p_hook_world", "v_hook_world",
@@ -107,119 +102,6 @@ def hanging_rotation(u: np.ndarray, heading: np.ndarray) -> np.ndarray:
     x = x - np.sum(x * z, axis=-1, keepdims=True) * z
     x /= np.linalg.norm(x, axis=-1, keepdims=True)
     return np.stack([x, np.cross(z, x), z], axis=-1)
-
-
-class TrackFiles:
-    """Arrays of a common length, each in an unnamed temporary file (removed when closed or
-    collected), appended a chunk of rows at a time and read back by rows. Reads are positional
-    (``os.preadv``): a forked process reading the same files does not move this one's offsets."""
-
-    def __init__(self) -> None:
-        self._files: dict[str, IO[bytes]] = {}
-        self._row_shape: dict[str, tuple[int, ...]] = {}
-        self._rows: dict[str, int] = {}
-
-    def append(self, name: str, rows: np.ndarray) -> None:
-        rows = np.ascontiguousarray(rows, dtype=float)
-        if name not in self._files:
-            self._files[name] = tempfile.TemporaryFile(prefix="boomtip-track-")
-            self._row_shape[name], self._rows[name] = rows.shape[1:], 0
-        self._files[name].write(rows.tobytes())
-        self._rows[name] += len(rows)
-
-    def replace(self, name: str, rows: np.ndarray) -> None:
-        """The track's rows, instead of what it held (a new file; the old one is closed)."""
-        if name in self._files:
-            self._files.pop(name).close()
-        self.append(name, rows)
-
-    def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Rows start..stop-1 of a track."""
-        fh, shape = self._files[name], self._row_shape[name]
-        stop = self._rows[name] if stop is None else min(stop, self._rows[name])
-        out = np.empty((max(stop - start, 0), *shape))
-        fh.flush()
-        if out.size:
-            row_bytes = out.itemsize * int(np.prod(shape, dtype=int))
-            os.preadv(fh.fileno(), [memoryview(out).cast("B")], start * row_bytes)
-        return out
-
-    def interp(self, name: str, t: np.ndarray, t_grid: np.ndarray, **kw) -> np.ndarray:
-        """``np.interp`` of the track (per column) at t over the grid t_grid, reading only the rows
-        that bracket t: each value depends on its two neighbours alone, so the same numbers."""
-        t = np.asarray(t, dtype=float)
-        if t.size and np.all(np.isfinite(t)):
-            i0 = max(int(np.searchsorted(t_grid, t.min(), "right")) - 1, 0)
-            i1 = min(int(np.searchsorted(t_grid, t.max(), "left")) + 1, len(t_grid))
-        else:
-            i0, i1 = 0, len(t_grid)
-        v, tg = self.read(name, i0, i1), t_grid[i0:i1]
-        if v.ndim == 1:
-            return np.interp(t, tg, v, **kw)
-        return np.stack([np.interp(t, tg, v[:, k], **kw) for k in range(v.shape[1])], axis=-1)
-
-
-class _TruthColumns(Mapping):
-    """The truth table's columns, each read from its file when asked for."""
-
-    def __init__(self, t: np.ndarray, files: TrackFiles, names: tuple[str, ...]) -> None:
-        self._t, self._files, self._names = t, files, names
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name == "t":
-            return self._t
-        if name not in self._names:
-            raise KeyError(name)
-        return self._files.read(name)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._names)
-
-    def __len__(self) -> int:
-        return len(self._names)
-
-
-class StoredTruth(Truth):
-    """A hook run's truth table with its columns on disk (`TrackFiles`): ``at`` reads only the
-    rows about the asked times, ``columns`` reads a whole column when indexed."""
-
-    def __init__(self, t: np.ndarray, files: TrackFiles, names: tuple[str, ...] = HOOK_TRUTH_COLUMNS) -> None:  # noqa: D107 (no dataclass fields of its own)
-        self._t, self._files, self._names = t, files, names
-
-    @property
-    def columns(self) -> Mapping:
-        return _TruthColumns(self._t, self._files, self._names)
-
-    def at(self, name: str, t_s: np.ndarray) -> np.ndarray:
-        if name == "t":
-            return super().at(name, t_s)
-        return self._files.interp(name, t_s, self._t, left=np.nan, right=np.nan)
-
-
-class FrameSchedule(Sequence):
-    """A simulation's frame schedule, (time stamp, sensor, index) in order, as arrays (13 bytes a
-    frame): as a list of tuples a 700 s hook run's 14,000 frames would hold 1.7 MB for the whole run."""
-
-    def __init__(self, items: list[tuple[float, str, int]]) -> None:
-        self._sensors = sorted({s for _, s, _ in items})
-        code = {s: k for k, s in enumerate(self._sensors)}
-        self._t = np.array([t for t, _, _ in items], float)
-        self._s = np.array([code[s] for _, s, _ in items], np.int8)
-        self._i = np.array([i for _, _, i in items], np.int32)
-
-    def __len__(self) -> int:
-        return len(self._t)
-
-    def __getitem__(self, k):
-        if isinstance(k, slice):
-            return [self[j] for j in range(*k.indices(len(self)))]
-        return float(self._t[k]), self._sensors[int(self._s[k])], int(self._i[k])
-
-    def __iter__(self) -> Iterator[tuple[float, str, int]]:
-        for a in range(0, len(self), TRUTH_CHUNK):  # a chunk at a time as Python values
-            b = a + TRUTH_CHUNK
-            for t, s, i in zip(self._t[a:b].tolist(), self._s[a:b].tolist(), self._i[a:b].tolist()):
-                yield t, self._sensors[s], i
 
 
 class HookSimulation(Simulation):
@@ -300,9 +182,6 @@ class HookSimulation(Simulation):
             self._logs = TrackFiles()
         return self._logs
 
-    def _frame_schedule(self) -> FrameSchedule:
-        return FrameSchedule(super()._frame_schedule())
-
     # -- poses from the crane truth ------------------------------------------------------
     def _interp(self, name: str, t: np.ndarray) -> np.ndarray:
         return self._tracks.interp(name, t, self._t_crane)
@@ -354,25 +233,6 @@ class HookSimulation(Simulation):
         return R_ws[1], origins_w, dirs_w, hits, p_hit, v_hit, v_sensor
 
     # -- logs ----------------------------------------------------------------------------
-    def _mru_log(self) -> MruLog:
-        """Simulation's MRU log (the same noise draws, the same numbers), with the vessel's states
-        evaluated TRUTH_CHUNK samples at a time: all at once, a 700 s log's states (six (N, 3)
-        arrays, 20 MB) would raise the run's memory by more than that, and the heap would keep it."""
-        cfg, mm = self.scenario.installation.mru, self.scenario.world.mismatch
-        t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
-        rpy, rate = np.empty((len(t), 3)), np.empty((len(t), 3))
-        for a in range(0, len(t), TRUTH_CHUNK):
-            st = self.world.crane_motion.states(t[a:a + TRUTH_CHUNK] - mm.mru_lag_s)
-            rpy[a:a + TRUTH_CHUNK], rate[a:a + TRUTH_CHUNK] = st.rpy_rad, st.rpy_rate_radps
-        rng = self._rng("mru", 0)
-        rpy += np.deg2rad(mm.mru_bias_deg)
-        rpy += np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(rpy.shape)
-        rate += np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(rate.shape)
-        keep = ~in_windows(t, self.scenario.world.mru.outages_s)
-        if not keep.all():
-            t, rpy, rate = t[keep], rpy[keep], rate[keep]
-        return MruLog(t, rpy, rate, max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
-
     def _encoder_log(self) -> dict[str, np.ndarray]:
         """The encoders as they are: specified noise plus the world's unstated biases."""
         cfg, bias = self.scenario.installation.encoders, self.scenario.world.mismatch.encoder_bias_deg

@@ -20,15 +20,15 @@ import numpy as np
 
 from boomtip.data.frames import LIFT_TRUTH_COLUMNS, Truth
 from boomtip.data.meshes import Label
-from boomtip.data.sim.hook_world import HookSimulation, StoredTruth, hanging_rotation, hook_bodies, rot_z
+from boomtip.data.sim.hook_world import HookSimulation, hanging_rotation, hook_bodies, rot_z
 from boomtip.data.sim.lift_programme import LiftPlan
 from boomtip.data.sim.load_mesh import load_parts
 from boomtip.data.poses import rpy_matrices
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import Body, feeder_vessel, sea_surface
 from boomtip.data.sim.simulator import frame_times
+from boomtip.data.sim.stored import TRUTH_CHUNK, StoredTruth
 
-TRUTH_CHUNK = 4096  # truth rows made at a time
 
 
 def height_above_deck(points_world: np.ndarray, R_feeder: np.ndarray, p_feeder: np.ndarray,

@@ -17,7 +17,8 @@ from boomtip.data.poses import rpy_matrices
 from boomtip.data.sim.motion import BodyStates, ShiftedSines, ShipMotion
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.sim.run import SimulatedRun
-from boomtip.data.sim.world import in_windows, true_lidar, true_radar, true_T_boomtip_sensor
+from boomtip.data.sim.stored import TRUTH_CHUNK, FrameSchedule, StoredTruth, TrackFiles
+from boomtip.data.sim.world import in_windows, mru_faults, true_lidar, true_radar, true_T_boomtip_sensor
 from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
 from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, multipath_ghosts, radar_measure, radar_pattern
 from boomtip.data.sim.truth import relative_heave, tip_states
@@ -213,7 +214,7 @@ class Simulation(FrameSource):
         self.truth = self._truth()
 
     # -- schedule ------------------------------------------------------------------------
-    def _frame_schedule(self) -> list[tuple[float, str, int]]:
+    def _frame_schedule(self) -> FrameSchedule:
         """(time stamp, sensor, index): each sensor fires on the ticks of its own clock, which
         runs `clock_offset_s` ahead of true time (the frame is cast at stamp - offset)."""
         s = self.scenario
@@ -223,7 +224,7 @@ class Simulation(FrameSource):
             t = frame_times(rate, s.duration_s)
             out = in_windows(t, getattr(s.world, sensor).outages_s)  # the sensor gives nothing then
             items += [(float(tk), sensor, i) for i, tk in enumerate(t) if not out[i]]
-        return sorted(items)
+        return FrameSchedule(sorted(items))
 
     def __len__(self) -> int:
         return len(self._schedule)
@@ -364,13 +365,18 @@ class Simulation(FrameSource):
     # -- MRU and truth -------------------------------------------------------------------
     def _mru_log(self) -> MruLog:
         """The MRU as it really is: its specified noise, plus the world's unstated bias and lag
-        (a sample stamped t holds the attitude of t - lag)."""
+        (a sample stamped t holds the attitude of t - lag). The vessel's states are evaluated
+        TRUTH_CHUNK samples at a time: all at once, a long run's would raise its peak memory."""
         cfg, mm = self.scenario.installation.mru, self.scenario.world.mismatch
         t = frame_times(cfg.rate_hz, self.scenario.duration_s + 1.0 / cfg.rate_hz)
-        st = self.world.crane_motion.states(t - mm.mru_lag_s)
+        rpy, rate = np.empty((len(t), 3)), np.empty((len(t), 3))
+        for a in range(0, len(t), TRUTH_CHUNK):
+            st = self.world.crane_motion.states(t[a:a + TRUTH_CHUNK] - mm.mru_lag_s)
+            rpy[a:a + TRUTH_CHUNK], rate[a:a + TRUTH_CHUNK] = st.rpy_rad, st.rpy_rate_radps
         rng = self._rng("mru", 0)
-        rpy = st.rpy_rad + np.deg2rad(mm.mru_bias_deg) + np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(st.rpy_rad.shape)
-        rate = st.rpy_rate_radps + np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(st.rpy_rad.shape)
+        rpy += np.deg2rad(mm.mru_bias_deg)
+        rpy += np.deg2rad(cfg.angle_noise_deg) * rng.standard_normal(rpy.shape)
+        rate += np.deg2rad(cfg.rate_noise_degps) * rng.standard_normal(rate.shape)
         real = self.scenario.world.mru
         rpy, rate = mru_faults(t, rpy, rate, real.glitches_s, np.deg2rad(real.glitch_rpy_deg), real.frozen_s)
         keep = ~in_windows(t, real.outages_s)
@@ -390,31 +396,22 @@ class Simulation(FrameSource):
         return MruLog(t[keep], rpy[keep], rate[keep], max_gap_s=max(0.1, 5.0 / cfg.rate_hz))
 
     def _truth(self) -> Truth:
+        """The truth table at the truth rate, made TRUTH_CHUNK rows at a time into files of its own."""
         s = self.scenario
         t = frame_times(s.world.truth_rate_hz, s.duration_s + 1.0 / s.world.truth_rate_hz)
-        crane = self.world.crane_motion.states(t)
-        feeder = self.world.feeder_motion.states(t)
-        p_tip, v_tip = tip_states(crane, np.asarray(s.installation.crane.geometry.boom_tip_m))
-        D, D_dot = relative_heave(p_tip, v_tip, self.world.deck_plane_body, feeder)
-        cols: dict[str, np.ndarray] = {"t": t, "D": D, "D_dot": D_dot}
-        for name, st in zip(BODIES, (crane, feeder)):
-            for i, ax in enumerate("xyz"):
-                cols[f"{name}_{ax}"] = st.position_m[:, i]
-                cols[f"{name}_v{ax}"] = st.velocity_mps[:, i]
-                cols[f"{name}_w{ax}"] = st.omega_radps[:, i]
-            for i, ang in enumerate(("roll", "pitch", "yaw")):
-                cols[f"{name}_{ang}"] = st.rpy_rad[:, i]
-        return Truth({k: cols[k] for k in TRUTH_COLUMNS})
-
-
-def mru_faults(t: np.ndarray, rpy: np.ndarray, rate: np.ndarray, glitches_s, glitch_rpy_rad: np.ndarray,
-               frozen_s) -> tuple[np.ndarray, np.ndarray]:
-    """The MRU's samples with its faults: inside a glitch window the glitch's attitude (rates
-    as they were); inside a frozen window the last sample before it, bit for bit."""
-    rpy, rate = rpy.copy(), rate.copy()
-    rpy[in_windows(t, glitches_s)] = glitch_rpy_rad
-    for a, b in frozen_s:
-        inside = np.flatnonzero((t >= a) & (t < b))
-        if len(inside) and inside[0] > 0:
-            rpy[inside], rate[inside] = rpy[inside[0] - 1], rate[inside[0] - 1]
-    return rpy, rate
+        files = TrackFiles()
+        for a in range(0, len(t), TRUTH_CHUNK):
+            crane = self.world.crane_motion.states(t[a:a + TRUTH_CHUNK])
+            feeder = self.world.feeder_motion.states(t[a:a + TRUTH_CHUNK])
+            p_tip, v_tip = tip_states(crane, np.asarray(s.installation.crane.geometry.boom_tip_m))
+            D, D_dot = relative_heave(p_tip, v_tip, self.world.deck_plane_body, feeder)
+            for col, v in (("D", D), ("D_dot", D_dot)):
+                files.append(col, v)
+            for name, st in zip(BODIES, (crane, feeder)):
+                for i, ax in enumerate("xyz"):
+                    files.append(f"{name}_{ax}", st.position_m[:, i])
+                    files.append(f"{name}_v{ax}", st.velocity_mps[:, i])
+                    files.append(f"{name}_w{ax}", st.omega_radps[:, i])
+                for i, ang in enumerate(("roll", "pitch", "yaw")):
+                    files.append(f"{name}_{ang}", st.rpy_rad[:, i])
+        return StoredTruth(t, files, TRUTH_COLUMNS)

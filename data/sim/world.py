@@ -333,3 +333,16 @@ def true_T_boomtip_sensor(surveyed: Mount, error_rpy_deg) -> np.ndarray:
     T = surveyed.matrix()
     T[:3, :3] = T[:3, :3] @ Rotation.from_euler("xyz", error_rpy_deg, degrees=True).as_matrix()
     return T
+
+
+def mru_faults(t: np.ndarray, rpy: np.ndarray, rate: np.ndarray, glitches_s, glitch_rpy_rad: np.ndarray,
+               frozen_s) -> tuple[np.ndarray, np.ndarray]:
+    """The MRU's samples with its faults: inside a glitch window the glitch's attitude (rates
+    as they were); inside a frozen window the last sample before it, bit for bit."""
+    rpy, rate = rpy.copy(), rate.copy()
+    rpy[in_windows(t, glitches_s)] = glitch_rpy_rad
+    for a, b in frozen_s:
+        inside = np.flatnonzero((t >= a) & (t < b))
+        if len(inside) and inside[0] > 0:
+            rpy[inside], rate[inside] = rpy[inside[0] - 1], rate[inside[0] - 1]
+    return rpy, rate
