@@ -7,6 +7,11 @@ the beam spacing (several centimetres). So the offset is what is filtered: a ran
 horizontal axis, measured each frame as the load's centre less the rope's line at its height,
 and the landing point is the rope's line (this frame's) plus the filtered offset.
 
+One frame's centre error is not independent of the next: it comes from where the beams fall on
+the load's edges, which changes only as the load moves across them. Frames closer together than
+that error's correlation time share it, so each is taken with its variance times the number of
+frames in that time: averaging them is not taken to beat it down.
+
 Two independent scalar random walks: a Kalman filter of one state per axis, written out (the
 predict is P += q dt, the update a scalar gain).
 """
@@ -25,8 +30,9 @@ GATE_SIGMAS = 5.0  # an offset beyond this many sigmas of the prediction is anot
 class LandingOffsetFilter:
     """The load centre's horizontal offset (m, levelled frame) from the rope's line."""
 
-    def __init__(self, rate_sigma_mps: float) -> None:
+    def __init__(self, rate_sigma_mps: float, error_correlation_s: float = 0.0) -> None:
         self.q = rate_sigma_mps**2
+        self.error_correlation_s = error_correlation_s
         self.x = np.full(2, np.nan)  # until the first offset, which sets it with its own variance
         self.P = math.inf
         self.t_s = math.nan
@@ -41,7 +47,8 @@ class LandingOffsetFilter:
         P = self.predicted_var(t_s)
         if np.any(np.abs(offset_m - self.x) > GATE_SIGMAS * math.sqrt(P + sigma_m**2)):
             return False
-        k = P / (P + sigma_m**2)
+        shared = max(1.0, self.error_correlation_s / max(t_s - self.t_s, 1e-9))  # the frames sharing its error
+        k = P / (P + shared * sigma_m**2)
         self.x = self.x + k * (np.asarray(offset_m, float) - self.x)
         self.P, self.t_s = (1.0 - k) * P, t_s
         return True

@@ -80,7 +80,7 @@ class LiftChain:
         self.block_height_m = self.hook.pipeline.cfg.block_height_m
         self.lidar_noise = (inst.lidar.range_noise_m, inst.lidar.angular_step_rad)
         self.filters = ClearanceFilters(self.cfg.filter, (CLEARANCE_SOURCE, HEIGHT_SOURCE, RATE_SOURCE, HEIGHT_RATE_SOURCE))
-        self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps)
+        self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps, self.cfg.landing_error_correlation_s)
         self.touchdown = TouchdownDetector(self.cfg.landed_hold_s)
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
         self.hoist = (math.nan, math.nan)  # the rope's length and rate (the hook tracker's) at the last frame

@@ -57,6 +57,9 @@ class LiftProcessing(StrictModel):
                                                  "the rope's line (the slings' give, the load turning on them: a load "
                                                  "slung from the hook swings with it, its centre's offset drifts by "
                                                  "millimetres a second): the landing point's filter (fusion.landing_filter)")
+    landing_error_correlation_s: float = Field(0.5, ge=0, description="one frame's load-centre error (where the beams "
+                                               "fall on its edges) lasts about this long, as the load moves across "
+                                               "them: frames closer than this are not taken as independent")
     lost_sigma_m: float = Field(0.1, gt=0, description="a clearance whose sigma exceeds this is lost: left empty in "
                                 "lift_estimates.csv with the reason (no frame has held it for a while)")
     landed_hold_s: float = Field(0.5, gt=0, description="the load has landed once its measured clearance has stayed at "
