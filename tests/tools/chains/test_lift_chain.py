@@ -37,11 +37,13 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     assert c["samples"] > 300
     assert c["rmse_m"] < 0.008 and c["max_abs_m"] < 0.03 and c["within_3sigma"] > 0.95
     # the radar's Doppler on the load and the deck: the rates to a centimetre or two a second
-    assert lift["clearance_rate"]["rmse_mps"] < 0.03
+    assert lift["clearance_rate"]["rmse_mps"] < 0.02
     assert lift["relative_velocity"]["rmse_mps"] < 0.015 and lift["relative_velocity"]["within_3sigma"] > 0.95
     radar = lift["radar"]
     assert radar["scans"] == 900 and radar["rate_fraction"] > 0.95 and radar["time_ms"] < 20 and radar["filter_restarts"] == 1
-    assert lift["landing_point"]["rmse_m"] < 0.1 and lift["landing_point"]["rmse_m"] < lift["landing_point"]["measured_rmse_m"]
+    # one frame's centre is known to several centimetres; filtered, to one or two, and its sigma covers it
+    landing = lift["landing_point"]
+    assert landing["rmse_m"] < 0.025 and landing["rmse_m"] < 0.3 * landing["measured_rmse_m"] and landing["within_3sigma"] > 0.97
     fc = lift["forecast"]
     assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1
     assert fc["rmse_mps_at_2s"] < fc["rmse_mps_at_2s_with_hoist_changes"]  # the hoist starts lowering at 16 s
