@@ -23,17 +23,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse import coo_matrix
+from scipy.special import ndtr
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from boomtip.perception.geometry import plane_sigma_at
 
-__all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy", "footprint_radius_m", "plane_height_at", "index_mask"]
+__all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy", "footprint_radius_m", "plane_height_at", "index_mask",
+           "chance_lowest"]
 
 STATUS_OK = "ok"
 MAX_REFITS = 5  # a plane refitted without its outliers at most this often
 MAD_FLOOR_M = 1e-4  # a plane's robust sigma never below this (points exactly on it would reject all else)
 LOWEST_SEEN_POINTS = 5  # without a model: the load's bottom is the mean of its few lowest points
+MIN_CHANCE = 1e-3  # a corner less likely than this to be the lowest adds nothing to C or its rate
 SEARCH_DEPTH_M = 40.0  # the load and its deck are looked for this far below the hook at most
 
 
@@ -199,9 +202,13 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
              else _lowest_seen(pts[load], range_noise_m))
     if under is None:
         return LoadClearance("no top face on the load", n_load=n_load, n_deck=len(deck_pts), **masks)
-    # the lowest point is the one nearest the deck below it (a rolling deck is not level)
+    # the lowest point is the one nearest the deck below it (a rolling deck is not level); which
+    # one that is, is uncertain when others lie within their sigmas: C is each corner's height
+    # weighted by its chance to be the lowest (the least of noisy heights would read low)
     cand = under.candidates
-    k_low = int(np.argmin(cand[:, 2] - plane_height_at(deck_coef, cand[:, :2])))
+    heights = cand[:, 2] - plane_height_at(deck_coef, cand[:, :2])
+    chance = chance_lowest(heights, under.sigma_candidates_m)
+    k_low = int(np.argmax(chance))
     lowest = cand[k_low]
     deck_z, centre = float(plane_height_at(deck_coef, lowest[:2])), under.centre
     plane = _as_plane(deck_coef)
@@ -215,9 +222,13 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     # faces' slopes differ
     sigma_centre = max(float(np.linalg.norm(centre)) * angular_step_rad / math.sqrt(24.0), range_noise_m)
     sigma_place = sigma_centre * float(np.linalg.norm(under.gradient - deck_coef[1:]))
-    sigma = math.sqrt(under.sigma_candidates_m[k_low] ** 2 + deck_sigma(lowest[:2]) ** 2 + sigma_place**2)
+    likely = np.flatnonzero(chance >= MIN_CHANCE)
+    w = chance[likely] / chance[likely].sum()
+    var_each = np.array([under.sigma_candidates_m[k] ** 2 + deck_sigma(cand[k, :2]) ** 2 + sigma_place**2 for k in likely])
+    clearance = float(w @ heights[likely])
+    sigma = math.sqrt(float(w @ (var_each + (heights[likely] - clearance) ** 2)))
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
-    return LoadClearance(STATUS_OK, float(lowest[2] - deck_z), sigma, lowest, centre, sigma_centre, deck_z,
+    return LoadClearance(STATUS_OK, clearance, sigma, lowest, centre, sigma_centre, deck_z,
                          float(plane_height_at(deck_coef, centre[:2])), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
                          under.sigma_candidates_m, **masks)
 
@@ -242,6 +253,16 @@ def index_mask(n: int, idx: np.ndarray) -> np.ndarray:
     m = np.zeros(n, bool)
     m[idx] = True
     return m
+
+
+def chance_lowest(heights_m: np.ndarray, sigmas_m: np.ndarray) -> np.ndarray:
+    """Each candidate's chance to be the lowest, their heights Gaussian and independent with
+    these 1-sigma: the product of its chances to lie below each other one, normalised (exact for
+    two candidates, close for a box's four corners)."""
+    below = ndtr((heights_m[None, :] - heights_m[:, None]) / np.maximum(np.hypot(sigmas_m[:, None], sigmas_m[None, :]), 1e-12))
+    np.fill_diagonal(below, 1.0)
+    chance = below.prod(axis=1)
+    return chance / chance.sum()
 
 
 @dataclass

@@ -27,17 +27,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.special import ndtr
 
 from boomtip.perception.doppler import DopplerConfig, doppler_velocity
-from boomtip.perception.lift import LoadClearance, index_mask, plane_height_at, rope_line_xy
+from boomtip.perception.lift import MIN_CHANCE, LoadClearance, chance_lowest, index_mask, plane_height_at, rope_line_xy
 from boomtip.perception.preprocess import PreprocessConfig
 
-__all__ = ["LiftRadarConfig", "ClearanceRate", "measure_clearance_rate", "load_spin", "chance_lowest"]
+__all__ = ["LiftRadarConfig", "ClearanceRate", "measure_clearance_rate", "load_spin"]
 
 STATUS_OK = "ok"
 MAD_TO_SIGMA = 1.4826
-MIN_CHANCE = 1e-3  # a corner less likely than this to be the lowest adds nothing to the rate
 
 
 class LiftRadarConfig(BaseModel):
@@ -85,16 +83,6 @@ def load_spin(hook_m: np.ndarray, hook_velocity_mps: np.ndarray) -> np.ndarray:
     """The hanging load's angular velocity (rad/s, levelled axes): it turns with the rope's line
     from the tip, r x r_dot / |r|^2 (its spin about the rope itself moves no point vertically)."""
     return np.cross(hook_m, hook_velocity_mps) / float(hook_m @ hook_m)
-
-
-def chance_lowest(heights_m: np.ndarray, sigmas_m: np.ndarray) -> np.ndarray:
-    """Each candidate's chance to be the lowest, their heights Gaussian and independent with
-    these 1-sigma: the product of its chances to lie below each other one, normalised (exact for
-    two candidates, close for a box's four corners)."""
-    below = ndtr((heights_m[None, :] - heights_m[:, None]) / np.maximum(np.hypot(sigmas_m[:, None], sigmas_m[None, :]), 1e-12))
-    np.fill_diagonal(below, 1.0)
-    chance = below.prod(axis=1)
-    return chance / chance.sum()
 
 
 def _vertical_at(omega: np.ndarray, lever_m: np.ndarray) -> float:

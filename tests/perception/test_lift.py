@@ -7,8 +7,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.special import ndtr
 
-from boomtip.perception.lift import LiftConfig, height_plane, measure_clearance, rope_line_xy
+from boomtip.perception.lift import LiftConfig, chance_lowest, height_plane, measure_clearance, plane_height_at, rope_line_xy
 
 SIZE = (6.058, 2.438, 2.591)
 HOOK = np.array([0.5, -0.3, -60.0])
@@ -70,6 +71,21 @@ def test_the_lowest_point_is_the_corner_nearest_the_deck_below_not_the_lowest_in
     obs = measure_clearance(pts, HOOK, BLOCK_M, SIZE, LiftConfig(), range_noise_m=NOISE_M, angular_step_rad=0.4 / 70)
     assert obs.ok and abs(obs.clearance_m - C_true) <= 3 * obs.sigma_m
     assert obs.lowest_point_m[0] > centre[0] + 2.0  # the +x end
+
+
+def test_a_level_loads_corners_give_c_as_their_heights_weighted_by_their_chance_to_be_lowest():
+    # level load, level deck: the four corners' heights differ by their noise alone, so the least
+    # of them reads low; C weighs each by its chance to be the lowest
+    pts, C_true, _ = scene(deck=(-80.0, 0.0, 0.0), yaw=0.3, tilt=(0.0, 0.0), seed=3, spacing=0.6)
+    obs = measure_clearance(pts, HOOK, BLOCK_M, SIZE, LiftConfig(), range_noise_m=NOISE_M, angular_step_rad=0.6 / 70)
+    h = obs.candidates_m[:, 2] - plane_height_at(obs.deck_plane, obs.candidates_m[:, :2])
+    w = chance_lowest(h, obs.candidate_sigmas_m)
+    assert w.max() < 0.9  # no corner is surely the lowest
+    assert obs.clearance_m == pytest.approx(float(w @ h), abs=1e-12) and h.min() < obs.clearance_m < h.mean()
+    assert obs.sigma_m > float(np.sqrt(w @ (h - obs.clearance_m) ** 2))  # their spread is in its sigma
+    tilted, _, _ = scene(tilt=(0.03, 0.01), seed=3)  # a tilted load: its lowest corner is sure, C is its height
+    obs = measure_clearance(tilted, HOOK, BLOCK_M, SIZE, LiftConfig(), range_noise_m=NOISE_M, angular_step_rad=0.4 / 70)
+    assert obs.clearance_m == pytest.approx(obs.lowest_point_m[2] - obs.deck_z_m, abs=1e-9)
 
 
 def test_without_a_model_the_clearance_is_to_the_lowest_point_seen():
@@ -137,3 +153,13 @@ def test_without_a_model_cargo_within_the_search_radius_is_not_taken_for_the_loa
     obs = measure_clearance(np.vstack([pts, crate]), HOOK, BLOCK_M, None, LiftConfig(), range_noise_m=NOISE_M)
     assert obs.ok and obs.clearance_m > C_true + SIZE[2] - 0.1  # the load's top, not the crate's 2 m
     assert not obs.load_mask[len(pts):].any()
+
+
+def test_the_chance_to_be_lowest_is_the_normal_law_of_the_difference_for_two_and_sums_to_one():
+    c = chance_lowest(np.array([0.10, 0.12]), np.array([0.01, 0.02]))
+    assert c[0] == pytest.approx(ndtr(0.02 / math.hypot(0.01, 0.02)), rel=1e-12) and c.sum() == pytest.approx(1.0)
+    four = chance_lowest(np.array([0.10, 0.10, 0.10, 0.10]), np.full(4, 0.01))
+    assert four == pytest.approx(np.full(4, 0.25))
+    far = chance_lowest(np.array([0.5, 0.1, 0.9, 0.3]), np.full(4, 0.01))
+    assert far[1] == pytest.approx(1.0, abs=1e-12) and far.sum() == pytest.approx(1.0)
+    assert np.all(np.diff(chance_lowest(np.array([0.10, 0.11, 0.12]), np.full(3, 0.01))) < 0)  # lower, likelier

@@ -8,10 +8,9 @@ import math
 
 import numpy as np
 import pytest
-from scipy.special import ndtr
 
 from boomtip.perception.lift import LoadClearance
-from boomtip.perception.lift_doppler import LiftRadarConfig, chance_lowest, load_spin, measure_clearance_rate
+from boomtip.perception.lift_doppler import LiftRadarConfig, load_spin, measure_clearance_rate
 
 ORIGIN = np.array([1.5, -0.6, -0.8])  # the radar, levelled frame at the tip
 HOOK = np.array([0.3, -0.2, -50.0])
@@ -163,16 +162,6 @@ def test_two_corners_equally_low_give_the_mean_of_their_rates_widened_by_their_d
     assert abs(r[0] - r[1]) > 0.01  # the tilting load's corners part by centimetres a second
     assert tied.clearance_rate_mps == pytest.approx(np.mean(r), abs=1e-12)
     assert tied.sigma_mps == pytest.approx(math.sqrt(np.mean([e.sigma_mps**2 for e in each]) + (r[0] - r[1]) ** 2 / 4), rel=1e-9)
-
-
-def test_the_chance_to_be_lowest_is_the_normal_law_of_the_difference_for_two_and_sums_to_one():
-    c = chance_lowest(np.array([0.10, 0.12]), np.array([0.01, 0.02]))
-    assert c[0] == pytest.approx(ndtr(0.02 / math.hypot(0.01, 0.02)), rel=1e-12) and c.sum() == pytest.approx(1.0)
-    four = chance_lowest(np.array([0.10, 0.10, 0.10, 0.10]), np.full(4, 0.01))
-    assert four == pytest.approx(np.full(4, 0.25))
-    far = chance_lowest(np.array([0.5, 0.1, 0.9, 0.3]), np.full(4, 0.01))
-    assert far[1] == pytest.approx(1.0, abs=1e-12) and far.sum() == pytest.approx(1.0)
-    assert np.all(np.diff(chance_lowest(np.array([0.10, 0.11, 0.12]), np.full(3, 0.01))) < 0)  # lower, likelier
 
 
 def test_an_unknown_deck_spin_costs_its_sigma_through_the_whole_lever():
