@@ -8,7 +8,8 @@ down to the deck, and where that point would touch the deck.
     deck ring -> its dominant height (or about the last deck) -> a plane fitted, outliers out
     load      -> with its model: the top face's plane, its rectangle and the underside's lowest
                  corner; without: its lowest points seen
-    C = the lowest point's height above the deck plane straight below it
+    C = the corners' heights above the deck plane straight below each, each weighted by its
+        chance to be the lowest (the least of noisy heights would read low)
 
 C is a difference of two heights measured in the same frame a few metres apart, so the levelling's
 error (a tilt of the whole frame) moves both alike and cancels but for the slope it puts on that
@@ -65,8 +66,10 @@ class LiftConfig(BaseModel):
 
 @dataclass
 class LoadClearance:
-    """One frame's clearance: C (m) and its 1-sigma, the load's lowest point and its underside's
-    centre (levelled frame), the deck's height under each; status says why not when C is NaN."""
+    """One frame's clearance: C (m) and its 1-sigma, the load's likeliest lowest point and its
+    underside's centre (levelled frame), the deck's height under each; status says why not when
+    C is NaN. C is the candidates' heights weighted by their chance to be the lowest, so it equals
+    lowest_point_m's height above deck_z_m only where that corner is surely the lowest."""
 
     status: str
     clearance_m: float = math.nan
@@ -74,7 +77,7 @@ class LoadClearance:
     lowest_point_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     underside_centre_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     centre_sigma_m: float = math.nan  # the underside centre's 1-sigma per horizontal axis
-    deck_z_m: float = math.nan  # under the lowest point
+    deck_z_m: float = math.nan  # under the likeliest lowest point
     landing_z_m: float = math.nan  # the deck under the underside's centre
     centre_height_sigma_m: float = math.nan  # the centre's height above the deck: its 1-sigma
     n_load: int = 0
@@ -207,6 +210,8 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     # weighted by its chance to be the lowest (the least of noisy heights would read low)
     cand = under.candidates
     heights = cand[:, 2] - plane_height_at(deck_coef, cand[:, :2])
+    if not np.all(np.isfinite(heights)):
+        return LoadClearance("the load's corners not finite", n_load=n_load, n_deck=len(deck_pts), **masks)
     chance = chance_lowest(heights, under.sigma_candidates_m)
     k_low = int(np.argmax(chance))
     lowest = cand[k_low]

@@ -89,7 +89,7 @@ class _TruthColumns(Mapping):
 
 
 class StoredTruth(Truth):
-    """A hook run's truth table with its columns on disk (`TrackFiles`): ``at`` reads only the
+    """A simulated run's truth table with its columns on disk (`TrackFiles`): ``at`` reads only the
     rows about the asked times, ``columns`` reads a whole column when indexed."""
 
     def __init__(self, t: np.ndarray, files: TrackFiles, names: tuple[str, ...] = HOOK_TRUTH_COLUMNS) -> None:  # noqa: D107 (no dataclass fields of its own)

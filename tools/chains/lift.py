@@ -3,7 +3,7 @@ the block fitted, the hook tracked) and, on the same levelled cloud, the load un
 and the deck below it (perception.lift); at the end, the touchdown forecast
 (fusion.lift_forecast) and the hook's estimators.
 
-The clearance C (the lowest point's) and the height h (the underside centre's above the deck,
+The clearance C (the load's lowest point's, its corners weighed by their chance to be it) and the height h (the underside centre's above the deck,
 which moves with the relative vertical motion alone, not with the load's tilting) are followed
 by two filters (fusion.clearance_filters): with the radar's rates (perception.lift_radar), C and
 h themselves; without, the wave parts C + l and h + l (l the rope paid out, the hook tracker's).

@@ -186,8 +186,9 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
     centre_err = np.hypot(rows["centre_x_m"] - land_true[:, 0], rows["centre_y_m"] - land_true[:, 1])
     both_within = (np.maximum(np.abs(rows["landing_x_m"] - land_true[:, 0]), np.abs(rows["landing_y_m"] - land_true[:, 1]))
                    <= 3.0 * rows["landing_sigma_m"])
+    placed = m & np.isfinite(land_err)  # the rows with a landing point (a frame that measured the load)
     k["landing_point"] = {"rmse_m": _rms(land_err[m]), "measured_rmse_m": _rms(centre_err[m]),
-                          "within_3sigma": float(np.mean(both_within[m])) if m.any() else math.nan, "frame": "relative to the boom tip, world axes (the feeder's "
+                          "within_3sigma": float(np.mean(both_within[placed])) if placed.any() else math.nan, "frame": "relative to the boom tip, world axes (the feeder's "
                           "deck frame needs the feeder chain, not run here)"}
     k["touchdown_s"] = touchdown_time(truth)
     k["forecast"] = _forecast_kpis(f, truth)
