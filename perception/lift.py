@@ -24,14 +24,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse import coo_matrix
-from scipy.special import ndtr
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+from scipy.special import ndtr
 
 from boomtip.perception.geometry import plane_sigma_at
 
 __all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy", "footprint_radius_m", "plane_height_at", "index_mask",
-           "chance_lowest"]
+           "chance_lowest", "chance_weighted"]
 
 STATUS_OK = "ok"
 MAX_REFITS = 5  # a plane refitted without its outliers at most this often
@@ -227,11 +227,8 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     # faces' slopes differ
     sigma_centre = max(float(np.linalg.norm(centre)) * angular_step_rad / math.sqrt(24.0), range_noise_m)
     sigma_place = sigma_centre * float(np.linalg.norm(under.gradient - deck_coef[1:]))
-    likely = np.flatnonzero(chance >= MIN_CHANCE)
-    w = chance[likely] / chance[likely].sum()
-    var_each = np.array([under.sigma_candidates_m[k] ** 2 + deck_sigma(cand[k, :2]) ** 2 + sigma_place**2 for k in likely])
-    clearance = float(w @ heights[likely])
-    sigma = math.sqrt(float(w @ (var_each + (heights[likely] - clearance) ** 2)))
+    var_each = np.array([s**2 + deck_sigma(xy) ** 2 + sigma_place**2 for s, xy in zip(under.sigma_candidates_m, cand[:, :2])])
+    clearance, sigma = chance_weighted(chance, heights, var_each)
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, clearance, sigma, lowest, centre, sigma_centre, deck_z,
                          float(plane_height_at(deck_coef, centre[:2])), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
@@ -268,6 +265,15 @@ def chance_lowest(heights_m: np.ndarray, sigmas_m: np.ndarray) -> np.ndarray:
     np.fill_diagonal(below, 1.0)
     chance = below.prod(axis=1)
     return chance / chance.sum()
+
+
+def chance_weighted(chance: np.ndarray, values: np.ndarray, variances: np.ndarray) -> tuple[float, float]:
+    """The candidates' values (each with its variance) mixed by their chance to be the lowest,
+    those below MIN_CHANCE left out: the mixture's mean and 1-sigma (their spread included)."""
+    likely = chance >= MIN_CHANCE
+    w = chance[likely] / chance[likely].sum()
+    mean = float(w @ values[likely])
+    return mean, math.sqrt(float(w @ (variances[likely] + (values[likely] - mean) ** 2)))
 
 
 @dataclass

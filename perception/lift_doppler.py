@@ -29,7 +29,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from boomtip.perception.doppler import DopplerConfig, doppler_velocity
-from boomtip.perception.lift import MIN_CHANCE, LoadClearance, chance_lowest, index_mask, plane_height_at, rope_line_xy
+from boomtip.perception.lift import LoadClearance, chance_lowest, chance_weighted, index_mask, plane_height_at, rope_line_xy
 from boomtip.perception.preprocess import PreprocessConfig
 
 __all__ = ["LiftRadarConfig", "ClearanceRate", "measure_clearance_rate", "load_spin"]
@@ -172,11 +172,8 @@ def measure_clearance_rate(points_level: np.ndarray, origin_level: np.ndarray, r
     cand = fix.candidates_m if len(fix.candidates_m) else lowest[None, :]
     sigmas = (fix.candidate_sigmas_m if len(fix.candidate_sigmas_m) == len(cand) else np.full(len(cand), fix.sigma_m))
     chance = chance_lowest(cand[:, 2] - plane_height_at(fix.deck_plane, cand[:, :2]), sigmas)
-    likely = chance >= MIN_CHANCE
-    rates = np.array([closing(p) for p in cand[likely]])
-    w = chance[likely] / chance[likely].sum()
-    c_dot = float(w @ rates[:, 0])
-    s_c = math.sqrt(float(w @ (rates[:, 1] ** 2 + (rates[:, 0] - c_dot) ** 2)))
+    rates = np.array([closing(p) for p in cand])
+    c_dot, s_c = chance_weighted(chance, rates[:, 0], rates[:, 1] ** 2)
     h_dot, s_h = closing(centre)
     load_idx, deck_idx = np.flatnonzero(ok)[load][inliers], np.flatnonzero(ok)[deck][deck_fit.inlier_mask]
     return ClearanceRate(STATUS_OK, c_dot, h_dot, s_c, s_h, n_load, n_deck, index_mask(len(ok), load_idx), index_mask(len(ok), deck_idx))

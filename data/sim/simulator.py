@@ -399,11 +399,11 @@ class Simulation(FrameSource):
         """The truth table at the truth rate, made TRUTH_CHUNK rows at a time into files of its own."""
         s = self.scenario
         t = frame_times(s.world.truth_rate_hz, s.duration_s + 1.0 / s.world.truth_rate_hz)
-        files = TrackFiles()
+        files, boom_tip_m = TrackFiles(), np.asarray(s.installation.crane.geometry.boom_tip_m)
         for a in range(0, len(t), TRUTH_CHUNK):
             crane = self.world.crane_motion.states(t[a:a + TRUTH_CHUNK])
             feeder = self.world.feeder_motion.states(t[a:a + TRUTH_CHUNK])
-            p_tip, v_tip = tip_states(crane, np.asarray(s.installation.crane.geometry.boom_tip_m))
+            p_tip, v_tip = tip_states(crane, boom_tip_m)
             D, D_dot = relative_heave(p_tip, v_tip, self.world.deck_plane_body, feeder)
             for col, v in (("D", D), ("D_dot", D_dot)):
                 files.append(col, v)
