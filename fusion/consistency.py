@@ -6,8 +6,6 @@ it knows (too large) or much less (too small)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 from scipy.special import gammaincinv
 
@@ -24,22 +22,67 @@ def chi2_quantile(p: float | np.ndarray, dof: float | np.ndarray) -> np.ndarray:
     return 2.0 * gammaincinv(0.5 * np.asarray(dof, dtype=float), p)
 
 
-@dataclass
+# an update's row: time, NIS, degrees of freedom, noise scale
+_T, _NIS, _DOF, _SCALE = range(4)
+_FIRST_ROWS = 256  # a stream's first array; it doubles as it fills
+
+
 class Innovations:
     """Every update's NIS, per stream (the measurement's method): time, NIS, degrees of freedom,
-    and the factor the filter had widened the stream's stated covariance by (noise_matching)."""
+    and the factor the filter had widened the stream's stated covariance by (noise_matching).
+    Kept as one float64 array per stream (32 bytes an update; a tuple of Python numbers would
+    be five times that, and a long run has hundreds of thousands of updates)."""
 
-    rows: dict[str, list[tuple[float, float, int, float]]] = field(default_factory=dict)
+    def __init__(self) -> None:
+        self._rows: dict[str, np.ndarray] = {}
+        self._n: dict[str, int] = {}
 
     def add(self, stream: str, t_s: float, nis: float, dof: int, noise_scale: float = 1.0) -> None:
-        if np.isfinite(nis) and np.isfinite(t_s) and dof > 0:
-            self.rows.setdefault(stream, []).append((float(t_s), float(nis), int(dof), float(noise_scale)))
+        if not (np.isfinite(nis) and np.isfinite(t_s) and dof > 0):
+            return
+        rows, n = self._rows.get(stream), self._n.get(stream, 0)
+        if rows is None or n == len(rows):
+            grown = np.empty((max(_FIRST_ROWS, 2 * n), 4))
+            if rows is not None:
+                grown[:n] = rows
+            self._rows[stream] = rows = grown
+        rows[n] = (t_s, nis, dof, noise_scale)
+        self._n[stream] = n + 1
+
+    @property
+    def streams(self) -> list[str]:
+        return sorted(self._rows)
+
+    def count(self, stream: str) -> int:
+        return self._n.get(stream, 0)
 
     def arrays(self, stream: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Time, NIS, degrees of freedom and noise scale, in time order."""
-        a = np.array(self.rows.get(stream, []), dtype=float).reshape(-1, 4)
-        a = a[np.argsort(a[:, 0], kind="stable")]
-        return a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+        a = self._rows.get(stream, np.zeros((0, 4)))[:self.count(stream)]
+        a = a[np.argsort(a[:, _T], kind="stable")]
+        return a[:, _T], a[:, _NIS], a[:, _DOF], a[:, _SCALE]
+
+    def only(self, streams) -> "Innovations":
+        """These streams' rows alone."""
+        out = Innovations()
+        for s in self._rows:
+            if s in streams:
+                out._rows[s], out._n[s] = self._rows[s][:self._n[s]].copy(), self._n[s]
+        return out
+
+    @staticmethod
+    def merged(parts: list["Innovations"], until_s: float = float("inf")) -> "Innovations":
+        """The rows of several filters' innovations per stream, those before until_s."""
+        out = Innovations()
+        for s in sorted({s for p in parts for s in p._rows}):
+            rows = np.concatenate([p._rows[s][:p._n[s]] for p in parts if s in p._rows])
+            rows = rows[rows[:, _T] < until_s]
+            out._rows[s], out._n[s] = rows, len(rows)
+        return out
+
+    def __getstate__(self) -> dict:
+        """Pickled (a solution's filter run in another process) without the arrays' unused rows."""
+        return {"_rows": {s: a[:self._n[s]].copy() for s, a in self._rows.items()}, "_n": dict(self._n)}
 
 
 def _window_sums(t_s: np.ndarray, nis: np.ndarray, dof: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +130,7 @@ def consistency_block(innovations: Innovations, window_s: float = WINDOW_S) -> d
     """stream_consistency of every stream, with how far the filter widened its stated noise
     (`noise_scale_max`, `noise_scale_last`: factors on its variance)."""
     block = {}
-    for s in sorted(innovations.rows):
+    for s in innovations.streams:
         t, nis, dof, scales = innovations.arrays(s)
         block[s] = stream_consistency(t, nis, dof, window_s=window_s)
         if len(scales):
@@ -105,7 +148,7 @@ def consistent_rows(t_out: np.ndarray, innovations: Innovations, window_s: float
     after it by the sensor's latency. True where no update falls in the window."""
     ok = np.ones(len(t_out), dtype=bool)
     alpha = 1.0 - probability
-    for stream in innovations.rows:
+    for stream in innovations.streams:
         t, nis, dof, _ = innovations.arrays(stream)
         cs, cd = np.r_[0.0, np.cumsum(nis)], np.r_[0.0, np.cumsum(dof)]
         hi_i = np.searchsorted(t, t_out, side="right")

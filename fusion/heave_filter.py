@@ -30,6 +30,7 @@ from filterpy.kalman import KalmanFilter
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from scipy.stats import chi2
 
+from boomtip.fusion.consistency import Innovations
 from boomtip.fusion.noise_matching import NoiseMatch, matched_ratio
 
 Quantity = Literal["D", "D_dot"]
@@ -234,8 +235,8 @@ class HeaveFilter:
         # (measurement, status) for everything add() did not accept, as decided on arrival.
         # A later replay may revise a buffered measurement's gating; add() reports the first call.
         self.rejected: list[tuple[Measurement, Status]] = []
-        # (t_acq, source, NIS) of measurements that can no longer be replayed: final
-        self._settled_nis: list[tuple[float, str, float, float]] = []
+        # the NIS of measurements that can no longer be replayed: final
+        self._settled_nis = Innovations()
 
     # ---- public API -------------------------------------------------------------------------
 
@@ -297,11 +298,14 @@ class HeaveFilter:
             return cp.x[:, 0].copy(), cp.P.copy()
         return predict_state(cp.x, cp.P, dt_s, self.config.jerk_psd)
 
-    def innovations(self) -> list[tuple[float, str, float, float]]:
-        """(t_acq, source, NIS, noise scale) of every measurement that met the filter's prediction, in
-        acquisition order (a gated one too: its innovation is evidence all the same)."""
-        live = [(e.m.t_acq_s, e.m.source, e.nis, e.noise_scale) for e in self._entries if e.nis == e.nis]
-        return self._settled_nis + live
+    def innovations(self) -> Innovations:
+        """The NIS (one degree of freedom) and noise scale of every measurement that met the
+        filter's prediction, per source, at its acquisition time (a gated one too: its innovation
+        is evidence all the same)."""
+        out = Innovations.merged([self._settled_nis])
+        for e in self._entries:
+            out.add(e.m.source, e.m.t_acq_s, e.nis, 1, e.noise_scale)  # a NaN NIS (not met) is not kept
+        return out
 
     @property
     def last_time_s(self) -> float:
@@ -336,8 +340,8 @@ class HeaveFilter:
         while n < len(self._entries) and self._entries[n].after.t_s < horizon_s:
             n += 1
         if n:
-            self._settled_nis.extend((e.m.t_acq_s, e.m.source, e.nis, e.noise_scale) for e in self._entries[:n]
-                                     if e.nis == e.nis)
+            for e in self._entries[:n]:
+                self._settled_nis.add(e.m.source, e.m.t_acq_s, e.nis, 1, e.noise_scale)
             self._base = self._entries[n - 1].after
             del self._entries[:n]
             del self._keys[:n]

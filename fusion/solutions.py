@@ -230,10 +230,7 @@ def run_solution(name: str, measurements: list[Measurement], cfg: FusionConfig, 
             var[k, 1] += (xk[2] * clock_s["D_dot"]) ** 2
             if cfg.wave_predictor and name != "doppler_radar":
                 waves.step(tick, t, t - filt.last_time_s, x[k], var[k])
-    innovations = Innovations()
-    for t_acq, source, nis, scale in filt.innovations():
-        if source in streams:  # not the wave bridge's hand-over
-            innovations.add(source, t_acq, nis, 1, scale)
+    innovations = filt.innovations().only(streams)  # not the wave bridge's hand-over
     filter_ms = (time.perf_counter() - t0) * 1e3
     return Estimates(name, t_out, x, var, filter_ms, len(inputs), statuses, lost_estimates(x, var, cfg, max_D_m),
                      innovations, consistent_rows(t_out, innovations))

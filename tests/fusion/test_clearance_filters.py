@@ -35,7 +35,7 @@ def test_with_rates_the_filters_follow_c_and_h_and_the_rates_hold():
     assert f.follow_rates and f.restarts == 1  # the first frame had no rate yet
     late = out[:, 0] > 3.0
     assert np.abs(out[late, 1] - out[late, 3]).max() < 0.01 and np.abs(out[late, 2] - out[late, 4]).max() < 0.01
-    sources = {s for filt in f.filters() for _, s, _, _ in filt.innovations()}
+    sources = {s for filt in f.filters() for s in filt.innovations().streams}
     assert sources == set(SOURCES)
 
 

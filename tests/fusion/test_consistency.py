@@ -62,5 +62,5 @@ def test_consistent_rows_are_causal_and_clear_a_window_after_the_burst():
     assert ok[t_out < 20].all()  # nothing before the burst knows of it
     assert not ok[(t_out > 21) & (t_out < 30)].any()  # while the burst fills much of the window
     assert ok[t_out >= 35.1].all()  # the burst has left the trailing 10 s
-    assert len(inn.rows["deck_radar"]) == len(t)
+    assert inn.count("deck_radar") == len(t) and inn.streams == ["deck_radar"]
     assert list(consistency_block(inn)) == ["deck_radar"]

@@ -16,7 +16,7 @@ from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import SENSOR_OF, Measurement
 from boomtip.tools.report.heave import COLORS
 from boomtip.tools.report.kpis import consistency_table
-from boomtip.tools.report.plots import PLOTS_DIR, legend, plot_link, plot_path, save
+from boomtip.tools.report.plots import PLOTS_DIR, decimated, legend, plot_link, plot_path, save
 
 EPOCH_LIKE_S = 1e8  # a clock beyond this (1973) counts seconds since the epoch; below, a sensor's own
 
@@ -111,10 +111,11 @@ def _plot(out: Path, estimates: dict[str, Estimates], t_origin_s: float | None =
             if name == "doppler_radar" and qi == 0:
                 continue  # integrated D drifts by design
             c = COLORS.get(name)
-            ax[qi].plot(e.t_s, e.x[:, qi], lw=1, color=c, label=name)
+            ax[qi].plot(*decimated(e.t_s, e.x[:, qi]), lw=1, color=c, label=name)
             if name == "fused":
                 s = 3 * np.sqrt(e.var[:, qi])
-                ax[qi].fill_between(e.t_s, e.x[:, qi] - s, e.x[:, qi] + s, color=c, alpha=0.2, label="fused +-3 sigma")
+                ax[qi].fill_between(*decimated(e.t_s, e.x[:, qi] - s, e.x[:, qi] + s), color=c, alpha=0.2,
+                                    label="fused +-3 sigma")
         ax[qi].set_ylabel(label)
         legend(ax[qi], fontsize=8)
     ax[1].set_xlabel("t [s] from the recording's start")

@@ -26,7 +26,7 @@ from boomtip.tools.report.feeder_truth import (
     feeder_twist_truth,
 )
 from boomtip.tools.report.kpis import WARMUP_S
-from boomtip.tools.report.plots import legend, plot_link, plot_path, save
+from boomtip.tools.report.plots import decimated, legend, plot_link, plot_path, save
 
 RATES = tuple(f"{a}_rate" for a in POSE)
 COLUMNS = ("t",) + POSE + RATES + tuple(f"var_{a}" for a in POSE + RATES)
@@ -328,11 +328,11 @@ def write_feeder_plot(out: Path, res: FeederResult, truth: Truth | None, p_tip_c
         sig = 3 * np.sqrt(res.var[:, i]) * scale[i]
         if pose_t is not None:
             e = (res.pose[:, i] - pose_t[:, i]) * scale[i]
-            ax.plot(res.t_s, e, lw=0.8, label="error")
-            ax.fill_between(res.t_s, -sig, sig, alpha=0.2, label="3 sigma")
+            ax.plot(*decimated(res.t_s, e), lw=0.8, label="error")
+            ax.fill_between(*decimated(res.t_s, -sig, sig), alpha=0.2, label="3 sigma")
             ax.set_ylabel(f"{POSE[i]} err [{units[i]}]")
         else:
-            ax.plot(res.t_s, res.pose[:, i] * scale[i], lw=0.8)
+            ax.plot(*decimated(res.t_s, res.pose[:, i] * scale[i]), lw=0.8)
             ax.set_ylabel(f"{POSE[i]} [{units[i]}]")
         ax.grid(alpha=0.3)
     legend(axes[0])

@@ -11,7 +11,7 @@ from boomtip.data.io.atomic import atomic_write_bytes
 from boomtip.fusion.solutions import Estimates
 from boomtip.perception.pipeline import Measurement
 from boomtip.tools.report.kpis import WARMUP_S, consistency_table
-from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path, save
+from boomtip.tools.report.plots import TRUTH_STYLE, decimated, legend, plot_link, plot_path, save
 
 # Document 000, Table 5.4 (after its Kalman filter) and its truth amplitudes (section 5.1.2).
 DOC000 = {
@@ -124,10 +124,10 @@ def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: 
         ax1.axvspan(0, WARMUP_S, color="0.9", label=f"first {WARMUP_S:g} s: not scored")
         for name, e in estimates.items():
             c = COLORS.get(name)
-            ax0.plot(e.t_s, e.x[:, qi], lw=1, color=c, label=name)
+            ax0.plot(*decimated(e.t_s, e.x[:, qi]), lw=1, color=c, label=name)
             err = (e.x[:, qi] - truth.at(q, e.t_s)) * scale
-            ax1.plot(e.t_s, err, lw=0.9, color=c, label=name)
-        ax0.plot(truth.t_s, truth.columns[q], label="truth", **TRUTH_STYLE)
+            ax1.plot(*decimated(e.t_s, err), lw=0.9, color=c, label=name)
+        ax0.plot(*decimated(truth.t_s, truth.columns[q]), label="truth", **TRUTH_STYLE)
         ax0.set_ylabel(f"{q} [{'m' if q == 'D' else 'm/s'}]")
         legend(ax0, fontsize=8)
         ax0.set_title(f"{q}: estimates and the truth (dashed)")

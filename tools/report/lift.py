@@ -20,7 +20,7 @@ from boomtip.fusion.consistency import Innovations, consistency_block
 from boomtip.fusion.heave_filter import HeaveFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts
 from boomtip.perception.lift import LoadClearance
-from boomtip.tools.report.plots import TRUTH_STYLE, legend, plot_link, plot_path, save
+from boomtip.tools.report.plots import TRUTH_STYLE, decimated, legend, plot_link, plot_path, save
 
 SCORED_CLEARANCE_M = (0.0, 10.0)  # the last 10 m of the lowering, before touchdown
 PLOTTED_FORECAST_EVERY = 8  # of the forecasts' issues (every 0.5 s): one in 4 s drawn
@@ -131,11 +131,7 @@ def until_touchdown(truth: Truth | None) -> Truth | None:
 def _innovations(filters: list[HeaveFilter], until_s: float | None) -> Innovations:
     """The filters' innovations while the load hung (until it was found landed, if it was: the
     landing itself is a step no smooth model follows)."""
-    inn = Innovations()
-    for t_acq, source, nis, scale in sorted(i for filt in filters for i in filt.innovations()):
-        if until_s is None or t_acq < until_s:
-            inn.add(source, t_acq, nis, 1, scale)
-    return inn
+    return Innovations.merged([filt.innovations() for filt in filters], math.inf if until_s is None else until_s)
 
 
 def _scored(truth: Truth, t: np.ndarray) -> np.ndarray:
@@ -263,11 +259,11 @@ def _plot(out: Path, result, truth: Truth | None):
     rows, f = result.rows, result.forecasts
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     t = rows["t"]
-    ax[0].plot(t, rows["clearance_m"], lw=1, label="C (filtered; measured once landed)")
-    ax[1].plot(t, rows["clearance_rate_mps"], lw=1, label="C rate (filtered)")
+    ax[0].plot(*decimated(t, rows["clearance_m"]), lw=1, label="C (filtered; measured once landed)")
+    ax[1].plot(*decimated(t, rows["clearance_rate_mps"]), lw=1, label="C rate (filtered)")
     if truth is not None and "clearance" in truth.columns:
-        ax[0].plot(t, truth.at("clearance", t), **TRUTH_STYLE)
-        ax[1].plot(t, truth.at("clearance_rate", t), **TRUTH_STYLE)
+        ax[0].plot(*decimated(t, truth.at("clearance", t)), **TRUTH_STYLE)
+        ax[1].plot(*decimated(t, truth.at("clearance_rate", t)), **TRUTH_STYLE)
     for i in range(0, len(f.t_issue), PLOTTED_FORECAST_EVERY):  # a forecast's path every few seconds
         ax[0].plot(f.t_issue[i] + f.lead_s, f.clearance_m[i], color="tab:orange", lw=0.6, alpha=0.7)
     ax[0].set_ylabel("clearance (m)")

@@ -3,14 +3,21 @@ the data (never over it), and the truth drawn over the estimates, where it stays
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
-__all__ = ["legend", "PLOTS_DIR", "plot_path", "plot_link", "link_in_report", "TRUTH_STYLE", "save"]
+import numpy as np
+
+__all__ = ["legend", "PLOTS_DIR", "plot_path", "plot_link", "link_in_report", "TRUTH_STYLE", "save", "decimated"]
 
 PLOTS_DIR = "plots"
 # dashed and on top: an estimate that follows the truth closely shows through its gaps
 TRUTH_STYLE = {"color": "black", "lw": 1.2, "ls": (0, (4, 3)), "zorder": 10}
 DPI = 90
+# a series longer than twice this is drawn from its extremes in this many time bins: a plot is
+# about 1200 pixels wide, so the line looks the same, and a long run's plots take no more memory
+# or time than a short run's
+DECIMATE_BINS = 4000
 
 
 def legend(ax, outside: bool = True, **kwargs) -> None:
@@ -52,4 +59,32 @@ def save(fig, path: Path) -> Path:
         fig.tight_layout()
     fig.savefig(path, dpi=DPI, bbox_inches="tight")  # the legends beside the axes kept whole
     plt.close(fig)
+    gc.collect()  # a figure's artists are reference cycles: freed now, not after the next figures are drawn
     return path
+
+
+def decimated(t, *ys, bins: int = DECIMATE_BINS) -> tuple[np.ndarray, ...]:
+    """(t, *ys) thinned for a line or a band: in each of `bins` equal bins of t, the samples
+    where each y is least and greatest, and the bin's first not-finite y (a gap stays a gap),
+    in their order; unchanged when there are at most 2 bins of samples. Rows whose t is not
+    finite are dropped (matplotlib draws nothing there)."""
+    t = np.asarray(t, dtype=float)
+    ys = tuple(np.asarray(y, dtype=float) for y in ys)
+    if len(t) <= 2 * bins:
+        return (t, *ys)
+    ok = np.flatnonzero(np.isfinite(t))
+    if len(ok) == 0:
+        return (t[ok], *(y[ok] for y in ys))
+    t0, span = float(t[ok].min()), float(np.ptp(t[ok])) or 1.0
+    k = np.minimum(((t[ok] - t0) / span * bins).astype(np.int64), bins - 1)
+    keep = []
+    for y in ys:
+        v = y[ok]
+        finite = np.isfinite(v)
+        order = np.lexsort((np.where(finite, v, np.inf), k))  # by bin, then by value, not-finite last
+        starts = np.flatnonzero(np.r_[True, np.diff(k[order]) != 0])
+        ends = np.r_[starts[1:], len(order)]
+        n_finite = np.add.reduceat(finite[order].astype(np.int64), starts)
+        keep += [order[starts], order[starts + np.maximum(n_finite - 1, 0)], order[np.minimum(starts + n_finite, ends - 1)]]
+    rows = ok[np.unique(np.concatenate(keep))]
+    return (t[rows], *(y[rows] for y in ys))
