@@ -32,11 +32,25 @@ from boomtip.data.poses import inverse, pose_matrix
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_angle_sigma, complementary_attitude
 from boomtip.fusion.consistency import consistency_block, flagged_notes
 from boomtip.fusion.feeder_filter import FeederFilter, FeederFilterConfig
-from boomtip.fusion.feeder_frame import CausalEstimates, FrameData, causal_estimates, estimates_in_feeder_frame, frame_at, levelling_at
+from boomtip.fusion.feeder_frame import (
+    REC_KNOWN,
+    REC_P,
+    REC_T,
+    REC_X,
+    RECORD_WIDTH,
+    CausalEstimates,
+    FrameData,
+    causal_estimates,
+    frame_at,
+    levelling_at,
+    records_in_feeder_frame,
+    state_record,
+)
 from boomtip.fusion.level_calibration import Tilt
 from boomtip.fusion.models.relative_motion import attitude_pose_cov, condition_on, deck_plane, yaw_only
 from boomtip.fusion.mru_bridge import MruBridge, MruGapConfig
 from boomtip.fusion.radar_offset import RadarOffset, RadarOffsetConfig
+from boomtip.fusion.records import BlockStore, Records
 
 __all__ = ["FeederEstimatorConfig", "FeederEstimator", "FeederEstimate", "DeckMeasurement", "RadarOffsetConfig"]
 
@@ -101,10 +115,11 @@ class FeederEstimate:
 
 class FeederEstimator:
     """Built from the crane MRU's log, the installation (the tip's lever, the stated accuracies)
-    and the settings; a feeder MRU's log when the source has one."""
+    and the settings; a feeder MRU's log when the source has one. The recorded states (a row per
+    frame, fusion.feeder_frame's layout) go to `store` a block at a time: in memory by default."""
 
     def __init__(self, mru: MruLog, installation: Installation, cfg: FeederEstimatorConfig, radar: RadarOffsetConfig,
-                 feeder_mru: MruLog | None = None) -> None:
+                 feeder_mru: MruLog | None = None, store: BlockStore | None = None) -> None:
         self.cfg = cfg
         # the levelling's attitude: the MRU's angles filtered with its rates (attitude_filter)
         log = complementary_attitude(mru, cfg.mru_tau_s) if cfg.mru_tau_s > 0 else mru
@@ -132,9 +147,10 @@ class FeederEstimator:
         self.normals: list[tuple[float, np.ndarray]] = []  # LiDAR deck normals (level frame) for the calibration
         self.t_definition: float | None = None
         self.T_level_map0: np.ndarray | None = None
-        self.pivots: list[np.ndarray] = []  # the LiDAR's position (level, from the tip) at each recorded state
-        self.tips: list[np.ndarray] = []  # the tip's velocity relative to the vessel at each recorded state
-        self.known: list[tuple[float, int, int]] = []  # at each record: its time, how many lines and hull edges by then
+        # the filter's state at each frame, with the tip's velocity, the LiDAR's place and the
+        # edges known (feeder_frame.state_record); the first state whole (the map frame's first deck)
+        self.records = Records(RECORD_WIDTH, store)
+        self.x_start: np.ndarray | None = None
         # through an MRU gap: the last forecast's angle variance (in a gap, or after it until the
         # first LiDAR frame), whether the tip's place was let go, and each forecast frame's angle
         # variance by (time, sensor): a frame may be fused after later ones were levelled (the
@@ -225,10 +241,10 @@ class FeederEstimator:
         cov = np.diag([START_XY_VAR_M2, START_XY_VAR_M2, float(deck.cov[2, 2]), float(deck.cov[1, 1]),
                        float(deck.cov[0, 0]), START_YAW_VAR_RAD2])
         self.filter.start(t_s, pose, cov, tip_velocity, tip_level)
+        self.x_start = self.filter.x.copy()
+        self.records.append(state_record(t_s, self.filter.x, self.filter.P, tip_velocity, lidar_level, (t_s, 0, 0)))
         self._forecast_row(t_s, "lidar", keep=True)  # the frame's own record() row takes it too
         self._feeder_mru(t_s)
-        self.tips.append(tip_velocity)
-        self.pivots.append(lidar_level)
         self.t_definition, self.T_level_map0 = t_s, pose_matrix(*pose)
 
     def predict(self, t_s: float, tip_level: np.ndarray, tip_velocity: np.ndarray, noise: AttitudeNoise) -> None:
@@ -332,25 +348,23 @@ class FeederEstimator:
         frame (the levelling turns about it), and how many centre lines and hull edges were known."""
         if sensor == "radar":
             self.radar_frames += 1
-        self.filter.record()
+        f = self.filter
+        self.records.append(state_record(f.t_s, f.x, f.P, tip_velocity, lidar_level, (t_s, *edges_known)))
         self._forecast_row(t_s, sensor)
-        self.known.append((t_s, *edges_known))
-        self.tips.append(tip_velocity)
-        self.pivots.append(lidar_level)
 
     def _forecast_row(self, t_s: float, sensor: str, keep: bool = False) -> None:
         """The row just recorded of a frame levelled with a forecast: its error on top of the filter's."""
         frames = self.forecast_frames
         angle_var = frames.get((t_s, sensor)) if keep else frames.pop((t_s, sensor), None)
         if angle_var is not None:
-            out = self.filter.out
-            out.P[-1][:6, :6] += attitude_pose_cov(out.x[-1][:3], angle_var)
+            row = self.records.last
+            row[REC_P].reshape(12, 12)[:6, :6] += attitude_pose_cov(row[REC_X][:3], angle_var)
 
     # -- at the end ------------------------------------------------------------------------
     def finish(self, lines: list[tuple[float, int]], hull_yaws: list[float]) -> FeederEstimate:
         """The estimate in the feeder frame, from the centre lines (map frame) and the own hull's
         edges (level frame) the pipeline found."""
-        out = self.filter.out
+        updates = self.filter.updates
         d = self._frame_data(lines, hull_yaws)
         notes: list[str] = []
         tilt, why = levelling_at(d)
@@ -358,7 +372,7 @@ class FeederEstimator:
             notes.append("feeder: levelling not calibrated: " + why)
         if not self.filter.started:
             return FeederEstimate(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12)), float("nan"), tilt, None,
-                                  out.counts, ["feeder: no LiDAR deck plane in this run: no estimate"])
+                                  updates.counts, ["feeder: no LiDAR deck plane in this run: no estimate"])
         if tilt is not None and tilt.rz_sigma_rad is None:
             notes.append("feeder: no straight edge of the own hull among the static returns: the LiDAR mount's rotation "
                          "about the vertical is the survey's")
@@ -370,23 +384,23 @@ class FeederEstimator:
         if final.line is None:
             notes.append("feeder: no straight hull edge in the keyframe: x is along the crane's heading")
         sigmas = (self.mount_sigma_rad, self.mru_bias_sigma_rad)
-        pose, rates, var = estimates_in_feeder_frame(out.x, out.P, self.tips, self.pivots, final, *sigmas)
-        t = np.asarray(out.t_s)
+        t = self.records.column(REC_T)
         keep = np.r_[np.diff(t) > 0, True]  # one row per time: the last state recorded at it
-        consistency = consistency_block(out.innovations)
+        pose, rates, var = (v[keep] for v in records_in_feeder_frame(self.records, np.zeros(len(t), int), [final], *sigmas))
+        consistency = consistency_block(updates.innovations)
         notes += flagged_notes(consistency, "feeder")
-        return FeederEstimate(t[keep], pose[keep], rates[keep], var[keep], float(self.t_definition), final.tilt, final.line,
-                              out.counts, notes, final.T_map_feeder, self._feeder_mru_summary(),
-                              causal_estimates(out, self.tips, self.pivots, d, keep, *sigmas), consistency)
+        return FeederEstimate(t[keep], pose, rates, var, float(self.t_definition), final.tilt, final.line,
+                              updates.counts, notes, final.T_map_feeder, self._feeder_mru_summary(),
+                              causal_estimates(self.records, d, keep, *sigmas), consistency)
 
     def _frame_data(self, lines: list[tuple[float, int]], hull_yaws: list[float]) -> FrameData:
         """The deck normals, the own hull's and the feeder's edges, each with the time it was known."""
-        known = np.array(self.known, dtype=float).reshape(-1, 3)  # (t, lines, hull edges) at each record
+        known = self.records.column(REC_KNOWN)  # (the frame's t, lines, hull edges) at each record
         when = lambda k, col: known[np.searchsorted(known[:, col], np.arange(k) + 1), 0]  # the count first exceeded i
         started = self.filter.started
         return FrameData(np.array([n[0] for n in self.normals]), np.array([n[1] for n in self.normals]),
                          when(len(hull_yaws), 2), np.array(hull_yaws), when(len(lines), 1),
-                         np.array([y for y, _ in lines]), self.filter.out.x[0] if started else None, self.T_level_map0,
+                         np.array([y for y, _ in lines]), self.x_start if started else None, self.T_level_map0,
                          self.cfg.calibration_min_s, self.mount_sigma_rad, math.radians(self.cfg.filter.body_yaw_prior_deg))
 
     def _feeder_mru_summary(self) -> dict | None:

@@ -78,12 +78,9 @@ class FeederFilterConfig(BaseModel):
 
 
 @dataclass
-class FeederEstimates:
-    """The filter's history: one row per update time."""
+class FeederUpdates:
+    """What became of the filter's updates (its states' history is the estimator's)."""
 
-    t_s: list[float] = field(default_factory=list)
-    x: list[np.ndarray] = field(default_factory=list)
-    P: list[np.ndarray] = field(default_factory=list)
     counts: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> accepted / gated / re-acquired / bad
     # every update's normalised innovation squared per kind: a consistency check that needs no truth
     innovations: Innovations = field(default_factory=Innovations)
@@ -105,7 +102,7 @@ class FeederFilter:
         self.last_update_s: dict[str, float] = {}  # kind -> the time of its last update
         self.noise_match: dict[str, NoiseMatch] = {}  # kind -> how much noisier than stated it is
         self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
-        self.out = FeederEstimates()
+        self.updates = FeederUpdates()
 
     @property
     def started(self) -> bool:
@@ -126,7 +123,6 @@ class FeederFilter:
         P[OFFSETS, OFFSETS] = np.eye(OFFSETS.stop - OFFSETS.start) * math.pi ** 2
         self.P, self.t_s, self.tip_velocity = P, t_s, np.asarray(tip_velocity, dtype=float)
         self.tip_position = None if tip_position is None else np.asarray(tip_position, dtype=float)
-        self.record()
 
     def predict(self, t_s: float, tip_velocity: np.ndarray, tip_velocity_sigma: float, tip_position: np.ndarray | None = None) -> None:
         """To t_s, the tip having moved relative to the vessel: by the change of its place
@@ -166,7 +162,7 @@ class FeederFilter:
 
     # -- updates ---------------------------------------------------------------------------
     def _counts(self, kind: str) -> dict[str, int]:
-        return self.out.counts.setdefault(kind, {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
+        return self.updates.counts.setdefault(kind, {"accepted": 0, "gated": 0, "reacquired": 0, "bad": 0})
 
     def shared_error_factor(self, kind: str) -> float:
         """How much of a kind's error this update shares with its last one: its interval's
@@ -191,7 +187,7 @@ class FeederFilter:
         HPHt = H @ self.P @ H.T
         match = self.noise_match.get(kind, NoiseMatch())
         try:  # the monitor's NIS is against the covariance as stated; the update uses it widened
-            self.out.innovations.add(kind, self.t_s, float(y @ np.linalg.solve(HPHt + R, y)), len(z), match.scale)
+            self.updates.innovations.add(kind, self.t_s, float(y @ np.linalg.solve(HPHt + R, y)), len(z), match.scale)
             gate = float(chi2_quantile(self.cfg.gate_probability, len(z)))
             if matched and self.cfg.noise_memory_s > 0:
                 ratio = matched_ratio(y, R, HPHt, gate, match.scale)
@@ -313,9 +309,3 @@ class FeederFilter:
     def offsets(self) -> tuple[np.ndarray, np.ndarray]:
         """The feeder MRU's offsets (heading offset, body yaw, body tilt about x, y; rad) and their 1-sigmas."""
         return self.x[OFFSETS].copy(), np.sqrt(np.diag(self.P)[OFFSETS])
-
-    def record(self) -> None:
-        """Keep the state at the current time (once per frame, after its updates)."""
-        self.out.t_s.append(self.t_s)
-        self.out.x.append(self.x.copy())
-        self.out.P.append(self.P[:12, :12].copy())  # pose and rates: what the outputs use

@@ -28,6 +28,39 @@ UPDATE_EVERY_S = 1.0  # the causal definition is recomputed this often (and at t
 JACOBIAN_STEP = 1e-6  # central differences' step in the map's pose (m, rad)
 ROWS_AT_ONCE = 2048  # recorded states put in the feeder frame in one batch (a batch's arrays: ~4 MB)
 
+# A recorded state's row (the estimator's records, fusion.records): its time, the filter's pose
+# and rates (12) and their covariance (12 x 12), the tip's velocity relative to the vessel, the
+# LiDAR's place in the level frame (the levelling turns about it), and the frame's time with how
+# many centre lines and hull edges were known by then.
+REC_T, REC_X, REC_P = 0, slice(1, 13), slice(13, 157)
+REC_TIP, REC_PIVOT, REC_KNOWN = slice(157, 160), slice(160, 163), slice(163, 166)
+RECORD_WIDTH = 166
+
+
+def state_record(t_s: float, x: np.ndarray, P: np.ndarray, tip_velocity: np.ndarray, lidar_level: np.ndarray,
+                 edges_known: tuple[float, int, int]) -> np.ndarray:
+    """One row of the records: x and P the filter's at its time t_s (their pose and rates are
+    kept); edges_known: (the frame's time, centre lines, hull edges)."""
+    row = np.empty(RECORD_WIDTH)
+    row[REC_T], row[REC_X], row[REC_P] = t_s, x[:12], P[:12, :12].ravel()
+    row[REC_TIP], row[REC_PIVOT], row[REC_KNOWN] = tip_velocity, lidar_level, edges_known
+    return row
+
+
+@dataclass
+class StateRows:
+    """A block of recorded states, as arrays."""
+
+    t_s: np.ndarray  # (N,)
+    x: np.ndarray  # (N, 12) pose and rates in the map frame
+    P: np.ndarray  # (N, 12, 12)
+    tips: np.ndarray  # (N, 3) the tip's velocity relative to the vessel
+    pivots: np.ndarray  # (N, 3) the LiDAR's place in the level frame
+
+    @classmethod
+    def of(cls, rows: np.ndarray) -> "StateRows":
+        return cls(rows[:, REC_T], rows[:, REC_X], rows[:, REC_P].reshape(-1, 12, 12), rows[:, REC_TIP], rows[:, REC_PIVOT])
+
 
 @dataclass
 class FrameData:
@@ -119,29 +152,20 @@ def frame_history(d: FrameData, t_rows_s: np.ndarray, every_s: float = UPDATE_EV
     return t_updates, [frame_at(d, float(t), heading_alone=True) for t in t_updates]
 
 
-def estimates_in_feeder_frame(xs: list[np.ndarray], Ps: list[np.ndarray], tips: list[np.ndarray], pivots: list[np.ndarray],
-                              frame: FeederFrameEstimate, sigma_level: float,
+def estimates_in_feeder_frame(states: StateRows, frame: FeederFrameEstimate, sigma_level: float,
                               mru_bias_sigma_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(T, 6) poses, (T, 6) rates and (T, 12) variances of the filter's recorded states xs, Ps
-    (FeederEstimates); tips and pivots: the tip's velocity and the LiDAR's position at each.
-    Vectorised over ROWS_AT_ONCE rows at a time: a long run's states stacked at once would be
-    tens of MB more at the run's peak, its end."""
-    if len(xs) == 0:
+    """(N, 6) poses, (N, 6) rates and (N, 12) variances of recorded states in the feeder frame
+    as `frame` defines it, vectorised over the rows."""
+    if len(states.t_s) == 0:
         return np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 12))
-    if len(xs) > ROWS_AT_ONCE:
-        parts = [estimates_in_feeder_frame(xs[a:a + ROWS_AT_ONCE], Ps[a:a + ROWS_AT_ONCE], tips[a:a + ROWS_AT_ONCE],
-                                           pivots[a:a + ROWS_AT_ONCE], frame, sigma_level, mru_bias_sigma_rad)
-                 for a in range(0, len(xs), ROWS_AT_ONCE)]  # blocks of rows, each vectorised
-        return tuple(np.concatenate(p) for p in zip(*parts))
     # The levelling's own uncertainty. Corrected about the LiDAR, a tilt moves the deck below it
     # sideways by its lever. The MRU's bias tilts the same sensor-to-level rotation as a mount
     # error and is calibrated with it; what it moves besides is the tip about the vessel's
     # origin, which the estimate (relative to the tip) sees only in z, by the horizontal offset.
     s_lvl, s_rz = frame.sigmas(sigma_level)
-    x = np.array([np.asarray(v, float)[:12] for v in xs])
-    x[:, 6:9] -= np.asarray(tips, float)  # the state's rates are the vessel's: relative to the tip
-    pivot = np.asarray(pivots, float)
-    P = np.asarray(Ps, float)
+    x = np.array(states.x, dtype=float)
+    x[:, 6:9] -= states.tips  # the state's rates are the vessel's: relative to the tip
+    pivot, P = states.pivots, states.P
     y, J = feeder_pose_jacobians(x[:, :6], frame.C, pivot, frame.T_map_feeder)
     lever = np.linalg.norm(y[:, :3] - pivot, axis=1)
     extra = np.column_stack([(lever * s_lvl) ** 2, (lever * s_lvl) ** 2, (np.hypot(y[:, 0], y[:, 1]) * mru_bias_sigma_rad) ** 2,
@@ -154,15 +178,21 @@ def estimates_in_feeder_frame(xs: list[np.ndarray], Ps: list[np.ndarray], tips: 
     return y, rates, np.concatenate([var_pose, var_rates], axis=1)
 
 
-def online_estimates(xs: list[np.ndarray], Ps: list[np.ndarray], tips: list[np.ndarray], pivots: list[np.ndarray],
-                     t_rows_s: np.ndarray, t_updates_s: np.ndarray, frames: list[FeederFrameEstimate], sigma_level: float,
-                     mru_bias_sigma_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """estimates_in_feeder_frame with each row in the definition of the last update at or before
-    its time (a loop over the updates, each over its rows)."""
-    which = np.searchsorted(t_updates_s, t_rows_s, side="right") - 1
-    parts = [estimates_in_feeder_frame(xs[a:b], Ps[a:b], tips[a:b], pivots[a:b], frames[which[a]], sigma_level, mru_bias_sigma_rad)
-             for a, b in _runs(which)]
-    return tuple(np.concatenate(p) for p in zip(*parts))
+def records_in_feeder_frame(records, which: np.ndarray, frames: list[FeederFrameEstimate], sigma_level: float,
+                            mru_bias_sigma_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """estimates_in_feeder_frame of every recorded state (`records`: fusion.records.Records of
+    state_record rows), row i in the definition frames[which[i]]; read ROWS_AT_ONCE rows at a
+    time: a long run's states at once would be tens of MB more at the run's peak, its end."""
+    n = len(records)
+    pose, rates, var = np.empty((n, 6)), np.empty((n, 6)), np.empty((n, 12))
+    for a in range(0, n, ROWS_AT_ONCE):
+        block = StateRows.of(records.read(a, a + ROWS_AT_ONCE))
+        w = which[a:a + ROWS_AT_ONCE]
+        for i, j in _runs(w):  # rows in one definition, each run vectorised
+            part = StateRows(*(v[i:j] for v in vars(block).values()))
+            pose[a + i:a + j], rates[a + i:a + j], var[a + i:a + j] = estimates_in_feeder_frame(
+                part, frames[w[i]], sigma_level, mru_bias_sigma_rad)
+    return pose, rates, var
 
 
 @dataclass
@@ -193,13 +223,15 @@ def history_row(t_s: float, f: FeederFrameEstimate, survey_sigma_rad: float) -> 
     return [t_s, *deg[:6], t.span_s, *deg[6:], *f.T_map_feeder[:3, 3]]
 
 
-def causal_estimates(out, tips: list[np.ndarray], pivots: list[np.ndarray], d: FrameData, keep: np.ndarray,
-                     sigma_level: float, mru_bias_sigma_rad: float) -> CausalEstimates:
-    """The filter's recorded states `out` (FeederEstimates) expressed causally; keep: the rows
-    the offline estimates keep (one per time)."""
-    t = np.asarray(out.t_s)
+def causal_estimates(records, d: FrameData, keep: np.ndarray, sigma_level: float,
+                     mru_bias_sigma_rad: float) -> CausalEstimates:
+    """The recorded states (`records`, as records_in_feeder_frame takes them) expressed causally,
+    each row in the definition of the last update at or before its time; keep: the rows the
+    offline estimates keep (one per time)."""
+    t = records.column(REC_T)
     t_updates, frames = frame_history(d, t)
-    pose, rates, var = online_estimates(out.x, out.P, tips, pivots, t, t_updates, frames, sigma_level, mru_bias_sigma_rad)
+    which = np.searchsorted(t_updates, t, side="right") - 1
+    pose, rates, var = records_in_feeder_frame(records, which, frames, sigma_level, mru_bias_sigma_rad)
     history = np.array([history_row(float(u), f, sigma_level) for u, f in zip(t_updates, frames)])
     calibrated = [float(u) for u, f in zip(t_updates, frames) if f.tilt is not None and f.tilt.span_s > 0]
     return CausalEstimates(t[keep], pose[keep], rates[keep], var[keep], t_updates, frames, history,

@@ -15,6 +15,7 @@ from boomtip.data.frames import AttitudeNoise, MruLog
 from boomtip.data.installation import Installation, MruSpec
 from boomtip.data.poses import inverse, pose_matrix
 from boomtip.fusion.attitude_filter import averaged_rates, complementary_angle_sigma, complementary_attitude
+from boomtip.fusion.feeder_frame import REC_P, REC_T, StateRows
 from boomtip.fusion.feeder_estimator import (
     RADAR_DECK_OFFSET_MIN_FRAMES,
     REGISTRATION_YAW_LEVER_M,
@@ -147,7 +148,7 @@ def test_nothing_happens_before_the_first_deck():
     att = est.attitude(5.0, "lidar")
     assert est.lidar_deck(5.0, TIP, TIP_V, LIDAR, att.noise, None) is False
     assert not est.started and est.t_definition is None and est.T_level_map0 is None
-    assert est.filter.out.t_s == [] and est.normals == [] and est.tips == [] and est.pivots == []
+    assert len(est.records) == 0 and est.normals == []
 
 
 def test_the_first_deck_defines_the_map_frame_and_is_fused():
@@ -159,14 +160,16 @@ def test_the_first_deck_defines_the_map_frame_and_is_fused():
     pose = np.array([0.0, 0.0, -45.0, -math.asin(n[1]), math.atan2(n[0], n[2]), 0.0])
     assert est.started and est.t_definition == 5.0
     assert np.array_equal(est.T_level_map0, pose_matrix(*pose))
-    assert np.array_equal(est.filter.out.x[0][:6], pose)  # the start's own row, before the deck's update
-    P0 = est.filter.out.P[0]
+    first = StateRows.of(est.records.read(0, 1))
+    assert np.array_equal(first.x[0, :6], pose)  # the start's own row, before the deck's update
+    P0 = first.P[0]
     assert np.array_equal(np.diag(P0)[:6], [1e-8, 1e-8, 1e-4, 1e-6, 1e-6, 1e-10])
-    assert est.filter.out.counts["deck_lidar"]["accepted"] == 1
-    assert est.normals == [(5.0, n)] and len(est.tips) == len(est.pivots) == 1
+    assert est.filter.updates.counts["deck_lidar"]["accepted"] == 1
+    assert est.normals == [(5.0, n)] and len(est.records) == 1
+    assert np.array_equal(first.tips[0], TIP_V) and np.array_equal(first.pivots[0], LIDAR)
     # the map frame's z = 0 plane is the deck: the start's plane is the measured one (to round-off
     # of 45 m: 1e-13), and the update leaves it there
-    assert np.allclose(deck_plane(est.filter.out.x[0]), d.abc, rtol=0, atol=1e-13)
+    assert np.allclose(deck_plane(est.x_start), d.abc, rtol=0, atol=1e-13) and np.array_equal(est.x_start[:12], first.x[0])
     assert np.allclose(est.deck_plane(), d.abc, rtol=0, atol=1e-13)
     assert np.array_equal(est.deck_plane(), deck_plane(est.filter.x))
     assert np.array_equal(est.map_pose(), inverse(pose_matrix(*est.filter.x[:6])))
@@ -183,7 +186,7 @@ def test_after_the_first_deck_a_frame_without_one_is_a_prediction():
     # a deck with its spin is one measurement of plane and rates
     att = est.attitude(19.2, "lidar")
     assert est.lidar_deck(19.2, TIP, TIP_V, LIDAR, att.noise, deck(rates=(0.0, 0.0, 0.0))) is True
-    assert est.filter.out.counts["deck_spin_lidar"]["accepted"] == 1 and est.normals[-1][0] == 19.2
+    assert est.filter.updates.counts["deck_spin_lidar"]["accepted"] == 1 and est.normals[-1][0] == 19.2
 
 
 def test_registration_sigma_and_position_sigma_read_the_filter():
@@ -197,17 +200,17 @@ def test_registration_sigma_and_position_sigma_read_the_filter():
 
 def test_rows_recorded_in_a_gap_carry_the_forecasts_covariance_on_top():
     est = started(bridged())
-    out = est.filter.out
-    assert np.array_equal(out.P[-1], est.filter.P[:12, :12])  # before the gap: the filter's own
+    last_P = lambda: est.records.last[REC_P].reshape(12, 12)
+    assert np.array_equal(last_P(), est.filter.P[:12, :12])  # before the gap: the filter's own
     att = est.attitude(20.5, "radar")
     est.predict(20.5, TIP, TIP_V, att.noise)
     P = est.filter.P.copy()
     est.record(20.5, "radar", TIP_V, LIDAR, (0, 0))
     expected = P[:12, :12].copy()
     expected[:6, :6] += attitude_pose_cov(est.filter.x[:3], max(att.forecast_var[:2]))
-    assert np.array_equal(out.P[-1], expected)
+    assert np.array_equal(last_P(), expected)
     assert np.array_equal(est.filter.P, P)  # the filter's own covariance is not touched
-    assert not np.array_equal(out.P[-1], P[:12, :12])
+    assert not np.array_equal(last_P(), P[:12, :12])
 
 
 def test_a_filter_started_in_a_gap_has_its_first_row_carry_the_forecast():
@@ -215,9 +218,10 @@ def test_a_filter_started_in_a_gap_has_its_first_row_carry_the_forecast():
     att = est.attitude(20.5, "lidar")
     assert att.forecast_var is not None
     assert est.lidar_deck(20.5, TIP, TIP_V, LIDAR, att.noise, deck())
-    row = est.filter.out.P[0]
+    first = StateRows.of(est.records.read(0, 1))
+    row = first.P[0]
     start_P = np.diag([1e-8, 1e-8, 1e-4, 1e-6, 1e-6, 1e-10])
-    expected = start_P + attitude_pose_cov(est.filter.out.x[0][:3], max(att.forecast_var[:2]))
+    expected = start_P + attitude_pose_cov(first.x[0, :3], max(att.forecast_var[:2]))
     assert np.array_equal(row[:6, :6], expected)
 
 
@@ -230,8 +234,9 @@ def test_a_frame_fused_after_later_attitudes_keeps_its_own_forecasts_covariance(
     # ... and all of them fused now, the first (in the gap) first
     est.lidar_deck(20.5, TIP, TIP_V, LIDAR, held.noise, deck())
     start_P = np.diag([1e-8, 1e-8, 1e-4, 1e-6, 1e-6, 1e-10])
-    expected = start_P + attitude_pose_cov(est.filter.out.x[0][:3], max(held.forecast_var[:2]))
-    assert np.array_equal(est.filter.out.P[0][:6, :6], expected)
+    first = StateRows.of(est.records.read(0, 1))
+    expected = start_P + attitude_pose_cov(first.x[0, :3], max(held.forecast_var[:2]))
+    assert np.array_equal(first.P[0][:6, :6], expected)
 
 
 def test_the_first_lidar_frame_after_a_gap_widens_the_pose_once_and_lets_the_tips_place_go():
@@ -294,7 +299,7 @@ def test_a_young_models_registration_moves_only_the_yaw(young):
     pose, info = _registration(est)
     est.update_registration(21.0, pose, info, young, est.noise)
     after = est.filter.x
-    assert est.last_registration_t == 21.0 and est.filter.out.counts["registration"]["accepted"] == 1
+    assert est.last_registration_t == 21.0 and est.filter.updates.counts["registration"]["accepted"] == 1
     assert 0.0 < after[5] - before[5] < math.radians(0.02)
     if young:
         assert np.array_equal(after[:5], before[:5])
@@ -344,7 +349,7 @@ def test_a_radar_registration_teaches_the_offset_then_updates_less_it():
     assert np.array_equal(args[0], z - est.radar_offset.mean) and args[1] is info
     assert np.array_equal(args[2], est.radar_offset.covariance())
     assert kwargs == {"kind": "radar_registration", "max_sigma_m": RADAR.max_sigma_m}
-    assert est.filter.out.counts["radar_registration"]["accepted"] == 1
+    assert est.filter.updates.counts["radar_registration"]["accepted"] == 1
 
 
 def test_the_radar_offset_is_a_capped_running_mean_with_the_yaw_wrapped():
@@ -371,7 +376,7 @@ def test_the_radar_decks_offset_is_learnt_while_the_lidar_sees_the_deck_and_appl
     for k in range(RADAR_DECK_OFFSET_MIN_FRAMES):
         est.update_radar(19.0 + 0.5 * k / RADAR_DECK_OFFSET_MIN_FRAMES, None, None, LIDAR, radar, est.noise)
     assert np.array_equal(est.filter.x, x) and np.array_equal(est.filter.P, P)  # learnt, not used
-    assert "deck_radar" not in est.filter.out.counts
+    assert "deck_radar" not in est.filter.updates.counts
     assert est.radar_deck_offset_n == RADAR_DECK_OFFSET_MIN_FRAMES
     diff = radar.abc - [a, b, c]
     assert np.array_equal(est.radar_deck_offset, [diff[0], diff[1], diff[2] + diff[0] * x0 + diff[1] * y0])
@@ -382,7 +387,7 @@ def test_the_radar_decks_offset_is_learnt_while_the_lidar_sees_the_deck_and_appl
     est.update_radar(19.0 + 0.5 + 1e-6, None, None, LIDAR, radar, est.noise)  # the LiDAR out for radar_deck_after_s
     (kind, abc), = seen
     assert kind == "deck_radar" and np.allclose(abc, [a, b, c], rtol=0, atol=1e-12)  # the offset taken off
-    assert est.filter.out.counts["deck_radar"]["accepted"] == 1
+    assert est.filter.updates.counts["deck_radar"]["accepted"] == 1
 
 
 def test_the_radar_deck_is_used_as_it_is_before_the_offset_has_enough_frames():
@@ -411,12 +416,12 @@ def test_the_radar_doppler_carries_the_tips_velocity_noise():
 def test_the_feeder_mru_is_taken_at_each_frames_time_and_its_gaps_counted():
     feeder = wave_log(0.0, 19.5, gap=None, seed=1)
     est = started(estimator(feeder_mru=feeder))
-    assert est.filter.feeder_mru_started and est.filter.out.counts["feeder_mru"]["accepted"] >= 1
-    n = sum(est.filter.out.counts["feeder_mru"].values())
+    assert est.filter.feeder_mru_started and est.filter.updates.counts["feeder_mru"]["accepted"] >= 1
+    n = sum(est.filter.updates.counts["feeder_mru"].values())
     est.predict(19.4, TIP, TIP_V, est.noise)
-    assert sum(est.filter.out.counts["feeder_mru"].values()) == n + 1 and est.feeder_mru_gaps == 0
+    assert sum(est.filter.updates.counts["feeder_mru"].values()) == n + 1 and est.feeder_mru_gaps == 0
     est.predict(19.6, TIP, TIP_V, est.noise)  # past the feeder MRU's log
-    assert sum(est.filter.out.counts["feeder_mru"].values()) == n + 1 and est.feeder_mru_gaps == 1
+    assert sum(est.filter.updates.counts["feeder_mru"].values()) == n + 1 and est.feeder_mru_gaps == 1
     assert estimator(feeder_mru=feeder, use_feeder_mru=False).feeder_mru is None
 
 
@@ -439,7 +444,7 @@ def test_finish_keeps_one_row_per_time():
         att = est.attitude(t, "lidar")
         est.lidar_deck(t, TIP, TIP_V, LIDAR, att.noise, deck())
         est.record(t, "lidar", TIP_V, LIDAR, (0, 0))
-    assert est.filter.out.t_s == [19.0, 19.0, 19.1, 19.2]
+    assert est.records.column(REC_T).tolist() == [19.0, 19.0, 19.1, 19.2]
     res = est.finish([], [])
     assert res.t_s.tolist() == [19.0, 19.1, 19.2] and res.pose.shape == (3, 6) and res.var.shape == (3, 12)
     assert res.t_definition_s == 19.0 and np.all(np.isfinite(res.pose))
@@ -458,13 +463,13 @@ def test_each_update_s_innovation_is_kept_per_kind_and_an_overconfident_kind_is_
     S = float((H @ f.P @ H.T)[0, 0]) + 1e-4
     y = 2.0 * np.sqrt(S)  # an innovation of 2 sigma: NIS 4
     assert f._update("probe", np.array([y]), np.zeros(1), H, np.array([[1e-4]]))
-    assert f.out.innovations.rows["probe"] == [(0.0, pytest.approx(4.0), 1, 1.0)]
+    assert [a.tolist() for a in f.updates.innovations.arrays("probe")] == [[0.0], [pytest.approx(4.0)], [1.0], [1.0]]
     for k in range(1, 60):  # a second of innovations at 4 sigma: far beyond what the covariance says
         f.predict(k / 60, np.zeros(3), 0.0)
         H2 = H.copy()
         f._update("probe", np.array([4.0 * np.sqrt(float((H2 @ f.P @ H2.T)[0, 0]) + 1e-4)]), np.zeros(1), H2,
                   np.array([[1e-4]]))
-    block = consistency_block(f.out.innovations)
+    block = consistency_block(f.updates.innovations)
     assert block["probe"]["flagged"] and block["probe"]["nis_per_dof"] > 10
     assert flagged_notes(block, "feeder")[0].startswith("feeder: the probe updates' innovations are ")
 

@@ -138,9 +138,8 @@ def test_gating_refuses_an_outlier_then_reacquires():
     for k in range(5):
         f.predict(0.1 * (k + 1), np.zeros(3), 0.0)
         results.append(f.update_deck("deck_lidar", wrong, cov))
-        f.record()
     assert results[:3] == [False, False, False] and results[3]  # gated three times, then taken
-    assert f.out.counts["deck_lidar"]["reacquired"] == 1
+    assert f.updates.counts["deck_lidar"]["reacquired"] == 1
     assert abs(f.x[2] + 40.0) < 0.05
 
 
@@ -150,7 +149,7 @@ def test_nan_measurement_leaves_the_state_finite():
     f.predict(0.1, np.zeros(3), 0.0)
     assert not f.update_deck("deck_lidar", np.array([np.nan, 0, 0]), np.eye(3))
     assert not f.update_point_velocity(np.array([0.0, np.inf, 0.0]), np.eye(3), np.zeros(3))
-    assert np.all(np.isfinite(f.x)) and f.out.counts["deck_lidar"]["bad"] == 1
+    assert np.all(np.isfinite(f.x)) and f.updates.counts["deck_lidar"]["bad"] == 1
 
 
 @pytest.mark.slow
@@ -271,20 +270,20 @@ def test_a_feeder_mru_learns_its_offsets_and_holds_the_attitude_without_the_deck
     assert max(max(abs(e[3]), abs(e[4])) for e in late) < math.radians(0.03)
     inside = np.array([np.abs(e[3:]) <= 3 * s_[3:] for t, e, s_ in errors if t > 30.0])
     assert inside.mean() > 0.97  # and its covariance says so honestly
-    assert f.out.counts["feeder_mru"]["accepted"] == 1400
+    assert f.updates.counts["feeder_mru"]["accepted"] == 1400
 
 
 def test_without_a_feeder_mru_the_yaw_is_not_observed():
     f, _, errors = _mru_run(False)
     assert errors[-1][2][5] > math.radians(1.0)  # the yaw's sigma has grown: nothing measures it
-    assert "feeder_mru" not in f.out.counts
+    assert "feeder_mru" not in f.updates.counts
 
 
 def test_a_non_finite_feeder_mru_sample_is_refused():
     f = FeederFilter()
     f.start(0.0, np.array([0, 0, -45.0, 0, 0, 0]), np.eye(6) * 1e-6, np.zeros(3))
     assert not f.update_feeder_mru(np.array([0.0, np.nan, 0.0]), np.zeros(3), 1e-4, 1e-4)
-    assert np.all(np.isfinite(f.x)) and f.out.counts["feeder_mru"]["bad"] == 1 and not f.feeder_mru_started
+    assert np.all(np.isfinite(f.x)) and f.updates.counts["feeder_mru"]["bad"] == 1 and not f.feeder_mru_started
 
 
 def test_the_doppler_jacobian_matches_differences():
@@ -357,7 +356,7 @@ def test_the_spin_measures_the_roll_and_pitch_rates_the_plane_alone_does_not():
         rates[spin] = np.degrees(f.x[9:11])
     assert np.allclose(rates[True], [1.0, -0.5], atol=0.01)
     assert np.all(np.abs(rates[False] - [1.0, -0.5]) > [0.8, 0.4])
-    assert f.out.counts["deck_lidar"]["accepted"] == 1
+    assert f.updates.counts["deck_lidar"]["accepted"] == 1
 
 
 def test_a_spin_far_from_the_state_is_gated_and_its_yaw_never_moves():
@@ -368,7 +367,7 @@ def test_a_spin_far_from_the_state_is_gated_and_its_yaw_never_moves():
     cov = np.diag([1e-8, 1e-8, 1e-6, 1e-8, 1e-8, 1e-4])
     wrong_rates = deck_plane_rate(_spinning_deck(0.1), np.zeros(3)) + np.array([0.0, 0.0, 5.0])  # 5 m/s of heave rate
     assert not f.update_deck_spin("deck_spin_lidar", deck_plane(_spinning_deck(0.1)), wrong_rates, cov)
-    assert f.out.counts["deck_spin_lidar"]["gated"] == 1
+    assert f.updates.counts["deck_spin_lidar"]["gated"] == 1
     truth = _spinning_deck(0.1)
     truth[11] = 0.05  # a yaw rate the spin must not be used to estimate
     yaw0 = f.x[5]

@@ -11,14 +11,20 @@ import pytest
 from boomtip.fusion.level_calibration import Tilt, correction, tilt_from_normals
 from boomtip.data.poses import pose_matrix, pose_vector
 from boomtip.fusion.feeder_frame import (
+    REC_T,
+    RECORD_WIDTH,
     FrameData,
+    StateRows,
+    causal_estimates,
     estimates_in_feeder_frame,
     feeder_pose_jacobians,
     feeder_poses,
     frame_at,
     frame_history,
-    online_estimates,
+    records_in_feeder_frame,
+    state_record,
 )
+from boomtip.fusion.records import Records
 
 SURVEY = math.radians(0.036)
 
@@ -90,6 +96,13 @@ def test_the_history_ends_at_the_whole_runs_definition():
     assert final.tilt == whole.tilt and final.line == whole.line and np.array_equal(final.T_map_feeder, whole.T_map_feeder)
 
 
+def _records(t_rows, xs, Ps, tips, pivots, block_rows: int = 1024) -> Records:
+    rec = Records(RECORD_WIDTH, block_rows=block_rows)
+    for row in zip(t_rows, xs, Ps, tips, pivots):
+        rec.append(state_record(*row, (row[0], 0, 0)))
+    return rec
+
+
 def test_each_online_row_is_in_the_definition_of_its_own_time():
     d = _data()
     rng = np.random.default_rng(1)
@@ -98,12 +111,16 @@ def test_each_online_row_is_in_the_definition_of_its_own_time():
     Ps = [np.diag(rng.uniform(1e-12, 1e-11, 12)) for _ in t_rows]  # the levelling's sigma shows through
     tips = [rng.normal(0, 0.1, 3) for _ in t_rows]
     pivots = [np.array([0.5, 0.0, -0.3])] * len(t_rows)
+    records = _records(t_rows, xs, Ps, tips, pivots, block_rows=16)  # four blocks, three of them stored
     t_up, frames = frame_history(d, t_rows)
-    pose, rates, var = online_estimates(xs, Ps, tips, pivots, t_rows, t_up, frames, SURVEY, 1e-4)
+    online = causal_estimates(records, d, np.ones(len(t_rows), bool), SURVEY, 1e-4)
+    pose, var = online.pose, online.var
+    assert np.array_equal(online.t_s, t_rows) and np.array_equal(online.t_updates_s, t_up)
     for k in (0, 17, 33, 59):
         f = frames[int(np.searchsorted(t_up, t_rows[k], side="right")) - 1]
-        one = estimates_in_feeder_frame(xs[k:k + 1], Ps[k:k + 1], tips[k:k + 1], pivots[k:k + 1], f, SURVEY, 1e-4)
-        assert np.array_equal(pose[k], one[0][0]) and np.array_equal(rates[k], one[1][0]) and np.array_equal(var[k], one[2][0])
+        one = estimates_in_feeder_frame(StateRows(t_rows[k:k + 1], np.array(xs[k:k + 1]), np.array(Ps[k:k + 1]),
+                                                  np.array(tips[k:k + 1]), np.array(pivots[k:k + 1])), f, SURVEY, 1e-4)
+        assert np.array_equal(pose[k], one[0][0]) and np.array_equal(online.rates[k], one[1][0]) and np.array_equal(var[k], one[2][0])
     # the survey's levelling sigma in roll before the calibration (30 s of normals), the calibration's after
     s_roll = [f.sigmas(SURVEY)[0] for f in frames]
     i = [f.tilt is not None and f.tilt.span_s > 0 for f in frames].index(True)
@@ -143,8 +160,17 @@ def test_a_long_runs_rows_are_put_in_the_feeder_frame_block_by_block_with_the_sa
     xs = [np.r_[rng.normal(0, 0.5, 2), -40.0, rng.normal(0, 0.02, 3), rng.normal(0, 0.1, 6)] for _ in range(50)]
     Ps = [np.diag(rng.uniform(1e-6, 1e-5, 12)) for _ in xs]
     tips, pivots = [rng.normal(0, 0.1, 3) for _ in xs], [rng.normal(0, 1.0, 3) for _ in xs]
+    t_rows = np.arange(50) * 0.1
+    records = _records(t_rows, xs, Ps, tips, pivots, block_rows=8)
+    assert np.array_equal(records.column(REC_T), t_rows)
     frame = frame_at(_data())
-    whole = estimates_in_feeder_frame(xs, Ps, tips, pivots, frame, SURVEY, 1e-4)
-    monkeypatch.setattr(feeder_frame, "ROWS_AT_ONCE", 7)  # 7 blocks, the last of one row
-    blocks = estimates_in_feeder_frame(xs, Ps, tips, pivots, frame, SURVEY, 1e-4)
+    whole = estimates_in_feeder_frame(StateRows(t_rows, np.array(xs), np.array(Ps), np.array(tips), np.array(pivots)),
+                                      frame, SURVEY, 1e-4)
+    monkeypatch.setattr(feeder_frame, "ROWS_AT_ONCE", 7)  # 8 blocks, the last of one row
+    blocks = records_in_feeder_frame(records, np.zeros(50, int), [frame], SURVEY, 1e-4)
     assert all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(whole, blocks))
+    # two definitions, changing inside a block: each row in its own
+    other = frame_at(_data(), 20.0)
+    which = (t_rows >= 2.05).astype(int)
+    mixed = records_in_feeder_frame(records, which, [frame, other], SURVEY, 1e-4)
+    assert np.array_equal(mixed[0][:21], whole[0][:21]) and not np.allclose(mixed[0][21:], whole[0][21:], rtol=0, atol=1e-12)

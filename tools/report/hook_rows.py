@@ -7,11 +7,11 @@ a chunk of records at a time."""
 from __future__ import annotations
 
 import math
-import os
 import tempfile
 
 import numpy as np
 
+from boomtip.data.io.blocks import read_into, write_all
 from boomtip.data.meshes import Label
 from boomtip.perception.hook import HookDetection, segmentation_scores
 from boomtip.perception.rope import RopeFix
@@ -105,7 +105,7 @@ class FrameRows:
             self._text[k].append(str(row[k]))
         self._n_buf += 1
         if self._n_buf == CHUNK:
-            _write_all(self._file, self._buf.tobytes())
+            write_all(self._file, self._buf.tobytes())
             self._n_file += CHUNK
             self._n_buf = 0
 
@@ -117,7 +117,7 @@ class FrameRows:
         parts = []
         for a in range(0, self._n_file, CHUNK):
             block = np.empty((min(CHUNK, self._n_file - a), RECORD))
-            _read_all(self._file, block, a * RECORD * 8)
+            read_into(self._file, block, a * RECORD * 8)
             parts.append(block[:, cols].copy())  # a copy: not the whole chunk
         parts.append(self._buf[:self._n_buf, cols].copy())
         return np.concatenate(parts)
@@ -158,7 +158,7 @@ class FrameRows:
             rec = self._buf[i - self._n_file].copy()
         else:
             rec = np.empty(RECORD)
-            _read_all(self._file, rec, i * RECORD * 8)
+            read_into(self._file, rec, i * RECORD * 8)
         vals = rec.tolist()
         out = {k: vals[_AT[k]] for k in FLOAT}
         out.update({k: int(vals[_AT[k]]) for k in INT})
@@ -182,7 +182,7 @@ class DiskTable:
         self._file = tempfile.TemporaryFile(prefix="boomtip-table-", buffering=0)
         flat = table.reshape(len(table), -1)
         for a in range(0, len(table), CHUNK * 8):
-            _write_all(self._file, np.ascontiguousarray(flat[a:a + CHUNK * 8]).tobytes())
+            write_all(self._file, np.ascontiguousarray(flat[a:a + CHUNK * 8]).tobytes())
 
     def __len__(self) -> int:
         return self.shape[0]
@@ -193,7 +193,7 @@ class DiskTable:
         a, b, _ = rows.indices(len(self))
         out = np.empty((max(b - a, 0), *self.shape[1:]))
         if out.size:
-            _read_all(self._file, out, a * self._row * 8)
+            read_into(self._file, out, a * self._row * 8)
         return out
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
@@ -202,21 +202,3 @@ class DiskTable:
 
     def close(self) -> None:
         self._file.close()
-
-
-def _write_all(file, data: bytes) -> None:
-    """An unbuffered write may write less than asked (a full disk): a short record would shift
-    every later one, so it is finished or it fails."""
-    view = memoryview(data)
-    while len(view):
-        n = file.write(view)
-        if not n:
-            raise OSError(f"{file.name}: no space left for the per-frame rows")
-        view = view[n:]
-
-
-def _read_all(file, out: np.ndarray, offset: int) -> None:
-    """Fill `out` from the file at `offset`, or fail: a short read would leave np.empty's garbage."""
-    n = os.preadv(file.fileno(), [memoryview(out).cast("B")], offset)
-    if n != out.nbytes:
-        raise OSError(f"{file.name}: read {n} of {out.nbytes} bytes of the per-frame rows at {offset}")
