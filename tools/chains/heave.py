@@ -13,18 +13,20 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.data.io.atomic import atomic_text_file
+from boomtip.data.io.blocks import DiskBlocks
 from boomtip.tools.config.processing import Processing
 from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
 from boomtip.fusion.consistency import consistency_block, flagged_notes
 from boomtip.fusion.solutions import SOLUTIONS, Estimates, run_solution
 from boomtip.perception.pipeline import QUANTITY, SENSOR_OF, FrameResult, HeavePipeline, Measurement
 from boomtip.tools.chains.chain import ChainError
+from boomtip.tools.chains.measurement_rows import MeasurementRows
 from boomtip.tools.chains.pictures import FramePictures
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.report.plots import PLOTS_DIR, link_in_report
@@ -35,7 +37,7 @@ MEASUREMENT_COLUMNS = ("t", "method", "quantity", "value", "time_ms", "status", 
 
 @dataclass
 class HeaveResult:
-    rows: list[Measurement]
+    rows: MeasurementRows  # every frame's measurements, in order
     estimates: dict[str, Estimates]
     sources: dict[str, dict[str, list[str]]] = field(default_factory=dict)  # per solution, what fed D and D-dot
     warnings: list[str] = field(default_factory=list)
@@ -81,7 +83,7 @@ class HeaveChain:
         self.latency_s = {"lidar": inst.lidar.latency_s, "radar": inst.radar.latency_s}
         self.clock_sigma_s = {"lidar": inst.lidar.clock_sigma_s, "radar": inst.radar.clock_sigma_s}
         self.max_D_m = max(getattr(inst, s).max_range_m for s in inst.sensors())  # a D beyond is lost
-        self.rows: list[Measurement] = []
+        self.rows = MeasurementRows(DiskBlocks("boomtip-measurements-"))
         self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
                       if inst.attitude == "level" else [])
         self.source_notes = source.meta.notes  # the loader may add to it while frames are read
@@ -227,7 +229,7 @@ class HeaveChain:
         viz.log_world()
 
 
-def write_measurements(path: Path, rows: list[Measurement]) -> None:
+def write_measurements(path: Path, rows: Iterable[Measurement]) -> None:
     with atomic_text_file(path) as fh:  # written as it goes: a long run's file is never whole in memory
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(MEASUREMENT_COLUMNS)
