@@ -130,10 +130,22 @@ class HeaveChain:
 
     def finish(self) -> HeaveResult:
         t_start_s = self.t_start_s
-        duration = max((r.t_s for r in self.rows), default=0.0) if self.duration_s <= 0 else self.duration_s
-        meas = [to_fusion(r, self.latency_s, self.clock_sigma_s) for r in self.rows if r.ok]
-        have = {m.source for m in meas}
-        ran = {r.method for r in self.rows}
+        ran, have, t_last = set(), set(), -math.inf  # the methods that ran, those that measured, the last row's time
+        for r in self.rows:
+            ran.add(r.method)
+            t_last = max(t_last, r.t_s)
+            if r.ok:
+                have.add(r.method)
+        duration = (t_last if len(self.rows) else 0.0) if self.duration_s <= 0 else self.duration_s
+        built: list = []
+
+        def measurements() -> list[FusionMeasurement]:
+            """The filters' inputs, made where the solutions run (in a forked child: each child
+            its own, so the parent never holds them beside its outputs)."""
+            if not built:
+                built.append([to_fusion(r, self.latency_s, self.clock_sigma_s) for r in self.rows if r.ok])
+            return built[0]
+
         sources, warnings, solved = {}, list(self.notes) + list(self.source_notes), {}
         for name in self.fusion.solutions:
             methods = solution_sources(name, have)
@@ -152,7 +164,7 @@ class HeaveChain:
         # the solutions are independent filters over the same measurements: shared between two
         # processes by how many methods each fuses, when the run has two
         estimates = self.resources.map_split(list(solved), {n: float(len(m)) for n, m in solved.items()},
-                                             lambda name: run_solution(name, meas, self.fusion, duration, self.sea_state,
+                                             lambda name: run_solution(name, measurements(), self.fusion, duration, self.sea_state,
                                                                        solved[name], t_start_s, self.max_D_m))
         return HeaveResult(self.rows, estimates, sources, warnings)
 
