@@ -26,10 +26,11 @@ import numpy as np
 from pydantic import ValidationError
 
 from boomtip.data.frames import (ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, LIFT_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame,
-                                 FrameSource, MruLog, SourceMeta, Truth)
+                                 FrameSource, MruLog, SourceMeta)
 from boomtip.data.io.atomic import atomic_write_bytes
 from boomtip.data.io.pcd import PcdError, read_pcd, write_pcd
 from boomtip.data.installation import Installation
+from boomtip.data.stored_truth import StoredTruth
 from boomtip.data.io.errors import RecordingError  # noqa: F401 - this module's error, where callers import it
 from boomtip.data.io.output_folder import check_output_folder, output_folder  # noqa: F401 - check_output_folder: the studies'
 from boomtip.data.io.samples import drop_bad_samples
@@ -315,7 +316,11 @@ class Recording(FrameSource):
             self.encoders = read_csv(self.root / "encoders.csv", ENCODER_COLUMNS, bounds=ENCODER_BOUNDS, **streams)
         truth_path = self.root / "truth.csv"
         expected = (truth_columns_of(truth_path) if truth_path.exists() else None) or (HOOK_TRUTH_COLUMNS if hook else TRUTH_COLUMNS)
-        self.truth = Truth(read_csv(truth_path, expected)) if truth_path.exists() else None
+        if truth_path.exists():  # on disk: a long recording's truth is tens of MB
+            columns = read_csv(truth_path, expected)
+            self.truth = StoredTruth.of_columns(columns, tuple(columns))
+        else:
+            self.truth = None
         self._files = self._list_frames()
 
     @staticmethod

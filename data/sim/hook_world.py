@@ -25,7 +25,8 @@ from boomtip.data.block_model import lower_block_parts, rope_mesh
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import Body, Label, Part, box, cylinder, lattice_boom, lofted_hull
 from boomtip.data.sim.simulator import SENSOR_IDS, SimScene, Simulation, frame_times
-from boomtip.data.sim.stored import TRUTH_CHUNK, StoredTruth, TrackFiles
+from boomtip.data.sim.stored import TRUTH_CHUNK
+from boomtip.data.stored_truth import StoredTruth, TrackFiles
 
 BOOM_SHORT_OF_TIP_M = 2.0  # the lattice stops short of the tip: the sensors hang in free space
 # the crane truth's tracks kept (on disk): the frames' poses (_scene_poses), the encoders and the truth table

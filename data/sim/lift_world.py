@@ -27,7 +27,8 @@ from boomtip.data.poses import rpy_matrices
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import Body, feeder_vessel, sea_surface
 from boomtip.data.sim.simulator import frame_times
-from boomtip.data.sim.stored import TRUTH_CHUNK, StoredTruth
+from boomtip.data.sim.stored import TRUTH_CHUNK
+from boomtip.data.stored_truth import StoredTruth
 
 
 

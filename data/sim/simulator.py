@@ -17,7 +17,8 @@ from boomtip.data.poses import rpy_matrices
 from boomtip.data.sim.motion import BodyStates, ShiftedSines, ShipMotion
 from boomtip.data.sim.raycast import RayCaster
 from boomtip.data.sim.run import SimulatedRun
-from boomtip.data.sim.stored import TRUTH_CHUNK, FrameSchedule, StoredTruth, TrackFiles
+from boomtip.data.sim.stored import TRUTH_CHUNK, FrameSchedule
+from boomtip.data.stored_truth import StoredTruth, TrackFiles
 from boomtip.data.sim.world import in_windows, mru_faults, true_lidar, true_radar, true_T_boomtip_sensor
 from boomtip.data.sim.scene import Body, build_bodies, feeder_deck_plane_body
 from boomtip.data.sim.sensors import FaceLookup, lidar_measure, lidar_pattern, multipath_ghosts, radar_measure, radar_pattern
