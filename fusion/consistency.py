@@ -77,7 +77,8 @@ class Innovations:
         for s in sorted({s for p in parts for s in p._rows}):
             rows = np.concatenate([p._rows[s][:p._n[s]] for p in parts if s in p._rows])
             rows = rows[rows[:, _T] < until_s]
-            out._rows[s], out._n[s] = rows, len(rows)
+            if len(rows):  # a stream with nothing before until_s is no stream of it
+                out._rows[s], out._n[s] = rows, len(rows)
         return out
 
     def __getstate__(self) -> dict:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
 from boomtip.fusion.models.relative_motion import rotation
+from boomtip.fusion.records import Records
 from boomtip.data.poses import inverse, pose_matrix, rpy_matrices, transform
 
 UPDATE_EVERY_S = 1.0  # the causal definition is recomputed this often (and at the last row)
@@ -60,6 +61,10 @@ class StateRows:
     @classmethod
     def of(cls, rows: np.ndarray) -> "StateRows":
         return cls(rows[:, REC_T], rows[:, REC_X], rows[:, REC_P].reshape(-1, 12, 12), rows[:, REC_TIP], rows[:, REC_PIVOT])
+
+    def part(self, i: int, j: int) -> "StateRows":
+        """Rows i..j-1."""
+        return StateRows(self.t_s[i:j], self.x[i:j], self.P[i:j], self.tips[i:j], self.pivots[i:j])
 
 
 @dataclass
@@ -178,7 +183,7 @@ def estimates_in_feeder_frame(states: StateRows, frame: FeederFrameEstimate, sig
     return y, rates, np.concatenate([var_pose, var_rates], axis=1)
 
 
-def records_in_feeder_frame(records, which: np.ndarray, frames: list[FeederFrameEstimate], sigma_level: float,
+def records_in_feeder_frame(records: Records, which: np.ndarray, frames: list[FeederFrameEstimate], sigma_level: float,
                             mru_bias_sigma_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """estimates_in_feeder_frame of every recorded state (`records`: fusion.records.Records of
     state_record rows), row i in the definition frames[which[i]]; read ROWS_AT_ONCE rows at a
@@ -189,9 +194,8 @@ def records_in_feeder_frame(records, which: np.ndarray, frames: list[FeederFrame
         block = StateRows.of(records.read(a, a + ROWS_AT_ONCE))
         w = which[a:a + ROWS_AT_ONCE]
         for i, j in _runs(w):  # rows in one definition, each run vectorised
-            part = StateRows(*(v[i:j] for v in vars(block).values()))
             pose[a + i:a + j], rates[a + i:a + j], var[a + i:a + j] = estimates_in_feeder_frame(
-                part, frames[w[i]], sigma_level, mru_bias_sigma_rad)
+                block.part(i, j), frames[w[i]], sigma_level, mru_bias_sigma_rad)
     return pose, rates, var
 
 
@@ -223,7 +227,7 @@ def history_row(t_s: float, f: FeederFrameEstimate, survey_sigma_rad: float) -> 
     return [t_s, *deg[:6], t.span_s, *deg[6:], *f.T_map_feeder[:3, 3]]
 
 
-def causal_estimates(records, d: FrameData, keep: np.ndarray, sigma_level: float,
+def causal_estimates(records: Records, d: FrameData, keep: np.ndarray, sigma_level: float,
                      mru_bias_sigma_rad: float) -> CausalEstimates:
     """The recorded states (`records`, as records_in_feeder_frame takes them) expressed causally,
     each row in the definition of the last update at or before its time; keep: the rows the

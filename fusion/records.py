@@ -15,7 +15,8 @@ RECORDS_BLOCK = 1024  # rows held in memory before they go to the store
 
 
 class BlockStore(Protocol):
-    """Where full blocks of rows go: appended in order, read back by row ranges."""
+    """Where full blocks of rows go: appended in order, read back by row ranges. `write` is
+    given the caller's buffer, which is reused: a store keeps a copy (or the bytes)."""
 
     def write(self, block: np.ndarray) -> None: ...
 

@@ -7,10 +7,16 @@ from __future__ import annotations
 
 import os
 import tempfile
+import weakref
 
 import numpy as np
 
 __all__ = ["DiskBlocks", "write_all", "read_into"]
+
+
+def _named(file) -> str:
+    """A file's name for a message: an unnamed temporary file's is its descriptor's number."""
+    return file.name if isinstance(file.name, str) else f"the run's temporary file of per-frame rows (in {tempfile.gettempdir()})"
 
 
 def write_all(file, data: bytes) -> None:
@@ -19,7 +25,7 @@ def write_all(file, data: bytes) -> None:
     while len(view):
         n = file.write(view)
         if not n:
-            raise OSError(f"{file.name}: no space left for the per-frame rows")
+            raise OSError(f"{_named(file)}: no space left for the per-frame rows")
         view = view[n:]
 
 
@@ -27,7 +33,7 @@ def read_into(file, out: np.ndarray, offset: int) -> None:
     """Fill `out` from the file at `offset`, or fail: a short read would leave np.empty's garbage."""
     n = os.preadv(file.fileno(), [memoryview(out).cast("B")], offset)
     if n != out.nbytes:
-        raise OSError(f"{file.name}: read {n} of {out.nbytes} bytes of the per-frame rows at {offset}")
+        raise OSError(f"{_named(file)}: read {n} of {out.nbytes} bytes of the per-frame rows at {offset}")
 
 
 class DiskBlocks:
@@ -36,6 +42,7 @@ class DiskBlocks:
     def __init__(self, prefix: str = "boomtip-records-") -> None:
         # unbuffered: a forked process holding this object has no write of it pending
         self._file = tempfile.TemporaryFile(prefix=prefix, buffering=0)
+        self._closer = weakref.finalize(self, self._file.close)  # closed with this store, however it ends
         self._width: int | None = None
         self._n = 0
 
@@ -59,4 +66,4 @@ class DiskBlocks:
         return out
 
     def close(self) -> None:
-        self._file.close()
+        self._closer()

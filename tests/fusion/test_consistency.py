@@ -64,3 +64,18 @@ def test_consistent_rows_are_causal_and_clear_a_window_after_the_burst():
     assert ok[t_out >= 35.1].all()  # the burst has left the trailing 10 s
     assert inn.count("deck_radar") == len(t) and inn.streams == ["deck_radar"]
     assert list(consistency_block(inn)) == ["deck_radar"]
+
+
+def test_merged_innovations_keep_each_filters_rows_before_the_cut_and_no_stream_left_empty():
+    a, b = Innovations(), Innovations()
+    for t in (1.0, 2.0, 3.0):
+        a.add("lidar_height", t, 1.5, 1)
+    b.add("lidar_height", 2.5, 0.5, 1, 2.0)
+    b.add("radar_height_rate", 9.0, 1.0, 1)  # only after the cut
+    m = Innovations.merged([a, b], until_s=2.9)
+    assert m.streams == ["lidar_height"] and m.count("lidar_height") == 3
+    t, nis, dof, scale = m.arrays("lidar_height")
+    assert t.tolist() == [1.0, 2.0, 2.5] and nis.tolist() == [1.5, 1.5, 0.5] and scale.tolist() == [1.0, 1.0, 2.0]
+    assert list(consistency_block(m)) == ["lidar_height"]
+    assert Innovations.merged([a, b]).streams == ["lidar_height", "radar_height_rate"]
+    assert a.only({"radar"}).streams == [] and a.only({"lidar_height"}).count("lidar_height") == 3

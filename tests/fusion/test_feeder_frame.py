@@ -173,4 +173,8 @@ def test_a_long_runs_rows_are_put_in_the_feeder_frame_block_by_block_with_the_sa
     other = frame_at(_data(), 20.0)
     which = (t_rows >= 2.05).astype(int)
     mixed = records_in_feeder_frame(records, which, [frame, other], SURVEY, 1e-4)
-    assert np.array_equal(mixed[0][:21], whole[0][:21]) and not np.allclose(mixed[0][21:], whole[0][21:], rtol=0, atol=1e-12)
+    later = estimates_in_feeder_frame(StateRows(t_rows[21:], np.array(xs[21:]), np.array(Ps[21:]), np.array(tips[21:]),
+                                                np.array(pivots[21:])), other, SURVEY, 1e-4)
+    for k in range(3):  # pose, rates, variances
+        assert np.array_equal(mixed[k][:21], whole[k][:21]) and np.array_equal(mixed[k][21:], later[k])
+    assert not np.allclose(later[0], whole[0][21:], rtol=0, atol=1e-12)  # the two definitions differ

@@ -19,7 +19,6 @@ import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.data.io.atomic import atomic_text_file
-from boomtip.data.io.blocks import DiskBlocks
 from boomtip.tools.config.processing import Processing
 from boomtip.fusion.heave_filter import Measurement as FusionMeasurement
 from boomtip.fusion.consistency import consistency_block, flagged_notes
@@ -83,7 +82,7 @@ class HeaveChain:
         self.latency_s = {"lidar": inst.lidar.latency_s, "radar": inst.radar.latency_s}
         self.clock_sigma_s = {"lidar": inst.lidar.clock_sigma_s, "radar": inst.radar.clock_sigma_s}
         self.max_D_m = max(getattr(inst, s).max_range_m for s in inst.sensors())  # a D beyond is lost
-        self.rows = MeasurementRows(DiskBlocks("boomtip-measurements-"))
+        self.rows = MeasurementRows(self.resources.block_store("boomtip-measurements-"))
         self.notes = (["attitude: level: the installation has no attitude stream; the boom-tip frame is taken as level"]
                       if inst.attitude == "level" else [])
         self.source_notes = source.meta.notes  # the loader may add to it while frames are read

@@ -4,7 +4,9 @@ per-frame code never decides it.
 `RunResources()` (a library user's default) keeps everything in this process's memory and
 runs everything here, leaving the C allocator as the process has it. `RunResources(lean=True)` (the
 command line's runs) keeps a run's memory flat in its length and uses both cores:
-  - per-run tables (encoders, MRU) on disk, read back by row slices (chains.hook_rows.DiskTable);
+  - per-run tables (encoders, MRU) on disk, read back by row slices (chains.hook_rows.DiskTable),
+    and the per-frame records (the heave chain's measurement rows, the feeder's states) too
+    (data.io.blocks.DiskBlocks);
   - a simulation's frames made in a forked child while this process perceives, and independent
     estimators shared between two forked children (chains.workers); the children run exactly
     the code a serial run would, so outputs do not depend on it;
@@ -22,6 +24,7 @@ from typing import Callable, Iterator, Sequence
 import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource
+from boomtip.data.io.blocks import DiskBlocks
 from boomtip.data.sim.simulator import Simulation
 from boomtip.tools.chains import workers
 from boomtip.tools.chains.pictures import FramePictures
@@ -91,6 +94,10 @@ class RunResources:
     def table(self, array: np.ndarray) -> np.ndarray | DiskTable:
         """A per-run table read by row slices: on disk when lean."""
         return DiskTable(array) if self.lean else np.asarray(array, float)
+
+    def block_store(self, prefix: str) -> DiskBlocks | None:
+        """Where a run's per-frame records go (fusion.records): on disk when lean, else in memory (None)."""
+        return DiskBlocks(prefix) if self.lean else None
 
     def frames(self, source: FrameSource) -> Iterator[Frame]:
         """The source's frames; a simulation's made ahead in a forked child when parallel."""

@@ -18,7 +18,6 @@ from typing import Callable
 import numpy as np
 
 from boomtip.data.frames import Frame, FrameSource, LevellingAttitude, Truth
-from boomtip.data.io.blocks import DiskBlocks
 from boomtip.data.poses import inverse, pose_vector
 from boomtip.fusion.feeder_estimator import DeckMeasurement, FeederEstimator
 from boomtip.fusion.radar_offset import RadarOffsetConfig
@@ -85,7 +84,7 @@ class ShipChain:
         rr = cfg.radar_registration
         self.estimator = FeederEstimator(source.mru, inst, cfg, RadarOffsetConfig(rr.enabled, rr.after_s, rr.learn_every,
                                          rr.offset_frames, rr.min_offset_frames, rr.max_sigma_m), source.feeder_mru,
-                                         DiskBlocks())  # a state a frame: on disk, or a long run's memory grows with it
+                                         self.heave.resources.block_store("boomtip-feeder-states-"))
         stages = FeederPerception(inst, cfg.perception, self.estimator.rates_averaged_over, self.estimator.noise.angle_rad)
         # a lagged merge of the feeder's model in a process of its own when the run has two
         merges = ForkExecutor("boomtip-merge") if self.heave.resources.parallel else None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -80,7 +81,7 @@ def measurement_table(kpis: dict) -> str:
     return "\n".join(lines)
 
 
-def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: Truth, rows: list[Measurement]) -> None:
+def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: Truth, rows: Iterable[Measurement]) -> None:
     plots = write_plots(out, estimates, truth, rows)
     amp = kpis.get("truth_max_amplitude", {})
     text = [
@@ -112,7 +113,7 @@ def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: 
     atomic_write_bytes(out / "report.md", "\n".join(text).encode())
 
 
-def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: list[Measurement]) -> list[Path]:
+def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: Iterable[Measurement]) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")

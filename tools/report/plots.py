@@ -64,10 +64,10 @@ def save(fig, path: Path) -> Path:
 
 
 def decimated(t, *ys, bins: int = DECIMATE_BINS) -> tuple[np.ndarray, ...]:
-    """(t, *ys) thinned for a line or a band: in each of `bins` equal bins of t, the samples
-    where each y is least and greatest, and the bin's first not-finite y (a gap stays a gap),
-    in their order; unchanged when there are at most 2 bins of samples. Rows whose t is not
-    finite are dropped (matplotlib draws nothing there)."""
+    """(t, *ys) thinned for a line or a band, all of the same length: in each of `bins` equal
+    bins of t, the samples where each y is least and greatest, and the bin's first not-finite y
+    (a gap stays a gap), in their order; a thinned series drops the rows whose t is not finite
+    (matplotlib draws nothing there). A series of at most 2 x bins samples is returned as it is."""
     t = np.asarray(t, dtype=float)
     ys = tuple(np.asarray(y, dtype=float) for y in ys)
     if len(t) <= 2 * bins:

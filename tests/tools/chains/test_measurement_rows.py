@@ -12,7 +12,7 @@ def _rows(n: int) -> list[Measurement]:
 
 
 def test_rows_come_back_as_they_went_in_again_and_again():
-    rows = _rows(10_000)  # three blocks of records, two of them on disk
+    rows = _rows(10_000)  # nine blocks of records on disk, the last rows in memory; read back 4,096 at a time
     stored = MeasurementRows(DiskBlocks())
     stored.extend(rows[:9000])
     for r in rows[9000:]:
