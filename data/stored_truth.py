@@ -109,4 +109,4 @@ class StoredTruth(Truth):
         for name in names:
             if name != "t":
                 files.append(name, np.asarray(columns[name], dtype=float))
-        return cls(np.asarray(columns["t"], dtype=float), files, tuple(names))
+        return cls(np.array(columns["t"], dtype=float), files, tuple(names))  # a copy: a view would keep the whole table

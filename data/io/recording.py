@@ -276,6 +276,27 @@ def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict
 # Reading
 
 
+FRAME_SENSORS = ("lidar", "radar")  # their folders; in this order where two frames share a time
+
+
+class FrameFiles:
+    """A recording's frame files in time order, as arrays (a Path per frame would be 400 bytes
+    each, 7 MB for a 600 s recording's 18,000 frames): (time in ns, sensor, path) when iterated."""
+
+    def __init__(self, root: Path, t_ns: np.ndarray, sensor_codes: np.ndarray, stems: list[str]) -> None:
+        stems_b = np.array(stems, dtype=np.bytes_) if stems else np.zeros(0, dtype="S1")
+        order = np.lexsort((stems_b, sensor_codes, t_ns))  # by time, then sensor, then name
+        self.root, self._t_ns, self._sensor, self._stems = root, t_ns[order], sensor_codes[order], stems_b[order]
+
+    def __len__(self) -> int:
+        return len(self._t_ns)
+
+    def __iter__(self) -> Iterator[tuple[int, str, Path]]:
+        for t_ns, code, stem in zip(self._t_ns.tolist(), self._sensor.tolist(), self._stems.tolist()):
+            sensor = FRAME_SENSORS[code]
+            yield t_ns, sensor, self.root / sensor / f"{stem.decode()}.pcd"
+
+
 class Recording(FrameSource):
     """A recording folder as a FrameSource."""
 
@@ -343,19 +364,20 @@ class Recording(FrameSource):
         return SourceMeta(installation=installation, duration_s=float(duration), name=str(meta.get("name", "recording")),
                           processing=processing, provenance=prov.get("scenario") if isinstance(prov, dict) else None)
 
-    def _list_frames(self) -> list[tuple[int, str, Path]]:
-        items = []
-        for sensor in ("lidar", "radar"):
+    def _list_frames(self) -> "FrameFiles":
+        stems, t_ns, sensors = [], [], []
+        for code, sensor in enumerate(FRAME_SENSORS):
             folder = self.root / sensor
             if not folder.is_dir():
                 continue
             for p in folder.glob("*.pcd"):
                 try:
-                    t_ns = int(p.stem)
+                    t_ns.append(int(p.stem))
                 except ValueError:
                     raise RecordingError(f"{p}: frame file names must be the acquisition time in ns, e.g. 0000100000000.pcd") from None
-                items.append((t_ns, sensor, p))
-        return sorted(items)
+                stems.append(p.stem)
+                sensors.append(code)
+        return FrameFiles(self.root, np.array(t_ns, dtype=np.int64), np.array(sensors, dtype=np.int8), stems)
 
     def __len__(self) -> int:
         return len(self._files)
