@@ -70,7 +70,7 @@ class MruLog:
     def from_columns(cls, cols: dict[str, np.ndarray]) -> "MruLog":
         """From the columns of an mru.csv; gaps longer than 0.1 s, or 5 sample periods if that
         is longer, hold no attitude."""
-        t = np.asarray(cols["t"], dtype=float)
+        t = np.array(cols["t"], dtype=float)  # a copy: a view would keep the whole table read
         period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
         return cls(t, np.column_stack([cols["roll"], cols["pitch"], cols["yaw"]]),
                    np.column_stack([cols["roll_rate"], cols["pitch_rate"], cols["yaw_rate"]]),
