@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import weakref
 from collections.abc import Mapping
 from typing import IO, Iterator
 
@@ -14,6 +15,11 @@ import numpy as np
 from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Truth
 
 __all__ = ["TrackFiles", "StoredTruth"]
+
+
+def _close_all(files: dict) -> None:
+    for fh in files.values():
+        fh.close()
 
 
 class TrackFiles:
@@ -25,6 +31,7 @@ class TrackFiles:
         self._files: dict[str, IO[bytes]] = {}
         self._row_shape: dict[str, tuple[int, ...]] = {}
         self._rows: dict[str, int] = {}
+        weakref.finalize(self, _close_all, self._files)  # the files closed with the tracks, however they end
 
     def append(self, name: str, rows: np.ndarray) -> None:
         rows = np.ascontiguousarray(rows, dtype=float)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import tempfile
+import weakref
 
 import numpy as np
 
@@ -90,6 +91,7 @@ class FrameRows:
     def __init__(self) -> None:
         # unbuffered: a forked process holding this object has no write of it pending
         self._file = tempfile.TemporaryFile(prefix="boomtip-rows-", buffering=0)
+        weakref.finalize(self, self._file.close)  # closed with the rows, however they end
         self._buf = np.empty((CHUNK, RECORD))
         self._n_file = self._n_buf = 0
         self._text: dict[str, list[str]] = {k: [] for k in TEXT}
@@ -180,6 +182,7 @@ class DiskTable:
         self.shape = table.shape
         self._row = int(np.prod(table.shape[1:], dtype=int))
         self._file = tempfile.TemporaryFile(prefix="boomtip-table-", buffering=0)
+        weakref.finalize(self, self._file.close)  # closed with the table, however it ends
         flat = table.reshape(len(table), -1)
         for a in range(0, len(table), CHUNK * 8):
             write_all(self._file, np.ascontiguousarray(flat[a:a + CHUNK * 8]).tobytes())

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import tempfile
+import weakref
 from pathlib import Path
 from typing import IO, Iterator
 
@@ -48,6 +49,7 @@ class EstimateStore:
     def __init__(self, params) -> None:
         self.params = params
         self._file: IO[bytes] = tempfile.TemporaryFile(prefix="boomtip-hook-")
+        weakref.finalize(self, self._file.close)  # closed with the store, however it ends
         self._sha1 = hashlib.sha1()
         self._sha1_hex: str | None = None  # the digest of a run filled by another process
         self.n = 0
