@@ -4,7 +4,6 @@ unnamed temporary files read back by rows (`TrackFiles`), and a truth table on t
 
 from __future__ import annotations
 
-import os
 import tempfile
 import weakref
 from collections.abc import Mapping
@@ -13,6 +12,7 @@ from typing import IO, Iterator
 import numpy as np
 
 from boomtip.data.frames import HOOK_TRUTH_COLUMNS, Truth
+from boomtip.data.io.blocks import read_into, write_all
 
 __all__ = ["TrackFiles", "StoredTruth"]
 
@@ -24,8 +24,9 @@ def _close_all(files: dict) -> None:
 
 class TrackFiles:
     """Arrays of a common length, each in an unnamed temporary file (removed when closed or
-    collected), appended a chunk of rows at a time and read back by rows. Reads are positional
-    (``os.preadv``): a forked process reading the same files does not move this one's offsets."""
+    collected), appended a chunk of rows at a time and read back by rows. Unbuffered writes and
+    positional reads (data.io.blocks): a forked process reading the same files neither moves this
+    one's offsets nor writes again what this one had pending."""
 
     def __init__(self) -> None:
         self._files: dict[str, IO[bytes]] = {}
@@ -36,9 +37,10 @@ class TrackFiles:
     def append(self, name: str, rows: np.ndarray) -> None:
         rows = np.ascontiguousarray(rows, dtype=float)
         if name not in self._files:
-            self._files[name] = tempfile.TemporaryFile(prefix="boomtip-track-")
+            # unbuffered: nothing pending that a forked process's copy could write again
+            self._files[name] = tempfile.TemporaryFile(prefix="boomtip-track-", buffering=0)
             self._row_shape[name], self._rows[name] = rows.shape[1:], 0
-        self._files[name].write(rows.tobytes())
+        write_all(self._files[name], rows.tobytes())
         self._rows[name] += len(rows)
 
     def replace(self, name: str, rows: np.ndarray) -> None:
@@ -52,10 +54,9 @@ class TrackFiles:
         fh, shape = self._files[name], self._row_shape[name]
         stop = self._rows[name] if stop is None else min(stop, self._rows[name])
         out = np.empty((max(stop - start, 0), *shape))
-        fh.flush()
         if out.size:
             row_bytes = out.itemsize * int(np.prod(shape, dtype=int))
-            os.preadv(fh.fileno(), [memoryview(out).cast("B")], start * row_bytes)
+            read_into(fh, out, start * row_bytes)
         return out
 
     def interp(self, name: str, t: np.ndarray, t_grid: np.ndarray, **kw) -> np.ndarray:
@@ -94,8 +95,8 @@ class _TruthColumns(Mapping):
 
 
 class StoredTruth(Truth):
-    """A simulated run's truth table with its columns on disk (`TrackFiles`): ``at`` reads only the
-    rows about the asked times, ``columns`` reads a whole column when indexed."""
+    """A truth table with its columns on disk (`TrackFiles`), a simulation's or a recording's:
+    ``at`` reads only the rows about the asked times, ``columns`` reads a whole column when indexed."""
 
     def __init__(self, t: np.ndarray, files: TrackFiles, names: tuple[str, ...] = HOOK_TRUTH_COLUMNS) -> None:  # noqa: D107 (no dataclass fields of its own)
         self._t, self._files, self._names = t, files, names

@@ -16,7 +16,7 @@ __all__ = ["DiskBlocks", "write_all", "read_into"]
 
 def _named(file) -> str:
     """A file's name for a message: an unnamed temporary file's is its descriptor's number."""
-    return file.name if isinstance(file.name, str) else f"the run's temporary file of per-frame rows (in {tempfile.gettempdir()})"
+    return file.name if isinstance(file.name, str) else f"a temporary file of the run (in {tempfile.gettempdir()})"
 
 
 def write_all(file, data: bytes) -> None:
@@ -25,7 +25,7 @@ def write_all(file, data: bytes) -> None:
     while len(view):
         n = file.write(view)
         if not n:
-            raise OSError(f"{_named(file)}: no space left for the per-frame rows")
+            raise OSError(f"{_named(file)}: no space left to write")
         view = view[n:]
 
 
@@ -33,7 +33,7 @@ def read_into(file, out: np.ndarray, offset: int) -> None:
     """Fill `out` from the file at `offset`, or fail: a short read would leave np.empty's garbage."""
     n = os.preadv(file.fileno(), [memoryview(out).cast("B")], offset)
     if n != out.nbytes:
-        raise OSError(f"{_named(file)}: read {n} of {out.nbytes} bytes of the per-frame rows at {offset}")
+        raise OSError(f"{_named(file)}: read {n} of {out.nbytes} bytes at {offset}")
 
 
 class DiskBlocks:

@@ -28,6 +28,7 @@ from pydantic import ValidationError
 from boomtip.data.frames import (ENCODER_COLUMNS, HOOK_TRUTH_COLUMNS, LIFT_TRUTH_COLUMNS, MRU_COLUMNS, TRUTH_COLUMNS, Frame,
                                  FrameSource, MruLog, SourceMeta)
 from boomtip.data.io.atomic import atomic_write_bytes
+from boomtip.data.io.frame_files import FRAME_SENSORS, FrameFiles
 from boomtip.data.io.pcd import PcdError, read_pcd, write_pcd
 from boomtip.data.installation import Installation
 from boomtip.data.stored_truth import StoredTruth
@@ -123,11 +124,18 @@ def _check_utf8(path: Path) -> None:
                                          "numbers") from None
                 offset += len(block)
             decoder.decode(b"", final=True)
-    except UnicodeDecodeError:
-        raise RecordingError(f"{path}: byte {offset - len(decoder.getstate()[0])}: not UTF-8 text (a character cut at "
-                             "the end); expected a CSV of numbers") from None
+    except UnicodeDecodeError:  # a character cut at the end
+        raise RecordingError(f"{path}: byte {offset - len(decoder.getstate()[0])}: not UTF-8 text; expected a CSV of "
+                             "numbers") from None
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+
+
+def _text_lines(fh) -> Iterator[str]:
+    """The lines of a text file read with universal newlines, split as str.splitlines splits a
+    whole text (form feeds, file and group separators, NEL, U+2028 too), a line at a time."""
+    for piece in fh:
+        yield from piece.splitlines()
 
 
 def _parsed_csv(path: Path, expected: tuple[str, ...]) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -143,9 +151,8 @@ def _parsed_csv(path: Path, expected: tuple[str, ...]) -> tuple[list[str], np.nd
             rows.clear()
 
     try:
-        with open(path, "rb") as fh:
-            for i, raw in enumerate(fh, start=1):
-                line = raw.decode("utf-8").rstrip("\r\n")
+        with open(path, encoding="utf-8") as fh:
+            for i, line in enumerate(_text_lines(fh), start=1):
                 if names is None:
                     names = [c.strip() for c in line.split(",")]
                     missing = [c for c in expected if c not in names]
@@ -166,6 +173,8 @@ def _parsed_csv(path: Path, expected: tuple[str, ...]) -> tuple[list[str], np.nd
                     flush()
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:  # changed since its check
+        raise RecordingError(f"{path}: not UTF-8 text; expected a CSV of numbers") from None
     if names is None:
         raise RecordingError(f"{path}: empty file; expected a header {','.join(expected)}")
     flush()
@@ -276,27 +285,6 @@ def meta_to_json(meta: SourceMeta, counts: dict[str, int] | None = None) -> dict
 # Reading
 
 
-FRAME_SENSORS = ("lidar", "radar")  # their folders; in this order where two frames share a time
-
-
-class FrameFiles:
-    """A recording's frame files in time order, as arrays (a Path per frame would be 400 bytes
-    each, 7 MB for a 600 s recording's 18,000 frames): (time in ns, sensor, path) when iterated."""
-
-    def __init__(self, root: Path, t_ns: np.ndarray, sensor_codes: np.ndarray, stems: list[str]) -> None:
-        stems_b = np.array(stems, dtype=np.bytes_) if stems else np.zeros(0, dtype="S1")
-        order = np.lexsort((stems_b, sensor_codes, t_ns))  # by time, then sensor, then name
-        self.root, self._t_ns, self._sensor, self._stems = root, t_ns[order], sensor_codes[order], stems_b[order]
-
-    def __len__(self) -> int:
-        return len(self._t_ns)
-
-    def __iter__(self) -> Iterator[tuple[int, str, Path]]:
-        for t_ns, code, stem in zip(self._t_ns.tolist(), self._sensor.tolist(), self._stems.tolist()):
-            sensor = FRAME_SENSORS[code]
-            yield t_ns, sensor, self.root / sensor / f"{stem.decode()}.pcd"
-
-
 class Recording(FrameSource):
     """A recording folder as a FrameSource."""
 
@@ -365,19 +353,22 @@ class Recording(FrameSource):
                           processing=processing, provenance=prov.get("scenario") if isinstance(prov, dict) else None)
 
     def _list_frames(self) -> "FrameFiles":
-        stems, t_ns, sensors = [], [], []
+        names, t_ns, sensors = [], [], []
         for code, sensor in enumerate(FRAME_SENSORS):
             folder = self.root / sensor
             if not folder.is_dir():
                 continue
             for p in folder.glob("*.pcd"):
                 try:
-                    t_ns.append(int(p.stem))
+                    t = int(p.stem)
                 except ValueError:
+                    t = None
+                if t is None or not -2**63 <= t < 2**63:  # int64
                     raise RecordingError(f"{p}: frame file names must be the acquisition time in ns, e.g. 0000100000000.pcd") from None
-                stems.append(p.stem)
+                t_ns.append(t)
+                names.append(p.name)
                 sensors.append(code)
-        return FrameFiles(self.root, np.array(t_ns, dtype=np.int64), np.array(sensors, dtype=np.int8), stems)
+        return FrameFiles(self.root, np.array(t_ns, dtype=np.int64), np.array(sensors, dtype=np.int8), names)
 
     def __len__(self) -> int:
         return len(self._files)

@@ -6,7 +6,7 @@ without a viewer; a run without a LiDAR frame, or a frame without a deck, says s
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +40,7 @@ def _in_deck(points: np.ndarray, R: np.ndarray, origin: np.ndarray) -> np.ndarra
     return (np.asarray(points, float).reshape(-1, 3) - origin) @ R.T
 
 
-def status_timeline(ax, rows: Iterable[Measurement]) -> None:
+def status_timeline(ax, rows: Collection[Measurement]) -> None:
     """A row per method, each frame a mark coloured by its status: ok, or each reason apart."""
     methods = sorted({r.method for r in rows})
     reasons = sorted({r.status for r in rows if not r.ok})
@@ -62,7 +62,7 @@ def status_timeline(ax, rows: Iterable[Measurement]) -> None:
     legend(ax, fontsize=8)
 
 
-def write_detections(out: Path, frames: list[tuple[FrameResult, str]], rows: Iterable[Measurement], p_tip_sensor: np.ndarray) -> Path:
+def write_detections(out: Path, frames: list[tuple[FrameResult, str]], rows: Collection[Measurement], p_tip_sensor: np.ndarray) -> Path:
     """OUT/plots/detections.png: each of `frames` (a LiDAR frame's result with its cloud and
     detections, and why it is pictured; none: the run had no LiDAR frame) from above and from the
     side, and the status of every method."""
@@ -79,7 +79,7 @@ def detections_title(frame: FrameResult | None) -> str:
     return f"LiDAR frame {frame.frame.index} (t = {frame.frame.t_s:.2f} s) and its detections, in the deck plane's axes"
 
 
-def detections_figure(frames: list[tuple[FrameResult, str]], rows: Iterable[Measurement], p_tip_sensor: np.ndarray):
+def detections_figure(frames: list[tuple[FrameResult, str]], rows: Collection[Measurement], p_tip_sensor: np.ndarray):
     """The picture as a matplotlib figure: each frame from above and from the side, then the status timeline."""
     return frames_figure(frames, rows, lambda above, side, frame: _draw_frame(above, side, frame, p_tip_sensor),
                          detections_title, "What the heave pipeline detected")

@@ -5,7 +5,7 @@ frames, and the gaps in each stream."""
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Collection
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -32,7 +32,7 @@ def stream_gaps(t_s: np.ndarray, nominal_dt_s: float, factor: float = 1.5) -> li
     return [(float(t[i]), float(t[i + 1])) for i in idx]
 
 
-def method_table(rows: Iterable[Measurement]) -> list[str]:
+def method_table(rows: Collection[Measurement]) -> list[str]:
     lines = ["| method | frames | valid | APT [ms] | why not valid (frames) |", "|---|---|---|---|---|"]
     for m in sorted({r.method for r in rows}):
         mine = [r for r in rows if r.method == m]
@@ -59,7 +59,7 @@ def time_base(kpis: dict) -> list[str]:
     return [f"Times count from the recording's first stamp: t = 0 s is {_clock(origin)}{epoch}.", ""]
 
 
-def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates], rows: Iterable[Measurement],
+def write_estimates_report(out: Path, kpis: dict, estimates: dict[str, Estimates], rows: Collection[Measurement],
                            mru: MruLog | None, rates_hz: dict[str, float]) -> list[str]:
     """report.md of a recording without truth. mru: None when the installation logs no attitude
     (`attitude: level`)."""

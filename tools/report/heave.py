@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -81,7 +81,7 @@ def measurement_table(kpis: dict) -> str:
     return "\n".join(lines)
 
 
-def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: Truth, rows: Iterable[Measurement]) -> None:
+def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: Truth, rows: Collection[Measurement]) -> None:
     plots = write_plots(out, estimates, truth, rows)
     amp = kpis.get("truth_max_amplitude", {})
     text = [
@@ -113,7 +113,7 @@ def write_report(out: Path, kpis: dict, estimates: dict[str, Estimates], truth: 
     atomic_write_bytes(out / "report.md", "\n".join(text).encode())
 
 
-def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: Iterable[Measurement]) -> list[Path]:
+def write_plots(out: Path, estimates: dict[str, Estimates], truth: Truth, rows: Collection[Measurement]) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")

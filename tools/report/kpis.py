@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection
 
 import numpy as np
 
@@ -21,7 +21,7 @@ def error_stats(err: np.ndarray) -> dict[str, float]:
     return {"mae": float(a.mean()), "max": float(a.max()), "rmse": float(np.sqrt(np.mean(err**2))), "n": int(len(err))}
 
 
-def measurement_kpis(rows: Iterable[Measurement], truth: Truth | None) -> dict[str, dict]:
+def measurement_kpis(rows: Collection[Measurement], truth: Truth | None) -> dict[str, dict]:
     out: dict[str, dict] = {}
     for m in METHODS:
         mine = [r for r in rows if r.method == m]
@@ -96,7 +96,7 @@ def consistency(est: Estimates, truth: Truth, keep: np.ndarray) -> dict:
             "max_D_dot_mps": v["max"], "rmse_D_dot_mps": v["rmse"], "within_3sigma_D": within, "samples": d["n"]}
 
 
-def solution_kpis(est: Estimates, truth: Truth, rows: Iterable[Measurement], methods: tuple[str, ...],
+def solution_kpis(est: Estimates, truth: Truth, rows: Collection[Measurement], methods: tuple[str, ...],
                   windows: list[tuple[float, float]] = ()) -> dict:
     keep = est.t_s >= (est.t_s[0] if len(est.t_s) else 0.0) + WARMUP_S  # from the source's first time stamp
     errors = consistency(est, truth, keep)
