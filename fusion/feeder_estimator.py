@@ -396,7 +396,10 @@ class FeederEstimator:
     def _frame_data(self, lines: list[tuple[float, int]], hull_yaws: list[float]) -> FrameData:
         """The deck normals, the own hull's and the feeder's edges, each with the time it was known."""
         known = self.records.column(REC_KNOWN)  # (the frame's t, lines, hull edges) at each record
-        when = lambda k, col: known[np.searchsorted(known[:, col], np.arange(k) + 1), 0]  # the count first exceeded i
+        # the time the count first exceeded i; an edge no record counted (a run whose filter never
+        # started, one found after the last frame) is known only at the end
+        t_known = np.r_[known[:, 0], np.inf]
+        when = lambda k, col: t_known[np.searchsorted(known[:, col], np.arange(k) + 1)]
         started = self.filter.started
         return FrameData(np.array([n[0] for n in self.normals]), np.array([n[1] for n in self.normals]),
                          when(len(hull_yaws), 2), np.array(hull_yaws), when(len(lines), 1),

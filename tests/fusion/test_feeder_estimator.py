@@ -438,6 +438,16 @@ def test_finish_without_any_deck_says_so_and_has_no_rows():
     assert res.T_map_feeder is None and res.feeder_mru is None
 
 
+def test_finish_without_any_deck_but_with_edges_found_says_so_too():
+    est = estimator()
+    att = est.attitude(5.0, "lidar")
+    est.lidar_deck(5.0, TIP, TIP_V, LIDAR, att.noise, None)
+    res = est.finish([(0.01, 3)], [0.002, 0.003])  # a centre line and hull edges, and never a deck
+    assert res.notes == ["feeder: no LiDAR deck plane in this run: no estimate"] and res.t_s.shape == (0,)
+    d = est._frame_data([(0.01, 3)], [0.002, 0.003])
+    assert np.all(np.isinf(d.t_hull_s)) and np.all(np.isinf(d.t_lines_s))  # known only at the end
+
+
 def test_finish_keeps_one_row_per_time():
     est = started(estimator())  # two rows at 19.0: the start's and the frame's
     for t in (19.1, 19.2):
