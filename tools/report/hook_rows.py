@@ -12,7 +12,7 @@ import weakref
 
 import numpy as np
 
-from boomtip.data.io.blocks import read_into, write_all
+from boomtip.data.io.blocks import DiskBlocks, read_into, write_all
 from boomtip.data.meshes import Label
 from boomtip.perception.hook import HookDetection, segmentation_scores
 from boomtip.perception.rope import RopeFix
@@ -180,12 +180,10 @@ class DiskTable:
     def __init__(self, table: np.ndarray) -> None:
         table = np.asarray(table, float)
         self.shape = table.shape
-        self._row = int(np.prod(table.shape[1:], dtype=int))
-        self._file = tempfile.TemporaryFile(prefix="boomtip-table-", buffering=0)
-        weakref.finalize(self, self._file.close)  # closed with the table, however it ends
+        self._blocks = DiskBlocks("boomtip-table-")
         flat = table.reshape(len(table), -1)
         for a in range(0, len(table), CHUNK * 8):
-            write_all(self._file, np.ascontiguousarray(flat[a:a + CHUNK * 8]).tobytes())
+            self._blocks.write(flat[a:a + CHUNK * 8])
 
     def __len__(self) -> int:
         return self.shape[0]
@@ -194,14 +192,11 @@ class DiskTable:
         if not isinstance(rows, slice) or rows.step not in (None, 1):
             raise TypeError("a DiskTable reads contiguous row slices only")
         a, b, _ = rows.indices(len(self))
-        out = np.empty((max(b - a, 0), *self.shape[1:]))
-        if out.size:
-            read_into(self._file, out, a * self._row * 8)
-        return out
+        return self._blocks.read(a, max(a, b)).reshape((-1, *self.shape[1:]))
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         whole = self[:]
         return whole if dtype is None else whole.astype(dtype)
 
     def close(self) -> None:
-        self._file.close()
+        self._blocks.close()
