@@ -4,11 +4,17 @@ clouds, or by the simulator from the crane's truth; read by the hook filter."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["HookMeasurements"]
+__all__ = ["HookMeasurements", "TIMES_OF"]
+
+
+# each stream's time stamps: the rows of a field follow these
+TIMES_OF = {"t_lidar": "t_lidar", "lidar_p_rel_tip_world": "t_lidar", "lidar_sigma_m": "t_lidar", "lidar_cov_m2": "t_lidar",
+            "lidar_model_fit": "t_lidar", "rope_direction": "t_lidar", "rope_cov": "t_lidar",
+            "t_encoders": "t_encoders", "encoders": "t_encoders", "t_mru": "t_mru", "mru": "t_mru"}
 
 
 @dataclass
@@ -30,3 +36,10 @@ class HookMeasurements:
     lidar_model_fit: np.ndarray | None = None
     rope_direction: np.ndarray | None = None
     rope_cov: np.ndarray | None = None
+
+    def until(self, t_s: float) -> "HookMeasurements":
+        """The streams up to t_s (inclusive): what an estimate that stops there is made from."""
+        cut = {times: int(np.searchsorted(getattr(self, times), t_s, "right")) for times in set(TIMES_OF.values())}
+        return HookMeasurements(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[:cut[TIMES_OF[f.name]]]
+                                   for f in fields(self)})
+

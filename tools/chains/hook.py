@@ -182,12 +182,16 @@ class HookChain:
             lidar_model_fit=np.asarray(rows["status"]) == "ok",
         )
 
-    def finish(self) -> HookResult:
+    def finish(self, until_s: float | None = None) -> HookResult:
+        """The estimators over the run's measurements, up to `until_s` when given (where their
+        model stops holding: a lift's load landed, the rope slack)."""
         self._finish_frames()
         self.resources.release()  # before the estimators' processes fork, and the outputs
         rows = self.rows
-        if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
-            self.warnings.append("no LiDAR frame in this run: no hook estimate")
+        if not len(rows) or (until_s is not None and rows["t"][0] > until_s):
+            # no LiDAR frame (before the end): the encoders alone do not make a hook estimate
+            self.warnings.append("no LiDAR frame in this run" + ("" if until_s is None else f" up to {until_s:.2f} s")
+                                 + ": no hook estimate")
             return HookResult(rows, self.finish_measurements, {})
         meas: list[HookMeasurements] = []  # made once per process that runs estimators
         # each run's samples go to disk as they come: a run's memory stays flat in its length
@@ -196,7 +200,8 @@ class HookChain:
         def estimate(name: str):
             kind, model = name.split("_")
             if not meas:
-                meas.append(self.finish_measurements())
+                whole = self.finish_measurements()
+                meas.append(whole if until_s is None else whole.until(until_s))
             run = run_hook_filter(meas[0], kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
                                   self.filter_cfg, sink=stores[name])
             return run, stores[name].state()

@@ -145,7 +145,8 @@ class LiftChain:
         return out
 
     def finish(self) -> LiftResult:
-        hook = self.hook.finish()
+        # the hook's model (a pendulum on a taut rope, the load's mass on it) ends at the landing
+        hook = self.hook.finish(self.touchdown.landed_s)
         rows = outputs.as_columns(self.rows)
         forecasts = touchdown_forecasts(rows["t"], rows["height_m"], rows["hoist_m"], self.cfg.horizon_s,
                                         self.cfg.forecast_history_s, rows["height_m"] - rows["clearance_m"])
@@ -159,6 +160,9 @@ class LiftChain:
 
     def kpis(self, result: LiftResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
         k = self.hook.kpis(result.hook, outputs.until_touchdown(truth), windows)
+        if self.touchdown.landed_s is not None:
+            k["hook"]["estimators_note"] += (f"; the estimators stop at the landing found at {self.touchdown.landed_s:.2f} s "
+                                             "(the load on the deck, the rope slack: not the pendulum they model)")
         if truth is not None and "contact" in truth.columns:
             k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
         k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, self.filters.filters(), self.touchdown.landed_s)

@@ -148,3 +148,9 @@ def test_the_landing_is_found_when_it_happens_and_the_filters_stop_there(tmp_pat
         rows = list(csv.DictReader(fh))
     after = [r for r in rows if float(r["t"]) > lift["landed_detected_s"] + 0.6]
     assert after and all(r["estimate"].startswith("landed at") for r in after)
+    # the hook's estimators stop there too (the rope slack): their last sample is the landing's frame
+    with open(out / "hook_estimates.csv", newline="") as fh:
+        t_hook = [float(r["t"]) for r in csv.DictReader(fh)]
+    assert t_hook[-1] == pytest.approx(lift["landed_detected_s"], abs=0.006) and float(rows[-1]["t"]) > t_hook[-1] + 5.0
+    assert "stop at the landing" in k["hook"]["estimators_note"]
+    assert not any(c["flagged"] for c in k["consistency"]["hook_ekf_flexible"].values())
