@@ -29,12 +29,14 @@ from scipy.spatial import cKDTree
 from scipy.special import ndtr
 
 from boomtip.perception.geometry import plane_sigma_at
+from boomtip.perception.residual_spread import ResidualSpread
 
 __all__ = ["LiftConfig", "LoadClearance", "measure_clearance", "height_plane", "rope_line_xy", "footprint_radius_m", "plane_height_at", "index_mask",
            "chance_lowest", "chance_weighted"]
 
 STATUS_OK = "ok"
 MAX_REFITS = 5  # a plane refitted without its outliers at most this often
+PLANE_PARAMETERS = 3  # z = a + b x + c y: a plane fit's residuals have this many degrees of freedom fewer than points
 MAD_FLOOR_M = 1e-4  # a plane's robust sigma never below this (points exactly on it would reject all else)
 LOWEST_SEEN_POINTS = 5  # without a model: the load's bottom is the mean of its few lowest points
 MIN_CHANCE = 1e-3  # a corner less likely than this to be the lowest adds nothing to C or its rate
@@ -62,6 +64,8 @@ class LiftConfig(BaseModel):
     min_cluster_gap_m: float = Field(0.5, gt=0, description="and never less than this")
     core_radius_m: float = Field(1.0, gt=0, description="of the connected groups, the load has the most points this close "
                                  "to the rope's line")
+    top_spread_memory_s: float = Field(1.0, ge=0, description="the load top's residual spread (its height's sigma) pooled "
+                                       "over the frames of about this long (perception.residual_spread; 0: each frame's own)")
 
 
 @dataclass
@@ -87,6 +91,7 @@ class LoadClearance:
     candidate_sigmas_m: np.ndarray = field(default_factory=lambda: np.zeros(0))  # their heights' 1-sigma from the face's fit
     load_mask: np.ndarray | None = None
     deck_mask: np.ndarray | None = None
+    top_spread: ResidualSpread | None = None  # the load top's residual spread, pooled up to this frame
 
     @property
     def ok(self) -> bool:
@@ -160,10 +165,12 @@ def _dominant(z: np.ndarray, bin_m: float) -> float:
 def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height_m: float,
                       load_size_m: tuple[float, float, float] | None, cfg: LiftConfig,
                       deck_prior_z_m: float | None = None, range_noise_m: float = 0.0,
-                      angular_step_rad: float = 0.0) -> LoadClearance:
-    """The clearance in one levelled frame, about the hook's reference point `hook_m` (the hook
-    filter's estimate, levelled frame); `deck_prior_z_m` the deck's last height there, if any.
-    The LiDAR's range noise and angular step size the sigmas."""
+                      angular_step_rad: float = 0.0, t_s: float = math.nan,
+                      top_spread: ResidualSpread = ResidualSpread()) -> LoadClearance:
+    """The clearance in one levelled frame (at t_s), about the hook's reference point `hook_m`
+    (the hook filter's estimate, levelled frame); `deck_prior_z_m` the deck's last height there,
+    if any; `top_spread` the load top's residual spread pooled over the frames before. The
+    LiDAR's range noise and angular step size the sigmas."""
     if len(points_level) == 0 or not np.all(np.isfinite(hook_m)) or hook_m[2] >= 0:
         return LoadClearance("no points or no hook")
     radius = footprint_radius_m(load_size_m, cfg)
@@ -203,7 +210,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     masks = dict(load_mask=index_mask(len(points_level), finite[load_idx]), deck_mask=index_mask(len(points_level), finite[ring_idx]))
     if n_load < cfg.min_top_points:
         return LoadClearance("too few load points", n_load=n_load, n_deck=len(deck_pts), **masks)
-    under = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m) if load_size_m
+    under = (_underside_with_model(pts[load], load_size_m, cfg, range_noise_m, top_spread, t_s) if load_size_m
              else _lowest_seen(pts[load], range_noise_m))
     if under is None:
         return LoadClearance("no top face on the load", n_load=n_load, n_deck=len(deck_pts), **masks)
@@ -234,7 +241,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, clearance, sigma, lowest, centre, sigma_centre, deck_z,
                          float(plane_height_at(deck_coef, centre[:2])), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
-                         under.sigma_candidates_m, **masks)
+                         under.sigma_candidates_m, **masks, top_spread=under.spread)
 
 
 def _hanging(pts: np.ndarray, candidates: np.ndarray, d: np.ndarray, gap_m: float, core_m: float) -> np.ndarray:
@@ -288,10 +295,12 @@ class _Underside:
     sigma_candidates_m: np.ndarray  # each candidate's height's
     sigma_centre_m: float
     gradient: np.ndarray
+    spread: ResidualSpread | None = None  # the top face's residual spread, pooled with this frame's
 
 
 def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], cfg: LiftConfig,
-                          range_noise_m: float) -> _Underside | None:
+                          range_noise_m: float, spread: ResidualSpread = ResidualSpread(),
+                          t_s: float = math.nan) -> _Underside | None:
     """The underside's corners and centre from the top face (a plane through the load's points,
     the slings above it and any side seen below it left out as outliers) and the model: the top's
     rectangle about its points along their principal axis, carried down the face's normal by the
@@ -313,14 +322,15 @@ def _underside_with_model(load: np.ndarray, size_m: tuple[float, float, float], 
     n = _as_plane(coef)[:3]
     corners = np.column_stack([corners_xy, plane_height_at(coef, corners_xy)]) - height * n
     resid = top[:, 2] - plane_height_at(coef, top[:, :2])
-    s_fit = max(float(np.std(resid)), range_noise_m)
+    spread = spread.pooled(t_s, float(resid @ resid), len(top) - PLANE_PARAMETERS, cfg.top_spread_memory_s)
+    s_fit = max(spread.sigma_m, range_noise_m)
 
     def sigma_at(xy: np.ndarray) -> float:  # the face's fit's height there: its offset and its slopes
         q = (xy - mean) @ evecs
         return s_fit * math.sqrt(1.0 / len(top) + float(np.sum(q**2 / np.maximum(evals * (len(top) - 1), 1e-9))))
 
     return _Underside(corners, np.append(c, plane_height_at(coef, c)) - height * n,
-                      np.array([sigma_at(xy) for xy in corners_xy]), sigma_at(c), coef[1:])
+                      np.array([sigma_at(xy) for xy in corners_xy]), sigma_at(c), coef[1:], spread)
 
 
 def _lowest_seen(load: np.ndarray, range_noise_m: float) -> _Underside:

@@ -31,6 +31,7 @@ from boomtip.fusion.touchdown import TouchdownDetector
 from boomtip.perception.lift import LoadClearance, measure_clearance, rope_line_xy
 from boomtip.perception.lift_doppler import ClearanceRate
 from boomtip.perception.lift_radar import ClearanceRatePipeline
+from boomtip.perception.residual_spread import ResidualSpread
 from boomtip.tools.chains.chain import NullVisualiser
 from boomtip.tools.chains.hook import HookChain, HookFrameResult, HookResult
 from boomtip.tools.chains.resources import RunResources
@@ -83,6 +84,7 @@ class LiftChain:
         self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps, self.cfg.landing_error_correlation_s)
         self.touchdown = TouchdownDetector(self.cfg.landed_hold_s)
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
+        self.top_spread = ResidualSpread()  # the load top's residual spread over the frames so far
         self.hoist = (math.nan, math.nan)  # the rope's length and rate (the hook tracker's) at the last frame
         self.rows: list[dict] = []
         # the radar: the clearance's rates from its Doppler, about the last LiDAR fix
@@ -114,8 +116,11 @@ class LiftChain:
             with out.times.stage("lift.clearance"):
                 p_hook, cov_hook = self.hook.tracker.estimate()
                 obs = out.clearance = measure_clearance(res.points_level, p_hook, self.block_height_m, self.load_size_m,
-                                                        self.cfg.detector, self.deck_z_m, *self.lidar_noise)
+                                                        self.cfg.detector, self.deck_z_m, *self.lidar_noise, frame.t_s,
+                                                        self.top_spread)
                 self.hoist = self.hook.tracker.hoist()
+            if obs.top_spread is not None:
+                self.top_spread = obs.top_spread
             row.update(outputs.observation_row(obs))
             if self.touchdown.update(frame.t_s, obs.clearance_m, obs.sigma_m):  # a frame without one breaks the run
                 row.update(outputs.landed_row(obs if obs.ok else None, self.touchdown.landed_s, self.hoist[0]))
