@@ -120,9 +120,7 @@ def height_plane(points: np.ndarray, outlier_sigmas: float) -> tuple[np.ndarray,
         p = points[keep]
         coef, *_ = np.linalg.lstsq(np.column_stack([np.ones(len(p)), p[:, 0], p[:, 1]]), p[:, 2], rcond=None)
         resid = points[:, 2] - plane_height_at(coef, points[:, :2])
-        # the MAD of every point's residual: the kept points' alone are a trimmed sample, whose
-        # spread (and with it the next round's bound) shrinks round after round
-        mad = float(np.median(np.abs(resid - np.median(resid))))
+        mad = float(np.median(np.abs(resid[keep] - np.median(resid[keep]))))
         inliers = np.abs(resid) <= outlier_sigmas * max(1.4826 * mad, MAD_FLOOR_M)
         if np.array_equal(inliers, keep) or k == MAX_REFITS - 1:
             break
