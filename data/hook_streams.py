@@ -38,8 +38,8 @@ class HookMeasurements:
     rope_cov: np.ndarray | None = None
 
     def until(self, t_s: float) -> "HookMeasurements":
-        """The streams up to t_s (inclusive): what an estimate that stops there is made from."""
-        cut = {times: int(np.searchsorted(getattr(self, times), t_s, "right")) for times in set(TIMES_OF.values())}
-        return HookMeasurements(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[:cut[TIMES_OF[f.name]]]
+        """The samples up to t_s (inclusive) of every stream, in whatever order its stamps come:
+        what an estimate that stops there is made from."""
+        kept = {times: np.asarray(getattr(self, times)) <= t_s for times in set(TIMES_OF.values())}
+        return HookMeasurements(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[kept[TIMES_OF[f.name]]]
                                    for f in fields(self)})
-

@@ -167,8 +167,9 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
                       top_spread: ResidualSpread = ResidualSpread()) -> LoadClearance:
     """The clearance in one levelled frame (at t_s), about the hook's reference point `hook_m`
     (the hook filter's estimate, levelled frame); `deck_prior_z_m` the deck's last height there,
-    if any; `top_spread` the load top's residual spread pooled over the frames before. The
-    LiDAR's range noise and angular step size the sigmas."""
+    if any; `top_spread` the load top's residual spread pooled over the frames before (without
+    a finite t_s, the frame's own spread alone). The LiDAR's range noise and angular step size
+    the sigmas."""
     if len(points_level) == 0 or not np.all(np.isfinite(hook_m)) or hook_m[2] >= 0:
         return LoadClearance("no points or no hook")
     radius = footprint_radius_m(load_size_m, cfg)
@@ -218,7 +219,8 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     cand = under.candidates
     heights = cand[:, 2] - plane_height_at(deck_coef, cand[:, :2])
     if not np.all(np.isfinite(heights)):
-        return LoadClearance("the load's corners not finite", n_load=n_load, n_deck=len(deck_pts), **masks)
+        return LoadClearance("the load's corners not finite", n_load=n_load, n_deck=len(deck_pts), **masks,
+                             top_spread=under.spread)
     chance = chance_lowest(heights, under.sigma_candidates_m)
     k_low = int(np.argmax(chance))
     lowest = cand[k_low]

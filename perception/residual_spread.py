@@ -25,10 +25,14 @@ class ResidualSpread:
 
     def pooled(self, t_s: float, sum_squares_m2: float, dof: float, memory_s: float) -> "ResidualSpread":
         """With a frame's residuals at t_s (their sum of squares and degrees of freedom); the
-        earlier frames' weighed by exp(-age / memory_s); memory_s 0: the frame's alone."""
+        earlier frames' weighed by exp(-age / memory_s). The frame's alone when memory_s is 0,
+        or when its age is not known or negative (no time, a frame before the last): a pool is of
+        the frames just before, in order. A frame without a finite spread leaves the pool as it was."""
+        if not (math.isfinite(sum_squares_m2) and sum_squares_m2 >= 0 and dof > 0):
+            return self
         age = t_s - self.t_s
-        keep = math.exp(-age / memory_s) if memory_s > 0 and math.isfinite(age) and age >= 0 else 0.0
-        return ResidualSpread(keep * self.sum_squares_m2 + sum_squares_m2, keep * self.dof + dof, t_s)
+        weight = math.exp(-age / memory_s) if memory_s > 0 and math.isfinite(age) and age >= 0 else 0.0
+        return ResidualSpread(weight * self.sum_squares_m2 + sum_squares_m2, weight * self.dof + dof, t_s)
 
     @property
     def sigma_m(self) -> float:

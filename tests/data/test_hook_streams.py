@@ -38,3 +38,13 @@ def test_a_time_before_every_sample_leaves_empty_streams_and_one_after_them_all(
     whole = _streams()
     assert len(whole.until(-1.0).t_lidar) == 0 and len(whole.until(-1.0).mru) == 0
     assert len(whole.until(5.0).t_mru) == len(whole.t_mru)
+
+
+def test_stamps_out_of_order_are_cut_by_their_times_not_their_places():
+    whole = _streams()
+    order = np.random.default_rng(2).permutation(len(whole.t_lidar))
+    shuffled = HookMeasurements(whole.t_lidar[order], whole.lidar_p_rel_tip_world[order], whole.t_encoders, whole.encoders,
+                                whole.t_mru, whole.mru, rope_direction=whole.rope_direction[order])
+    cut = shuffled.until(0.5)
+    assert sorted(cut.t_lidar) == list(whole.t_lidar[:11])
+    np.testing.assert_array_equal(cut.lidar_p_rel_tip_world, whole.lidar_p_rel_tip_world[order][whole.t_lidar[order] <= 0.5])

@@ -31,6 +31,11 @@ def test_an_earlier_frame_weighs_less_with_its_age_and_none_before_any():
     assert ResidualSpread().pooled(5.0, 1.0, 1.0, 1.0).pooled(4.0, 4.0, 1.0, 1.0).sigma_m == pytest.approx(2.0)
 
 
+def test_a_frame_without_a_finite_spread_leaves_the_pool_as_it_was():
+    pool = ResidualSpread().pooled(0.0, 1.0, 4.0, 1.0)
+    assert pool.pooled(0.05, math.nan, 4.0, 1.0) == pool and pool.pooled(0.05, 1.0, 0.0, 1.0) == pool
+
+
 def test_a_pooled_spread_is_the_sensors_and_an_error_in_its_sigmas_is_one():
     # each frame: a mean of POINTS noisy heights, its sigma from the frame's own spread or the pool's
     frames = _frames(4000)

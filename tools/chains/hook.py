@@ -188,11 +188,14 @@ class HookChain:
         self._finish_frames()
         self.resources.release()  # before the estimators' processes fork, and the outputs
         rows = self.rows
-        if not len(rows) or (until_s is not None and rows["t"][0] > until_s):
-            # no LiDAR frame (before the end): the encoders alone do not make a hook estimate
-            self.warnings.append("no LiDAR frame in this run" + ("" if until_s is None else f" up to {until_s:.2f} s")
-                                 + ": no hook estimate")
-            return HookResult(rows, self.finish_measurements, {})
+        read = self.finish_measurements if until_s is None else (lambda: self.finish_measurements().until(until_s))
+        if not len(rows):  # no LiDAR frame at all: the encoders alone do not make a hook estimate
+            self.warnings.append("no LiDAR frame in this run: no hook estimate")
+            return HookResult(rows, read, {})
+        firsts = [np.min(np.asarray(t), initial=math.inf) for t in (rows["t"], *self._times)]
+        if until_s is not None and max(firsts) > until_s:  # an estimate needs a sample of each stream
+            self.warnings.append(f"no LiDAR frame, encoder reading or MRU sample up to {until_s:.2f} s: no hook estimate")
+            return HookResult(rows, read, {})
         meas: list[HookMeasurements] = []  # made once per process that runs estimators
         # each run's samples go to disk as they come: a run's memory stays flat in its length
         stores = {name: EstimateStore(self.params) for name in self.estimators}
@@ -200,8 +203,7 @@ class HookChain:
         def estimate(name: str):
             kind, model = name.split("_")
             if not meas:
-                whole = self.finish_measurements()
-                meas.append(whole if until_s is None else whole.until(until_s))
+                meas.append(read())
             run = run_hook_filter(meas[0], kind, model, self.params.model_copy(update={"flexible": model == "flexible"}),
                                   self.filter_cfg, sink=stores[name])
             return run, stores[name].state()
@@ -213,7 +215,7 @@ class HookChain:
             stores[name].adopt(state)
             runs[name] = run
         meas.clear()  # (a serial run made them here)
-        return HookResult(rows, self.finish_measurements, runs, stores)
+        return HookResult(rows, read, runs, stores)
 
     # -- outputs -------------------------------------------------------------------------
     def outputs(self, out: Path, result: HookResult) -> list[str]:

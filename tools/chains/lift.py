@@ -116,8 +116,8 @@ class LiftChain:
             with out.times.stage("lift.clearance"):
                 p_hook, cov_hook = self.hook.tracker.estimate()
                 obs = out.clearance = measure_clearance(res.points_level, p_hook, self.block_height_m, self.load_size_m,
-                                                        self.cfg.detector, self.deck_z_m, *self.lidar_noise, frame.t_s,
-                                                        self.top_spread)
+                                                        self.cfg.detector, self.deck_z_m, *self.lidar_noise,
+                                                        t_s=frame.t_s, top_spread=self.top_spread)
                 self.hoist = self.hook.tracker.hoist()
             if obs.top_spread is not None:
                 self.top_spread = obs.top_spread
@@ -165,7 +165,7 @@ class LiftChain:
 
     def kpis(self, result: LiftResult, truth: Truth | None, windows: list[tuple[float, float]] = ()) -> dict:
         k = self.hook.kpis(result.hook, outputs.until_touchdown(truth), windows)
-        if self.touchdown.landed_s is not None:
+        if self.touchdown.landed_s is not None and result.hook.runs:
             k["hook"]["estimators_note"] += (f"; the estimators stop at the landing found at {self.touchdown.landed_s:.2f} s "
                                              "(the load on the deck, the rope slack: not the pendulum they model)")
         if truth is not None and "contact" in truth.columns:
