@@ -182,7 +182,10 @@ class HookChain:
             lidar_model_fit=np.asarray(rows["status"]) == "ok",
         )
 
-    def finish(self, until_s: float | None = None) -> HookResult:
+    def finish(self) -> HookResult:
+        return self.finish_until(None)
+
+    def finish_until(self, until_s: float | None) -> HookResult:
         """The estimators over the run's measurements, up to `until_s` when given (where their
         model stops holding: a lift's load landed, the rope slack)."""
         self._finish_frames()

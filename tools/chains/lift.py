@@ -151,7 +151,7 @@ class LiftChain:
 
     def finish(self) -> LiftResult:
         # the hook's model (a pendulum on a taut rope, the load's mass on it) ends at the landing
-        hook = self.hook.finish(self.touchdown.landed_s)
+        hook = self.hook.finish_until(self.touchdown.landed_s)
         rows = outputs.as_columns(self.rows)
         forecasts = touchdown_forecasts(rows["t"], rows["height_m"], rows["hoist_m"], self.cfg.horizon_s,
                                         self.cfg.forecast_history_s, rows["height_m"] - rows["clearance_m"])
