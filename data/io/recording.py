@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import codecs
-
 import json
 from dataclasses import replace
 import math
@@ -352,7 +351,7 @@ class Recording(FrameSource):
         return SourceMeta(installation=installation, duration_s=float(duration), name=str(meta.get("name", "recording")),
                           processing=processing, provenance=prov.get("scenario") if isinstance(prov, dict) else None)
 
-    def _list_frames(self) -> "FrameFiles":
+    def _list_frames(self) -> FrameFiles:
         names, t_ns, sensors = [], [], []
         for code, sensor in enumerate(FRAME_SENSORS):
             folder = self.root / sensor

@@ -7,13 +7,12 @@ a chunk of records at a time."""
 from __future__ import annotations
 
 import math
-import tempfile
-import weakref
 
 import numpy as np
 
-from boomtip.data.io.blocks import DiskBlocks, read_into, write_all
+from boomtip.data.io.blocks import DiskBlocks
 from boomtip.data.meshes import Label
+from boomtip.fusion.records import Records
 from boomtip.perception.hook import HookDetection, segmentation_scores
 from boomtip.perception.rope import RopeFix
 
@@ -89,63 +88,47 @@ class FrameRows:
     reference per frame to a few shared strings)."""
 
     def __init__(self) -> None:
-        # unbuffered: a forked process holding this object has no write of it pending
-        self._file = tempfile.TemporaryFile(prefix="boomtip-rows-", buffering=0)
-        weakref.finalize(self, self._file.close)  # closed with the rows, however they end
-        self._buf = np.empty((CHUNK, RECORD))
-        self._n_file = self._n_buf = 0
+        self._store = DiskBlocks("boomtip-rows-")  # closed with the rows, however they end
+        self._records = Records(RECORD, self._store, CHUNK)
+        self._rec = np.empty(RECORD)  # the row being made (Records keeps a copy)
         self._text: dict[str, list[str]] = {k: [] for k in TEXT}
 
     def append(self, row: dict, cov_m2: np.ndarray, rope_direction: np.ndarray | None,
                rope_cov: np.ndarray | None) -> None:
-        rec = self._buf[self._n_buf]
+        rec = self._rec
         rec[:len(NUMERIC)] = [float(row[k]) for k in NUMERIC]
         rec[COV] = np.asarray(cov_m2, float).ravel()
         rec[ROPE_DIR] = _NAN9[:3] if rope_direction is None else np.asarray(rope_direction, float)
         rec[ROPE_COV] = _NAN9 if rope_cov is None else np.asarray(rope_cov, float).ravel()
         for k in TEXT:
             self._text[k].append(str(row[k]))
-        self._n_buf += 1
-        if self._n_buf == CHUNK:
-            write_all(self._file, self._buf.tobytes())
-            self._n_file += CHUNK
-            self._n_buf = 0
+        self._records.append(rec)
 
     def __len__(self) -> int:
-        return self._n_file + self._n_buf
-
-    def _records(self, cols) -> np.ndarray:
-        """(N, ...) of the records' columns ``cols`` (an index list or a slice), a chunk at a time."""
-        parts = []
-        for a in range(0, self._n_file, CHUNK):
-            block = np.empty((min(CHUNK, self._n_file - a), RECORD))
-            read_into(self._file, block, a * RECORD * 8)
-            parts.append(block[:, cols].copy())  # a copy: not the whole chunk
-        parts.append(self._buf[:self._n_buf, cols].copy())
-        return np.concatenate(parts)
+        return len(self._records)
 
     def __getitem__(self, name: str) -> np.ndarray:
         """A column: float64, int64, bool, or an object array of str."""
         if name in TEXT:
             return np.array(self._text[name], dtype=object)
-        col = self._records(_AT[name])
+        col = self._records.column(_AT[name])
         return col.astype(np.int64) if name in INT else col.astype(bool) if name in BOOL else col
 
     def xyz(self, prefix: str = "") -> np.ndarray:
         """(N, 3) of the columns ``{prefix}x``, ``{prefix}y``, ``{prefix}z``."""
-        return self._records([_AT[f"{prefix}{a}"] for a in "xyz"])
+        return self._records.column([_AT[f"{prefix}{a}"] for a in "xyz"])
 
     @property
     def cov_m2(self) -> np.ndarray:
-        return self._records(COV).reshape(-1, 3, 3)
+        return self._records.column(COV).reshape(-1, 3, 3)
 
     @property
     def rope_direction(self) -> np.ndarray:
-        return self._records(ROPE_DIR)
+        return self._records.column(ROPE_DIR)
 
     @property
     def rope_cov(self) -> np.ndarray:
-        return self._records(ROPE_COV).reshape(-1, 3, 3)
+        return self._records.column(ROPE_COV).reshape(-1, 3, 3)
 
     def text(self, name: str) -> list[str]:
         return list(self._text[name])
@@ -156,12 +139,7 @@ class FrameRows:
             i += len(self)
         if not 0 <= i < len(self):
             raise IndexError(i)
-        if i >= self._n_file:
-            rec = self._buf[i - self._n_file].copy()
-        else:
-            rec = np.empty(RECORD)
-            read_into(self._file, rec, i * RECORD * 8)
-        vals = rec.tolist()
+        vals = self._records.read(i, i + 1)[0].tolist()
         out = {k: vals[_AT[k]] for k in FLOAT}
         out.update({k: int(vals[_AT[k]]) for k in INT})
         out.update({k: bool(vals[_AT[k]]) for k in BOOL})
@@ -169,7 +147,7 @@ class FrameRows:
         return out
 
     def close(self) -> None:
-        self._file.close()
+        self._store.close()
 
 
 class DiskTable:
