@@ -36,9 +36,12 @@ HOOK_TRUTH_COLUMNS = (
 # above the deck below it; landing: its underside's centre dropped onto the deck, feeder body frame,
 # and relative to the boom tip in world axes; load: its underside's centre, world; contact: 1 once it rests on
 # the deck; centre_clearance: the underside centre's height above the deck below it, relative_vz
-# its rate, the load's vertical velocity relative to the deck)
+# its rate, the load's vertical velocity relative to the deck; feeder_rel_*: the feeder's body frame's origin
+# relative to the boom tip, world axes, feeder_roll/pitch/yaw its orientation: what places the deck frame)
 LIFT_TRUTH_COLUMNS = HOOK_TRUTH_COLUMNS + ("clearance", "clearance_rate", "centre_clearance", "relative_vz", "landing_x",
-                                          "landing_y", "landing_rel_x", "landing_rel_y", "load_x", "load_y", "load_z", "contact")
+                                          "landing_y", "landing_rel_x", "landing_rel_y", "feeder_rel_x", "feeder_rel_y",
+                                          "feeder_rel_z", "feeder_roll", "feeder_pitch", "feeder_yaw", "load_x", "load_y",
+                                          "load_z", "contact")
 ENCODER_COLUMNS = ("t", "slew", "luff", "hoist")
 
 

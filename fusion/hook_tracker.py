@@ -11,7 +11,7 @@ from boomtip.data.crane_model import CraneParams
 from boomtip.fusion.hook_config import HookFilterConfig
 from boomtip.fusion.hook_kalman import HookFilter
 from boomtip.fusion.hook_run import merged_events
-from boomtip.fusion.models.crane_pendulum import IF, IL, INU, IPITCH, IROLL
+from boomtip.fusion.models.crane_pendulum import IF, IL, IMU, INU, IPITCH, IROLL
 
 __all__ = ["HookTracker"]
 
@@ -104,6 +104,13 @@ class HookTracker:
         x = self.filter.x
         heading = x[INU] + (x[IF] if len(x) > IF else 0.0)
         return float(x[IROLL]), float(x[IPITCH]), float(heading)
+
+    def tip_attitude_sigma_rad(self) -> float:
+        """The largest 1-sigma (rad) of the tip's attitude and of the slew and luff that place
+        the tip: large at the start, settled within seconds."""
+        P = self.filter.P
+        heading_var = P[INU, INU] + (P[IF, IF] + 2.0 * P[INU, IF] if len(P) > IF else 0.0)
+        return float(math.sqrt(max(P[IROLL, IROLL], P[IPITCH, IPITCH], P[INU, INU], P[IMU, IMU], heading_var)))
 
     def hoist(self) -> tuple[float, float]:
         """The rope's length and its rate (m, m/s) at the last :meth:`predict`, filtered."""

@@ -25,15 +25,15 @@ import numpy as np
 from boomtip.data.frames import Frame, FrameSource, Truth
 from boomtip.fusion.consistency import flagged_notes
 from boomtip.fusion.clearance_filters import ClearanceFilters
-from boomtip.fusion.landing_filter import LandingOffsetFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts, touchdown_forecasts
 from boomtip.fusion.touchdown import TouchdownDetector
-from boomtip.perception.lift import LoadClearance, measure_clearance, rope_line_xy
+from boomtip.perception.lift import LoadClearance, measure_clearance
 from boomtip.perception.lift_doppler import ClearanceRate
 from boomtip.perception.lift_radar import ClearanceRatePipeline
 from boomtip.perception.residual_spread import ResidualSpread
 from boomtip.tools.chains.chain import NullVisualiser
 from boomtip.tools.chains.hook import HookChain, HookFrameResult, HookResult
+from boomtip.tools.chains.lift_landing import LiftLanding
 from boomtip.tools.chains.resources import RunResources
 from boomtip.tools.config.processing import Processing
 from boomtip.tools.report import lift as outputs
@@ -81,7 +81,7 @@ class LiftChain:
         self.block_height_m = self.hook.pipeline.cfg.block_height_m
         self.lidar_noise = (inst.lidar.range_noise_m, inst.lidar.angular_step_rad)
         self.filters = ClearanceFilters(self.cfg.filter, (CLEARANCE_SOURCE, HEIGHT_SOURCE, RATE_SOURCE, HEIGHT_RATE_SOURCE))
-        self.landing = LandingOffsetFilter(self.cfg.landing_offset_rate_sigma_mps, self.cfg.landing_error_correlation_s)
+        self.landing = LiftLanding(self.cfg, self.load_size_m, inst.crane.geometry.boom_length_m)
         self.touchdown = TouchdownDetector(self.cfg.landed_hold_s)
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
         self.top_spread = ResidualSpread()  # the load top's residual spread over the frames so far
@@ -130,12 +130,8 @@ class LiftChain:
                 self.deck_z_m = obs.deck_z_m
                 if self.radar is not None:
                     self.radar.add_fix(frame.t_s, obs, self.hook.tracker.tip_attitude(), p_hook, self.hook.tracker.velocity())
-                line = rope_line_xy(p_hook, obs.underside_centre_m[2])
-                self.landing.update(frame.t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
-                # the rope's line at the underside is the hook's, scaled down the rope: its variance too
-                scale = obs.underside_centre_m[2] / p_hook[2]
-                line_var = scale**2 * 0.5 * float(np.trace(cov_hook[:2, :2]))
-                row.update(outputs.landing_row(line + self.landing.x, self.landing.predicted_var(frame.t_s) + line_var))
+                row.update(self.landing.update(frame.t_s, obs, p_hook, cov_hook, res.points_level,
+                                               self.hook.tracker.tip_attitude_sigma_rad(), out.times))
                 with out.times.stage("lift.filter"):
                     self.filters.add_heights(frame.t_s, (obs.clearance_m, obs.sigma_m),
                                              (obs.centre_clearance_m, obs.centre_height_sigma_m), self.hoist)
@@ -171,6 +167,8 @@ class LiftChain:
         if truth is not None and "contact" in truth.columns:
             k["hook"]["estimators_note"] += ", scored until the load's touchdown (the rope slack after it)"
         k["lift"] = outputs.lift_kpis(result.rows, result.forecasts, truth, self.filters.filters(), self.touchdown.landed_s)
+        if self.landing.deck_frame is not None:
+            k["lift"]["deck_frame"] = self.landing.kpis()
         if self.radar is not None:
             k["lift"]["radar"] = outputs.radar_kpis(self.radar.statuses, self.radar.times_ms, self.filters.restarts)
             if not self.filters.ever_followed_rates:

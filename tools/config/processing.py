@@ -18,6 +18,7 @@ from boomtip.fusion.solutions import FusionConfig
 from boomtip.perception.feeder_pipeline import FeederPipelineConfig
 from boomtip.perception.hook_types import HookConfig
 from boomtip.perception.lift import LiftConfig
+from boomtip.perception.lift_deck_frame import DeckFrameConfig
 from boomtip.perception.lift_doppler import LiftRadarConfig
 from boomtip.perception.pipeline import PipelineConfig
 from boomtip.perception.rope import RopeConfig
@@ -60,6 +61,8 @@ class LiftProcessing(StrictModel):
     landing_error_correlation_s: float = Field(0.5, ge=0, description="one frame's load-centre error (where the beams "
                                                "fall on its edges) lasts about this long, as the load moves across "
                                                "them: frames closer than this are not taken as independent")
+    deck_frame: DeckFrameConfig = Field(DeckFrameConfig(), description="the feeder's deck frame, the landing point's "
+                                        "(perception.lift_deck_frame)")
     lost_sigma_m: float = Field(0.1, gt=0, description="a clearance whose sigma exceeds this is lost: left empty in "
                                 "lift_estimates.csv with the reason (no frame has held it for a while)")
     landed_hold_s: float = Field(0.5, gt=0, description="the load has landed once its measured clearance has stayed at "

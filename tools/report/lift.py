@@ -16,6 +16,7 @@ import numpy as np
 
 from boomtip.data.frames import Truth
 from boomtip.data.io.atomic import atomic_text_file
+from boomtip.data.poses import rpy_matrices
 from boomtip.fusion.consistency import Innovations, consistency_block
 from boomtip.fusion.heave_filter import HeaveFilter
 from boomtip.fusion.lift_forecast import TouchdownForecasts
@@ -27,7 +28,7 @@ PLOTTED_FORECAST_EVERY = 8  # of the forecasts' issues (every 0.5 s): one in 4 s
 FORECAST_LEAD_SCORED_S = 2.0
 COLUMNS = ("t", "status", "estimate", "clearance_meas_m", "sigma_meas_m", "lowest_x_m", "lowest_y_m", "lowest_z_m", "deck_z_m",
            "centre_x_m", "centre_y_m", "height_meas_m", "landing_x_m", "landing_y_m", "landing_z_m", "landing_sigma_m",
-           "n_load", "n_deck", "clearance_m", "clearance_rate_mps", "sigma_m", "sigma_rate_mps", "height_m",
+           "deck_landing_x_m", "deck_landing_y_m", "deck_landing_z_m", "deck_landing_sigma_m", "deck_frame_s", "n_load", "n_deck", "clearance_m", "clearance_rate_mps", "sigma_m", "sigma_rate_mps", "height_m",
            "relative_vz_mps", "sigma_relative_vz_mps", "hoist_m")
 
 
@@ -50,6 +51,12 @@ def landed_row(obs: LoadClearance | None, landed_s: float, hoist_m: float) -> di
 
 def landing_row(landing_xy: np.ndarray, var_m2: float) -> dict:
     return {"landing_x_m": float(landing_xy[0]), "landing_y_m": float(landing_xy[1]), "landing_sigma_m": math.sqrt(var_m2)}
+
+
+def deck_landing_row(landing_deck: np.ndarray, sigma_m: float, key_t_s: float) -> dict:
+    """The landing point in the feeder's deck frame (the levelled frame at `key_t_s`, carried with the feeder)."""
+    return {"deck_landing_x_m": float(landing_deck[0]), "deck_landing_y_m": float(landing_deck[1]),
+            "deck_landing_z_m": float(landing_deck[2]), "deck_landing_sigma_m": sigma_m, "deck_frame_s": key_t_s}
 
 
 def estimate_row(clearance: tuple[np.ndarray, np.ndarray], height: tuple[np.ndarray, np.ndarray],
@@ -183,12 +190,34 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
     both_within = (np.maximum(np.abs(rows["landing_x_m"] - land_true[:, 0]), np.abs(rows["landing_y_m"] - land_true[:, 1]))
                    <= 3.0 * rows["landing_sigma_m"])
     placed = m & np.isfinite(land_err)  # the rows with a landing point (a frame that measured the load)
-    k["landing_point"] = {"rmse_m": _rms(land_err[m]), "measured_rmse_m": _rms(centre_err[m]),
-                          "within_3sigma": float(np.mean(both_within[placed])) if placed.any() else math.nan, "frame": "relative to the boom tip, world axes (the feeder's "
-                          "deck frame needs the feeder chain, not run here)"}
+    k["landing_point"] = {**_deck_landing_kpis(rows, truth, m),
+                          "tip_rmse_m": _rms(land_err[m]), "tip_measured_rmse_m": _rms(centre_err[m]),
+                          "tip_within_3sigma": float(np.mean(both_within[placed])) if placed.any() else math.nan,
+                          "tip_frame": "relative to the boom tip, world axes"}
     k["touchdown_s"] = touchdown_time(truth)
     k["forecast"] = _forecast_kpis(f, truth)
     return k
+
+
+def _deck_landing_kpis(rows: dict[str, np.ndarray], truth: Truth, m: np.ndarray) -> dict:
+    """The landing point in the deck frame against the truth's in the feeder's body frame: the
+    deck frame is the levelled frame at its keyframe's instant, which the truth's feeder pose
+    relative to the tip then carries into the body frame."""
+    key = rows["deck_frame_s"]
+    ok = m & np.isfinite(key) & np.isfinite(rows["deck_landing_x_m"])
+    frame = "the feeder's deck frame (the levelled frame at its keyframe, fixed to the feeder)"
+    if not ok.any() or "feeder_rel_x" not in truth.columns:
+        return {"rmse_m": math.nan, "placed_fraction": float(np.mean(ok[m])) if m.any() else math.nan, "frame": frame}
+    t_key = key[ok]
+    rel = np.column_stack([truth.at(f"feeder_rel_{a}", t_key) for a in "xyz"])
+    R_f = rpy_matrices(np.column_stack([truth.at(f"feeder_{a}", t_key) for a in ("roll", "pitch", "yaw")]))
+    p_deck = np.column_stack([rows[f"deck_landing_{a}_m"][ok] for a in "xyz"])
+    p_body = np.einsum("mji,mj->mi", R_f, p_deck - rel)
+    e = p_body[:, :2] - np.column_stack([truth.at("landing_x", rows["t"][ok]), truth.at("landing_y", rows["t"][ok])])
+    return {"rmse_m": _rms(np.hypot(e[:, 0], e[:, 1])), "rmse_xy_m": [_rms(e[:, 0]), _rms(e[:, 1])],
+            "within_3sigma": float(np.mean(np.max(np.abs(e), axis=1) <= 3.0 * rows["deck_landing_sigma_m"][ok])),
+            "placed_fraction": float(np.count_nonzero(ok) / np.count_nonzero(m)), "keyframes": int(len(np.unique(t_key))),
+            "frame": frame}
 
 
 def radar_kpis(statuses: dict[str, int], times_ms: list[float], filter_restarts: int) -> dict:
@@ -240,6 +269,7 @@ def write_lift_report(out: Path, kpis: dict, result, truth: Truth | None) -> lis
                   f"| clearance rate | {100 * k['clearance_rate']['rmse_mps']:.2f} cm/s | the lowest point's, tilting included |",
                   f"| relative vertical velocity | {100 * k['relative_velocity']['rmse_mps']:.2f} cm/s | the underside centre's |",
                   f"| landing point | {100 * k['landing_point']['rmse_m']:.2f} cm | {k['landing_point']['frame']} |",
+                  f"| landing point relative to the tip | {100 * k['landing_point']['tip_rmse_m']:.2f} cm | world axes |",
                   f"| relative vertical velocity 2 s ahead | {100 * f.get('rmse_mps_at_2s', math.nan):.2f} cm/s | "
                   f"{f.get('issues_scored', 0)} issues |",
                   "", f"Scored: {c['scored']}; touchdown at {k['touchdown_s']} s."]

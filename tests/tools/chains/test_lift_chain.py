@@ -43,7 +43,11 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     assert radar["scans"] == 900 and radar["rate_fraction"] > 0.95 and radar["time_ms"] < 20 and radar["filter_restarts"] == 1
     # one frame's centre is known to several centimetres; filtered, to one or two, and its sigma covers it
     landing = lift["landing_point"]
-    assert landing["rmse_m"] < 0.025 and landing["rmse_m"] < 0.3 * landing["measured_rmse_m"] and landing["within_3sigma"] > 0.97
+    assert landing["tip_rmse_m"] < 0.025 and landing["tip_rmse_m"] < 0.3 * landing["tip_measured_rmse_m"]
+    assert landing["tip_within_3sigma"] > 0.97
+    # in the feeder's deck frame: the tip's error, the registration's, and where the levelled frame was at the keyframe
+    assert landing["rmse_m"] < 0.04 and landing["within_3sigma"] > 0.95 and landing["placed_fraction"] > 0.99
+    assert landing["keyframes"] == 1 and set(lift["deck_frame"]["registrations"]) == {"keyframe", "ok"}
     fc = lift["forecast"]
     assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1
     assert fc["rmse_mps_at_2s"] < fc["rmse_mps_at_2s_with_hoist_changes"]  # the hoist starts lowering at 16 s
@@ -57,7 +61,8 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     with open(lift_run / "lift_estimates.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 900
-    assert {"clearance_m", "clearance_rate_mps", "height_m", "relative_vz_mps", "landing_x_m", "sigma_m"} <= set(rows[0])
+    assert {"clearance_m", "clearance_rate_mps", "height_m", "relative_vz_mps", "landing_x_m", "sigma_m", "deck_landing_x_m",
+            "deck_frame_s"} <= set(rows[0])
     with open(lift_run / "lift_forecast.csv", newline="") as fh:
         assert next(csv.reader(fh))[:5] == ["t_issue", "lead_s", "clearance_m", "height_m", "relative_vz_mps"]
     assert (lift_run / "plots" / "lift_clearance.png").is_file()

@@ -1,0 +1,54 @@
+"""The lift's landing point, wired from its parts: the load's centre measured in a levelled frame,
+its offset from the rope's line filtered (fusion.landing_filter), relative to the boom tip; and
+the same point in the feeder's deck frame (perception.lift_deck_frame), where it stays still as
+the feeder moves."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from boomtip.fusion.landing_filter import LandingOffsetFilter
+from boomtip.perception.lift import LoadClearance, footprint_radius_m, rope_line_xy
+from boomtip.perception.lift_deck_frame import DeckFrameTracker
+from boomtip.perception.timing import StageTimes
+from boomtip.tools.config.processing import LiftProcessing
+from boomtip.tools.report import lift as outputs
+
+
+class LiftLanding:
+    """Built from the lift's settings, the load's size (None: no model) and the boom's length."""
+
+    def __init__(self, cfg: LiftProcessing, load_size_m: tuple[float, float, float] | None, boom_length_m: float) -> None:
+        self.offset = LandingOffsetFilter(cfg.landing_offset_rate_sigma_mps, cfg.landing_error_correlation_s)
+        self.deck_frame = DeckFrameTracker(cfg.deck_frame) if cfg.deck_frame.enabled else None
+        self.boom_length_m = boom_length_m
+        self.load_column_m = footprint_radius_m(load_size_m, cfg.detector) + cfg.detector.load_margin_m
+
+    def update(self, t_s: float, obs: LoadClearance, p_hook: np.ndarray, cov_hook: np.ndarray, points_level: np.ndarray,
+               tip_attitude_sigma_rad: float, times: StageTimes) -> dict:
+        """A measured frame's landing point row: relative to the tip (levelled frame) and in the deck frame."""
+        line = rope_line_xy(p_hook, obs.underside_centre_m[2])
+        self.offset.update(t_s, obs.underside_centre_m[:2] - line, obs.centre_sigma_m)
+        # the rope's line at the underside is the hook's, scaled down the rope: its variance too
+        line_var = (obs.underside_centre_m[2] / p_hook[2]) ** 2 * 0.5 * float(np.trace(cov_hook[:2, :2]))
+        landing_xy, var = line + self.offset.x, self.offset.predicted_var(t_s) + line_var
+        row = outputs.landing_row(landing_xy, var)
+        if self.deck_frame is None:
+            return row
+        if self.deck_frame.due(t_s):
+            with times.stage("lift.deck_frame"):
+                self.deck_frame.update(t_s, points_level, obs.deck_plane, points_level[obs.deck_mask, :2],
+                                       obs.underside_centre_m[:2], self.load_column_m,
+                                       self.boom_length_m * tip_attitude_sigma_rad)
+        placed = self.deck_frame.landing_in_deck(t_s, np.array([landing_xy[0], landing_xy[1], obs.landing_z_m]), math.sqrt(var))
+        if placed is not None:
+            row.update(outputs.deck_landing_row(*placed, self.deck_frame.key_t_s))
+        return row
+
+    def kpis(self) -> dict | None:
+        """The deck frame's registrations by outcome and its keyframe's time."""
+        if self.deck_frame is None:
+            return None
+        return {"registrations": dict(sorted(self.deck_frame.statuses.items())), "keyframe_s": self.deck_frame.key_t_s}
