@@ -92,6 +92,8 @@ class LoadClearance:
     load_mask: np.ndarray | None = None
     deck_mask: np.ndarray | None = None
     top_spread: ResidualSpread | None = None  # the load top's residual spread, pooled up to this frame
+    deck_sigma_m: float = math.nan  # the deck plane's height under the underside's centre: its 1-sigma
+    deck_hidden: str | None = None  # why the deck came from the feeder's predicted pose, not this frame's returns
 
     @property
     def ok(self) -> bool:
@@ -164,12 +166,15 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
                       load_size_m: tuple[float, float, float] | None, cfg: LiftConfig,
                       deck_prior_z_m: float | None = None, range_noise_m: float = 0.0,
                       angular_step_rad: float = 0.0, t_s: float = math.nan,
-                      top_spread: ResidualSpread = ResidualSpread()) -> LoadClearance:
+                      top_spread: ResidualSpread = ResidualSpread(),
+                      deck_fallback: tuple[np.ndarray, float] | None = None) -> LoadClearance:
     """The clearance in one levelled frame (at t_s), about the hook's reference point `hook_m`
     (the hook filter's estimate, levelled frame); `deck_prior_z_m` the deck's last height there,
     if any; `top_spread` the load top's residual spread pooled over the frames before (without
     a finite t_s, the frame's own spread alone). The LiDAR's range noise and angular step size
-    the sigmas."""
+    the sigmas. `deck_fallback`: the deck plane (z = a + b x + c y) and its height's 1-sigma
+    from the feeder's predicted pose, taken when the frame shows too little of the deck about
+    the load (the load hides it)."""
     if len(points_level) == 0 or not np.all(np.isfinite(hook_m)) or hook_m[2] >= 0:
         return LoadClearance("no points or no hook")
     radius = footprint_radius_m(load_size_m, cfg)
@@ -186,18 +191,14 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     below = pts[:, 2] < hook_m[2] - block_height_m - cfg.below_block_m
     inner = radius + cfg.load_margin_m
     ring = below & (d > inner) & (d < inner + cfg.deck_ring_m)
-    if np.count_nonzero(ring) < cfg.min_deck_points:
-        return LoadClearance("too few deck points about the load")
-    zr = pts[ring, 2]
-    centre = deck_prior_z_m if deck_prior_z_m is not None and math.isfinite(deck_prior_z_m) else _dominant(zr, cfg.height_bin_m)
-    near = np.abs(zr - centre) <= cfg.deck_gate_m
-    if np.count_nonzero(near) < cfg.min_deck_points and deck_prior_z_m is not None:  # lost it: search afresh
-        near = np.abs(zr - _dominant(zr, cfg.height_bin_m)) <= cfg.deck_gate_m
-    fit = height_plane(pts[ring][near], cfg.outlier_sigmas) if np.count_nonzero(near) >= cfg.min_deck_points else None
-    if fit is None:
-        return LoadClearance("no deck plane about the load")
-    deck_coef, deck_in = fit
-    deck_pts = pts[ring][near][deck_in]
+    deck_fit, hidden = _deck_about_load(pts[ring, :], deck_prior_z_m, cfg)
+    if deck_fit is None and deck_fallback is None:
+        return LoadClearance(hidden)
+    if deck_fit is None:  # the feeder's predicted deck: no returns of it in this frame
+        deck_coef, ring_idx, deck_pts = np.asarray(deck_fallback[0], float), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    else:
+        deck_coef, deck_rows = deck_fit
+        ring_idx, deck_pts, hidden = np.flatnonzero(ring)[deck_rows], pts[ring][deck_rows], None
     # The load: inside its footprint, below the block, clear of the deck under it.
     deck_under = plane_height_at(deck_coef, pts[:, :2])
     load = below & (d <= inner) & (pts[:, 2] > deck_under + cfg.above_deck_m)
@@ -205,7 +206,7 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
         load = _hanging(pts, load, d, max(cfg.cluster_beams * float(np.linalg.norm(hook_m)) * angular_step_rad,
                                           cfg.min_cluster_gap_m), cfg.core_radius_m)
     n_load = int(np.count_nonzero(load))
-    ring_idx, load_idx = np.flatnonzero(ring)[near][deck_in], np.flatnonzero(load)
+    load_idx = np.flatnonzero(load)
     masks = dict(load_mask=index_mask(len(points_level), finite[load_idx]), deck_mask=index_mask(len(points_level), finite[ring_idx]))
     if n_load < cfg.min_top_points:
         return LoadClearance("too few load points", n_load=n_load, n_deck=len(deck_pts), **masks)
@@ -228,6 +229,8 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     plane = _as_plane(deck_coef)
 
     def deck_sigma(xy: np.ndarray) -> float:
+        if hidden is not None:
+            return float(deck_fallback[1])
         s_d = plane_sigma_at(deck_pts, plane, np.array([xy[0], xy[1], float(plane_height_at(deck_coef, xy))]))
         return s_d if math.isfinite(s_d) else range_noise_m
 
@@ -241,7 +244,24 @@ def measure_clearance(points_level: np.ndarray, hook_m: np.ndarray, block_height
     sigma_centre_height = math.sqrt(under.sigma_centre_m**2 + deck_sigma(centre[:2]) ** 2 + sigma_place**2)
     return LoadClearance(STATUS_OK, clearance, sigma, lowest, centre, sigma_centre, deck_z,
                          float(plane_height_at(deck_coef, centre[:2])), sigma_centre_height, n_load, len(deck_pts), deck_coef, cand,
-                         under.sigma_candidates_m, **masks, top_spread=under.spread)
+                         under.sigma_candidates_m, **masks, top_spread=under.spread, deck_sigma_m=deck_sigma(centre[:2]),
+                         deck_hidden=hidden)
+
+
+def _deck_about_load(ring_pts: np.ndarray, deck_prior_z_m: float | None, cfg: LiftConfig) -> tuple[tuple | None, str | None]:
+    """The deck plane in the ring about the load: ((coef, rows of ring_pts on it), None), or
+    (None, why not). Its height: the last deck's, else the ring's dominant one."""
+    if len(ring_pts) < cfg.min_deck_points:
+        return None, "too few deck points about the load"
+    zr = ring_pts[:, 2]
+    centre = deck_prior_z_m if deck_prior_z_m is not None and math.isfinite(deck_prior_z_m) else _dominant(zr, cfg.height_bin_m)
+    near = np.abs(zr - centre) <= cfg.deck_gate_m
+    if np.count_nonzero(near) < cfg.min_deck_points and deck_prior_z_m is not None:  # lost it: search afresh
+        near = np.abs(zr - _dominant(zr, cfg.height_bin_m)) <= cfg.deck_gate_m
+    fit = height_plane(ring_pts[near], cfg.outlier_sigmas) if np.count_nonzero(near) >= cfg.min_deck_points else None
+    if fit is None:
+        return None, "no deck plane about the load"
+    return (fit[0], np.flatnonzero(near)[fit[1]]), None
 
 
 def _hanging(pts: np.ndarray, candidates: np.ndarray, d: np.ndarray, gap_m: float, core_m: float) -> np.ndarray:

@@ -24,12 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
+from scipy.spatial import QhullError
 
 from boomtip.data.poses import inverse, pose_matrix, pose_vector, transform
 from boomtip.perception.feeder import Footprint
 from boomtip.perception.feeder_registration import FeederModel, RegistrationConfig
 
-__all__ = ["DeckFrameConfig", "DeckPose", "DeckFrameTracker", "feeder_deck_cells", "point_sigma_m"]
+__all__ = ["DeckFrameConfig", "DeckPose", "DeckFrameTracker", "feeder_deck_cells", "plane_in", "pose_covariance", "point_sigma_m",
+           "height_sigma_m"]
 
 GRID_CONNECTIVITY = np.ones((3, 3), dtype=bool)  # cells touching at a corner are connected
 POSE_DOF = 6
@@ -63,6 +65,12 @@ class DeckFrameConfig(BaseModel):
                                    "give it: the keyframe's pose's sigma grows by this times the time since")
     accel_sigma_mps2: float = Field(0.5, gt=0, description="the feeder's acceleration relative to the tip: an extrapolated "
                                     "pose's sigma grows by half of it times the time since the registration squared")
+    angular_accel_sigma_radps2: float = Field(0.01, gt=0, description="and its angular acceleration (a 1 deg roll at a 9 s "
+                                              "period: 0.008 rad/s^2)")
+    fallback_error_correlation_s: float = Field(1.0, ge=0, description="a deck carried by the registrations (the load hiding "
+                                                "it) errs alike over about this long: its sigma is widened so that the "
+                                                "frames of that time, taken as independent by the clearance's filters, "
+                                                "say no more together than one")
     max_extrapolation_s: float = Field(1.0, gt=0, description="no deck frame further than this from a registration")
     rekey_after_failures: int = Field(10, ge=1, description="registrations failed in a row before a new keyframe is taken "
                                       "(a new deck frame)")
@@ -105,6 +113,29 @@ def feeder_deck_cells(points_level: np.ndarray, deck_plane: np.ndarray, seed_xy:
     return xy[deck[cells[:, 0], cells[:, 1]]]
 
 
+def plane_in(T_to_from: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """A plane z = a + b x + c y given in one frame, in another (T_to_from: from -> to)."""
+    a, b, c = plane
+    R, t = T_to_from[:3, :3], T_to_from[:3, 3]
+    n, p0 = R @ np.array([-b, -c, 1.0]), R @ np.array([0.0, 0.0, a]) + t
+    return np.array([p0[2] + (n[0] * p0[0] + n[1] * p0[1]) / n[2], -n[0] / n[2], -n[1] / n[2]])
+
+
+def height_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> float:
+    """A level point's vertical 1-sigma in a frame whose pose has covariance cov6 (as point_sigma_m)."""
+    r = point_level - origin_level
+    J = np.array([0.0, 0.0, 1.0, r[1], -r[0], 0.0])  # (dw x r)_z = dw_x r_y - dw_y r_x
+    return math.sqrt(max(float(J @ cov6 @ J), 0.0))
+
+
+def pose_covariance(info6: np.ndarray, prior_sigma: float) -> np.ndarray:
+    """The covariance of a registration's pose from its information (6x6): a direction the
+    structure leaves free (information below the prior's, 1 / prior_sigma^2) keeps the prior's
+    variance instead of none (a pseudo-inverse) or an infinite one."""
+    evals, evecs = np.linalg.eigh(0.5 * (info6 + info6.T))
+    return (evecs / np.maximum(evals, 1.0 / prior_sigma**2)) @ evecs.T
+
+
 def point_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> float:
     """A level point's horizontal 1-sigma per axis in a frame whose pose (translation and small
     rotations about the level axes through `origin_level`) has covariance cov6."""
@@ -125,77 +156,89 @@ class DeckFrameTracker:
         self.footprint: Footprint | None = None
         self.deck_plane_key = np.zeros(3)  # the keyframe's deck plane z = a + b x + c y (deck frame)
         self.key_t_s = math.nan
+        self.key_sigma_m = math.nan  # the levelled frame's origin's 1-sigma at the keyframe: the deck frame's own error
         self.poses: list[tuple[float, np.ndarray, np.ndarray]] = []  # the last two registrations: (t, pose vector, cov6)
         self.last_try_s = -math.inf
         self.failures = 0
         self.statuses: dict[str, int] = {}  # registrations by outcome
+        self.deck_seen: tuple[np.ndarray, float] | None = None  # the last deck plane measured (deck frame) and its sigma
 
     def due(self, t_s: float) -> bool:
         """Whether the frame at t_s is to be registered: `register_every_s` after the last, and
         every frame until two registrations give the feeder's velocity."""
         return len(self.poses) < 2 or t_s - self.last_try_s >= self.cfg.register_every_s - STAMP_TOLERANCE_S
 
-    def update(self, t_s: float, points_level: np.ndarray, deck_plane: np.ndarray, deck_xy: np.ndarray,
-               load_xy: np.ndarray, load_radius_m: float, tip_sigma_m: float = 0.0) -> str:
+    def update(self, t_s: float, points_level: np.ndarray, deck_plane_level: np.ndarray, deck_xy_level: np.ndarray,
+               load_xy_level: np.ndarray, load_radius_m: float, tip_sigma_m: float = 0.0) -> str:
         """A levelled frame with the deck plane under the load (z = a + b x + c y), that deck's
         returns (x, y) and the load's centre and radius (its returns and the hook's left out);
         `tip_sigma_m` how sure the levelled frame's origin is. Returns the frame's outcome
         (counted in `statuses`)."""
         self.last_try_s = t_s
-        if self.model is None or self.failures >= self.cfg.rekey_after_failures:
-            status = "the boom tip's place not yet settled" if tip_sigma_m > self.cfg.keyframe_max_tip_sigma_m else self._keyframe(t_s, points_level, deck_plane, deck_xy, load_xy, load_radius_m)
+        if self.model is not None and self.failures < self.cfg.rekey_after_failures:
+            status = self._register(t_s, points_level, load_xy_level, load_radius_m)
+        elif not tip_sigma_m <= self.cfg.keyframe_max_tip_sigma_m:
+            status = "the boom tip's place not yet settled"
         else:
-            status = self._register(t_s, points_level, load_xy, load_radius_m)
+            status = self._keyframe(t_s, points_level, deck_plane_level, deck_xy_level, load_xy_level, load_radius_m)
+            self.key_sigma_m = tip_sigma_m if status == "keyframe" else self.key_sigma_m
         self.statuses[status] = self.statuses.get(status, 0) + 1
         return status
 
-    def _keyframe(self, t_s, points_level, deck_plane, deck_xy, load_xy, load_radius_m) -> str:
+    def _keyframe(self, t_s, points_level, deck_plane_level, deck_xy_level, load_xy_level, load_radius_m) -> str:
         cfg = self.cfg
-        deck = feeder_deck_cells(points_level, deck_plane, deck_xy, cfg.deck_band_m, cfg.cell_m)
-        if len(deck) < 3:
+        deck_xy = feeder_deck_cells(points_level, deck_plane_level, deck_xy_level, cfg.deck_band_m, cfg.cell_m)
+        try:
+            footprint = Footprint(deck_xy, cfg.footprint_margin_m)
+        except (QhullError, ValueError):  # too few cells, or all in a line (one scan line across the deck)
             return "no feeder deck around the load's"
-        self.footprint, self.deck_plane_key = Footprint(deck, cfg.footprint_margin_m), np.asarray(deck_plane, float)
-        structure = self._structure(points_level, np.eye(4), load_xy, load_radius_m)
+        structure = self._structure(points_level, np.eye(4), load_xy_level, load_radius_m, footprint, deck_plane_level)
         if len(structure) < cfg.registration.min_points:
             return f"too little feeder structure for a keyframe ({len(structure)} returns)"
+        self.footprint, self.deck_plane_key = footprint, np.asarray(deck_plane_level, float)
         self.model = FeederModel(cfg.registration)
         self.model.set_keyframe(structure, np.eye(4))
         self.key_t_s, self.failures = t_s, 0
         self.poses = [(t_s, np.zeros(POSE_DOF), np.zeros((POSE_DOF, POSE_DOF)))]
         return "keyframe"
 
-    def _register(self, t_s, points_level, load_xy, load_radius_m) -> str:
+    def _register(self, t_s, points_level, load_xy_level, load_radius_m) -> str:
         guess = self.pose_at(t_s)
         if guess is None:  # the last registration too old to extrapolate: from it, re-acquired
-            T_guess, sigma = pose_matrix(*self.poses[-1][1]), 3.0 * self.cfg.registration.kiss_above_sigma_m
-        else:
-            T_guess, sigma = guess.T_deck_level, max(self.cfg.prior_sigma_m, math.sqrt(np.trace(guess.cov6[:3, :3]) / 3))
-        structure = self._structure(points_level, T_guess, load_xy, load_radius_m)
-        reg = self.model.register(structure, T_guess, sigma)
+            T_guess, prior_sigma_m = pose_matrix(*self.poses[-1][1]), 3.0 * self.cfg.registration.kiss_above_sigma_m
+        else:  # the guess's sigma on the deck below the tip, where the structure is (not at the tip, 80 m above)
+            below_tip = np.array([0.0, 0.0, self.deck_plane_key[0]])
+            T_guess = guess.T_deck_level
+            prior_sigma_m = max(self.cfg.prior_sigma_m, point_sigma_m(guess.cov6, below_tip, inverse(T_guess)[:3, 3]))
+        structure = self._structure(points_level, T_guess, load_xy_level, load_radius_m, self.footprint, self.deck_plane_key)
+        reg = self.model.register(structure, T_guess, prior_sigma_m)
         if reg.status != "ok":
             self.failures += 1
             return reg.status
         self.failures = 0
-        cov6 = np.linalg.pinv(reg.info6) if np.any(reg.info6) else np.full((POSE_DOF, POSE_DOF), np.inf)
+        cov6 = pose_covariance(reg.info6, self.cfg.prior_sigma_m)
         self.poses = (self.poses + [(t_s, pose_vector(reg.T_map_level), cov6)])[-2:]
         return "ok"
 
-    def _structure(self, points_level: np.ndarray, T_deck_level: np.ndarray, load_xy: np.ndarray, load_radius_m: float) -> np.ndarray:
-        """The feeder's returns off its deck plane over its footprint (placed by T_deck_level),
-        the load's column (the load, its slings, the block and rope above it) left out."""
+    def _structure(self, points_level: np.ndarray, T_deck_level: np.ndarray, load_xy_level: np.ndarray, load_radius_m: float,
+                   footprint: Footprint, deck_plane_deck: np.ndarray) -> np.ndarray:
+        """The feeder's returns off its deck plane (deck frame) over its footprint (placed by
+        T_deck_level), the load's column (the load, its slings, the block and rope above it) left out."""
         cfg = self.cfg
         p = transform(T_deck_level, points_level)
-        a, b, c = self.deck_plane_key
+        a, b, c = deck_plane_deck
         h = p[:, 2] - (a + b * p[:, 0] + c * p[:, 1])
-        keep = ((h > cfg.structure_band_m) & (h < cfg.structure_above_m)) | ((h < -cfg.structure_band_m) & (h > -cfg.structure_below_m))
-        keep &= np.hypot(points_level[:, 0] - load_xy[0], points_level[:, 1] - load_xy[1]) > load_radius_m
+        keep = ((h > cfg.structure_band_m) & (h < cfg.structure_above_m)) | \
+               ((h < -cfg.structure_band_m) & (h > -cfg.structure_below_m))
+        keep &= np.hypot(points_level[:, 0] - load_xy_level[0], points_level[:, 1] - load_xy_level[1]) > load_radius_m
         rows = np.flatnonzero(keep)
-        rows = rows[self.footprint.contains_xy(p[rows, 0], p[rows, 1])]
+        rows = rows[footprint.contains_xy(p[rows, 0], p[rows, 1])]
         return points_level[rows]
 
     def pose_at(self, t_s: float) -> DeckPose | None:
-        """The deck frame at t_s from the last two registrations (constant velocity), its
-        covariance grown with the time since the last; None before a registration or too far from one."""
+        """The deck frame at t_s from the last two registrations at constant velocity, their
+        errors carried through the extrapolation and grown by the accelerations since the last;
+        None before a registration or too far from one."""
         if not self.poses:
             return None
         t1, x1, cov1 = self.poses[-1]
@@ -206,12 +249,34 @@ class DeckFrameTracker:
         if len(self.poses) == 1:  # the keyframe alone: nothing says how fast the feeder moves
             cov[:3, :3] += np.eye(3) * (self.cfg.speed_sigma_mps * dt) ** 2
         elif t1 > self.poses[0][0]:
-            t0, x0, _ = self.poses[0]
+            t0, x0, cov0 = self.poses[0]
+            k = dt / (t1 - t0)
             step = x1 - x0
             step[3:] = (step[3:] + math.pi) % (2.0 * math.pi) - math.pi
-            x = x1 + step * (dt / (t1 - t0))
-        cov[:3, :3] += np.eye(3) * (0.5 * self.cfg.accel_sigma_mps2 * dt * dt) ** 2
+            x, cov = x1 + k * step, (1.0 + k) ** 2 * cov1 + k**2 * cov0
+        growth = 0.5 * dt * dt
+        cov[:3, :3] += np.eye(3) * (growth * self.cfg.accel_sigma_mps2) ** 2
+        cov[3:, 3:] += np.eye(3) * (growth * self.cfg.angular_accel_sigma_radps2) ** 2
         return DeckPose(pose_matrix(*x), cov, self.key_t_s)
+
+    def remember_deck(self, t_s: float, deck_plane_level: np.ndarray, sigma_m: float) -> None:
+        """A deck plane measured under the load (level frame, z = a + b x + c y): kept in the deck
+        frame, where it moves with the feeder, for frames that show too little of the deck."""
+        pose = self.pose_at(t_s)
+        if pose is not None and np.all(np.isfinite(deck_plane_level)) and math.isfinite(sigma_m):
+            self.deck_seen = plane_in(pose.T_deck_level, deck_plane_level), sigma_m
+
+    def deck_plane_at(self, t_s: float, xy_level: np.ndarray) -> tuple[np.ndarray, float] | None:
+        """The last deck plane measured, carried to t_s by the feeder's predicted pose (level frame),
+        and its height's 1-sigma at xy_level: the measurement's and the pose's there."""
+        pose = self.pose_at(t_s)
+        if pose is None or self.deck_seen is None:
+            return None
+        plane_deck, sigma_m = self.deck_seen
+        T_level_deck = inverse(pose.T_deck_level)
+        plane = plane_in(T_level_deck, plane_deck)
+        point = np.array([xy_level[0], xy_level[1], plane[0] + plane[1] * xy_level[0] + plane[2] * xy_level[1]])
+        return plane, math.hypot(sigma_m, height_sigma_m(pose.cov6, point, T_level_deck[:3, 3]))
 
     def landing_in_deck(self, t_s: float, landing_level: np.ndarray, landing_sigma_m: float) -> tuple[np.ndarray, float] | None:
         """The landing point (level frame) in the deck frame and its horizontal 1-sigma per axis:
@@ -221,4 +286,5 @@ class DeckFrameTracker:
             return None
         origin_level = inverse(pose.T_deck_level)[:3, 3]
         sigma_pose = point_sigma_m(pose.cov6, landing_level, origin_level)
-        return transform(pose.T_deck_level, landing_level[None, :])[0], math.hypot(landing_sigma_m, sigma_pose)
+        sigma_m = math.sqrt(landing_sigma_m**2 + sigma_pose**2 + self.key_sigma_m**2)  # the frame's own error with them
+        return transform(pose.T_deck_level, landing_level[None, :])[0], sigma_m

@@ -63,6 +63,21 @@ def test_the_clearance_and_the_landing_point_are_found_within_their_sigmas(seed)
     assert np.linalg.norm(obs.underside_centre_m[:2] - centre[:2]) <= 3 * obs.centre_sigma_m
 
 
+def test_a_deck_hidden_about_the_load_is_taken_from_the_fallback_with_its_sigma_and_said_so():
+    deck = np.array([-80.0, 0.02, -0.012])
+    pts, C_true, centre = scene(deck=tuple(deck))
+    pts = pts[np.abs(pts[:, 2] - _deck_z(pts[:, :2], deck)) > 0.1]  # the deck's returns gone (the load and more hide it)
+    cfg, noise = LiftConfig(), dict(range_noise_m=NOISE_M, angular_step_rad=0.4 / 70)
+    assert measure_clearance(pts, HOOK, BLOCK_M, SIZE, cfg, **noise).status == "too few deck points about the load"
+    obs = measure_clearance(pts, HOOK, BLOCK_M, SIZE, cfg, **noise, deck_fallback=(deck, 0.01))
+    assert obs.ok and obs.deck_hidden == "too few deck points about the load" and obs.n_deck == 0 and obs.deck_sigma_m == 0.01
+    assert abs(obs.clearance_m - C_true) <= 3 * obs.sigma_m and 0.01 < obs.sigma_m < 0.02  # the fallback's sigma in C's
+    low = measure_clearance(pts, HOOK, BLOCK_M, SIZE, cfg, **noise, deck_fallback=(deck - (0.05, 0.0, 0.0), 0.01))
+    assert low.clearance_m - obs.clearance_m == pytest.approx(0.05, abs=1e-6)  # C is measured against it
+    seen = measure_clearance(scene(deck=tuple(deck))[0], HOOK, BLOCK_M, SIZE, cfg, **noise, deck_fallback=(deck - 0.05, 0.01))
+    assert seen.deck_hidden is None and abs(seen.clearance_m - C_true) <= 3 * seen.sigma_m  # a deck seen is the frame's own
+
+
 def test_the_lowest_point_is_the_corner_nearest_the_deck_below_not_the_lowest_in_height():
     # The load tilts down towards -x (its +x end 18 cm higher); the deck rises towards +x four
     # times faster, so the corner nearest the deck is at +x though the lowest in height is at -x.

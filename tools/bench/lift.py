@@ -21,7 +21,8 @@ def _accuracy(kpis: dict) -> dict:
     lift = kpis.get("lift") or {}
     got = {"clearance_rmse_m": (lift.get("clearance") or {}).get("rmse_m"),
            "clearance_rate_rmse_mps": (lift.get("clearance_rate") or {}).get("rmse_mps"),
-           "landing_point_rmse_m": (lift.get("landing_point") or {}).get("rmse_m"),
+           "landing_point_rmse_m": (lift.get("landing_point") or {}).get("rmse_m"),  # in the feeder's deck frame
+           "landing_point_tip_rmse_m": (lift.get("landing_point") or {}).get("tip_rmse_m"),
            "forecast_rate_rmse_mps_at_2s": (lift.get("forecast") or {}).get("rmse_mps_at_2s")}
     return {k: v for k, v in got.items() if v is not None}
 

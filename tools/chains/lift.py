@@ -81,7 +81,7 @@ class LiftChain:
         self.block_height_m = self.hook.pipeline.cfg.block_height_m
         self.lidar_noise = (inst.lidar.range_noise_m, inst.lidar.angular_step_rad)
         self.filters = ClearanceFilters(self.cfg.filter, (CLEARANCE_SOURCE, HEIGHT_SOURCE, RATE_SOURCE, HEIGHT_RATE_SOURCE))
-        self.landing = LiftLanding(self.cfg, self.load_size_m, inst.crane.geometry.boom_length_m)
+        self.landing = LiftLanding(self.cfg, self.load_size_m, inst.crane.geometry.boom_length_m, inst.lidar.rate_hz)
         self.touchdown = TouchdownDetector(self.cfg.landed_hold_s)
         self.deck_z_m: float | None = None  # the deck's last height under the load, the next frame's prior
         self.top_spread = ResidualSpread()  # the load top's residual spread over the frames so far
@@ -117,7 +117,8 @@ class LiftChain:
                 p_hook, cov_hook = self.hook.tracker.estimate()
                 obs = out.clearance = measure_clearance(res.points_level, p_hook, self.block_height_m, self.load_size_m,
                                                         self.cfg.detector, self.deck_z_m, *self.lidar_noise,
-                                                        t_s=frame.t_s, top_spread=self.top_spread)
+                                                        t_s=frame.t_s, top_spread=self.top_spread,
+                                                        deck_fallback=self.landing.deck_fallback(frame.t_s, p_hook))
                 self.hoist = self.hook.tracker.hoist()
             if obs.top_spread is not None:
                 self.top_spread = obs.top_spread

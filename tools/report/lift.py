@@ -26,17 +26,21 @@ from boomtip.tools.report.plots import TRUTH_STYLE, decimated, legend, plot_link
 SCORED_CLEARANCE_M = (0.0, 10.0)  # the last 10 m of the lowering, before touchdown
 PLOTTED_FORECAST_EVERY = 8  # of the forecasts' issues (every 0.5 s): one in 4 s drawn
 FORECAST_LEAD_SCORED_S = 2.0
-COLUMNS = ("t", "status", "estimate", "clearance_meas_m", "sigma_meas_m", "lowest_x_m", "lowest_y_m", "lowest_z_m", "deck_z_m",
-           "centre_x_m", "centre_y_m", "height_meas_m", "landing_x_m", "landing_y_m", "landing_z_m", "landing_sigma_m",
-           "deck_landing_x_m", "deck_landing_y_m", "deck_landing_z_m", "deck_landing_sigma_m", "deck_frame_s", "n_load", "n_deck", "clearance_m", "clearance_rate_mps", "sigma_m", "sigma_rate_mps", "height_m",
+COLUMNS = ("t", "status", "deck", "estimate", "clearance_meas_m", "sigma_meas_m", "lowest_x_m", "lowest_y_m", "lowest_z_m",
+           "deck_z_m", "centre_x_m", "centre_y_m", "height_meas_m", "landing_x_m", "landing_y_m", "landing_z_m",
+           "landing_sigma_m", "deck_landing_x_m", "deck_landing_y_m", "deck_landing_z_m", "deck_landing_sigma_m", "deck_frame_s",
+           "n_load", "n_deck", "clearance_m", "clearance_rate_mps", "sigma_m", "sigma_rate_mps", "height_m",
            "relative_vz_mps", "sigma_relative_vz_mps", "hoist_m")
 
 
-TEXT_COLUMNS = ("status", "estimate")  # the frame's measurement status; the estimate's: ok, lost, no clearance yet, landed
+# the frame's measurement status; its deck's source (lidar, or why the feeder's predicted pose gave it); the
+# estimate's: ok, lost, no clearance yet, landed
+TEXT_COLUMNS = ("status", "deck", "estimate")
 
 
 def observation_row(obs: LoadClearance) -> dict:
-    return {"status": obs.status, "clearance_meas_m": obs.clearance_m, "sigma_meas_m": obs.sigma_m,
+    deck = "" if not obs.ok else "lidar" if obs.deck_hidden is None else f"predicted ({obs.deck_hidden})"
+    return {"status": obs.status, "deck": deck, "clearance_meas_m": obs.clearance_m, "sigma_meas_m": obs.sigma_m,
             "lowest_x_m": obs.lowest_point_m[0], "lowest_y_m": obs.lowest_point_m[1], "lowest_z_m": obs.lowest_point_m[2],
             "deck_z_m": obs.deck_z_m, "centre_x_m": obs.landing_m[0], "centre_y_m": obs.landing_m[1],
             "height_meas_m": obs.centre_clearance_m,
@@ -158,6 +162,8 @@ def lift_kpis(rows: dict[str, np.ndarray], f: TouchdownForecasts, truth: Truth |
     n = len(t)
     k: dict = {"frames": n, "clearance_found_fraction": float(np.mean(status == "ok")) if n else 0.0,
                "lost_fraction": float(np.mean(rows["estimate"] == "lost")) if n else 0.0,
+               # frames whose deck about the load was hidden, taken from the feeder's predicted pose
+               "deck_predicted_frames": int(sum(d.startswith("predicted") for d in rows["deck"])),
                "landed_detected_s": landed_s,
                "statuses": {s: int(np.count_nonzero(status == s)) for s in sorted(set(status.tolist()))},
                "consistency": consistency_block(_innovations(filters, landed_s))}
@@ -269,7 +275,8 @@ def write_lift_report(out: Path, kpis: dict, result, truth: Truth | None) -> lis
                   f"| clearance rate | {100 * k['clearance_rate']['rmse_mps']:.2f} cm/s | the lowest point's, tilting included |",
                   f"| relative vertical velocity | {100 * k['relative_velocity']['rmse_mps']:.2f} cm/s | the underside centre's |",
                   f"| landing point | {100 * k['landing_point']['rmse_m']:.2f} cm | {k['landing_point']['frame']} |",
-                  f"| landing point relative to the tip | {100 * k['landing_point']['tip_rmse_m']:.2f} cm | world axes |",
+                  f"| landing point relative to the tip | {100 * k['landing_point']['tip_rmse_m']:.2f} cm | "
+                  "world axes |",
                   f"| relative vertical velocity 2 s ahead | {100 * f.get('rmse_mps_at_2s', math.nan):.2f} cm/s | "
                   f"{f.get('issues_scored', 0)} issues |",
                   "", f"Scored: {c['scored']}; touchdown at {k['touchdown_s']} s."]

@@ -84,6 +84,18 @@ def test_the_load_hangs_on_the_rope_below_the_block_until_it_lands(landing):
     assert np.all(np.asarray(tr["contact"])[t >= t_td] == 1.0) and np.all(np.asarray(tr["contact"])[before] == 0.0)
 
 
+def test_the_feeders_pose_at_the_tip_carries_the_landing_point_from_its_body_frame_to_the_tips(landing):
+    tr = landing.truth.columns
+    before = np.asarray(tr["contact"]) < 0.5
+    R_f = rpy_matrices(np.column_stack([np.asarray(tr[f"feeder_{a}"])[before] for a in ("roll", "pitch", "yaw")]))
+    land_body = np.column_stack([np.asarray(tr["landing_x"])[before], np.asarray(tr["landing_y"])[before],
+                                 np.full(np.count_nonzero(before), landing.scenario.world.feeder.geometry.freeboard_m)])
+    rel = np.einsum("mij,mj->mi", R_f, land_body) + np.column_stack([np.asarray(tr[f"feeder_rel_{a}"])[before] for a in "xyz"])
+    assert np.allclose(rel[:, 0], np.asarray(tr["landing_rel_x"])[before], atol=1e-9)
+    assert np.allclose(rel[:, 1], np.asarray(tr["landing_rel_y"])[before], atol=1e-9)
+    assert np.ptp(np.asarray(tr["feeder_roll"])) > 0.01  # it rolls: the rotation is exercised
+
+
 def test_once_landed_the_load_moves_with_the_feeder_and_the_slack_rope_leaves_the_block_above_it(landing):
     sim = landing
     t_td, _, _ = sim.touchdown()

@@ -32,7 +32,7 @@ def lift_run(tmp_path_factory):
 def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     k = json.loads((lift_run / "kpis.json").read_text())
     lift = k["lift"]
-    assert lift["clearance_found_fraction"] > 0.9 and lift["lost_fraction"] < 0.05
+    assert lift["clearance_found_fraction"] > 0.9 and lift["lost_fraction"] < 0.05 and lift["deck_predicted_frames"] == 0
     c = lift["clearance"]
     assert c["samples"] > 300
     assert c["rmse_m"] < 0.008 and c["max_abs_m"] < 0.03 and c["within_3sigma"] > 0.95
@@ -47,7 +47,9 @@ def test_the_clearance_landing_point_and_forecast_are_scored(lift_run):
     assert landing["tip_within_3sigma"] > 0.97
     # in the feeder's deck frame: the tip's error, the registration's, and where the levelled frame was at the keyframe
     assert landing["rmse_m"] < 0.04 and landing["within_3sigma"] > 0.95 and landing["placed_fraction"] > 0.99
-    assert landing["keyframes"] == 1 and set(lift["deck_frame"]["registrations"]) == {"keyframe", "ok"}
+    regs = lift["deck_frame"]["registrations"]
+    assert landing["keyframes"] == 1 and set(regs) == {"keyframe", "ok", "the boom tip's place not yet settled"}
+    assert regs["keyframe"] == 1 and 0.5 < lift["deck_frame"]["keyframe_s"] < 5.0  # once the tip tracker has settled
     fc = lift["forecast"]
     assert fc["issues_scored"] > 20 and fc["rmse_mps_at_2s"] < 0.1
     assert fc["rmse_mps_at_2s"] < fc["rmse_mps_at_2s_with_hoist_changes"]  # the hoist starts lowering at 16 s
