@@ -63,14 +63,18 @@ class DeckFrameConfig(BaseModel):
                                  "registration.kiss_above_sigma_m kiss-icp pulls in first)")
     speed_sigma_mps: float = Field(0.5, gt=0, description="the feeder's speed relative to the tip before two registrations "
                                    "give it: the keyframe's pose's sigma grows by this times the time since")
+    turn_rate_sigma_radps: float = Field(0.02, gt=0, description="and its rate of turn (a 1 deg roll at a 9 s period: "
+                                         "0.012 rad/s), its rotations' sigma likewise")
+    prior_rotation_sigma_rad: float = Field(0.01, gt=0, description="a registration's rotations are no surer than this "
+                                            "beyond the extrapolated pose's sigma, in a direction its structure leaves free")
     accel_sigma_mps2: float = Field(0.5, gt=0, description="the feeder's acceleration relative to the tip: an extrapolated "
                                     "pose's sigma grows by half of it times the time since the registration squared")
     angular_accel_sigma_radps2: float = Field(0.01, gt=0, description="and its angular acceleration (a 1 deg roll at a 9 s "
                                               "period: 0.008 rad/s^2)")
     fallback_error_correlation_s: float = Field(1.0, ge=0, description="a deck carried by the registrations (the load hiding "
-                                                "it) errs alike over about this long: its sigma is widened so that the "
-                                                "frames of that time, taken as independent by the clearance's filters, "
-                                                "say no more together than one")
+                                                "it) errs alike from frame to frame, and the clearance's filters weigh about "
+                                                "this long of frames together: its sigma is widened for them so that those "
+                                                "frames, taken as independent, say no more together than one")
     max_extrapolation_s: float = Field(1.0, gt=0, description="no deck frame further than this from a registration")
     rekey_after_failures: int = Field(10, ge=1, description="registrations failed in a row before a new keyframe is taken "
                                       "(a new deck frame)")
@@ -128,12 +132,11 @@ def height_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.n
     return math.sqrt(max(float(J @ cov6 @ J), 0.0))
 
 
-def pose_covariance(info6: np.ndarray, prior_sigma: float) -> np.ndarray:
-    """The covariance of a registration's pose from its information (6x6): a direction the
-    structure leaves free (information below the prior's, 1 / prior_sigma^2) keeps the prior's
-    variance instead of none (a pseudo-inverse) or an infinite one."""
-    evals, evecs = np.linalg.eigh(0.5 * (info6 + info6.T))
-    return (evecs / np.maximum(evals, 1.0 / prior_sigma**2)) @ evecs.T
+def pose_covariance(info6: np.ndarray, prior_cov6: np.ndarray) -> np.ndarray:
+    """The covariance of a registration's pose from its information (6x6) and its prior's
+    covariance: a direction the structure leaves free keeps the prior's variance instead of none
+    (a pseudo-inverse) or an infinite one."""
+    return np.linalg.inv(info6 + np.linalg.inv(prior_cov6))
 
 
 def point_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> float:
@@ -161,7 +164,8 @@ class DeckFrameTracker:
         self.last_try_s = -math.inf
         self.failures = 0
         self.statuses: dict[str, int] = {}  # registrations by outcome
-        self.deck_seen: tuple[np.ndarray, float] | None = None  # the last deck plane measured (deck frame) and its sigma
+        # the last deck plane measured (deck frame, z = a + b x + c y) and its height's 1-sigma
+        self.deck_seen: tuple[np.ndarray, float] | None = None
 
     def due(self, t_s: float) -> bool:
         """Whether the frame at t_s is to be registered: `register_every_s` after the last, and
@@ -196,27 +200,30 @@ class DeckFrameTracker:
         if len(structure) < cfg.registration.min_points:
             return f"too little feeder structure for a keyframe ({len(structure)} returns)"
         self.footprint, self.deck_plane_key = footprint, np.asarray(deck_plane_level, float)
-        self.model = FeederModel(cfg.registration)
+        # a new deck frame: a deck remembered in the old one is not in it
+        self.model, self.deck_seen = FeederModel(cfg.registration), None
         self.model.set_keyframe(structure, np.eye(4))
         self.key_t_s, self.failures = t_s, 0
         self.poses = [(t_s, np.zeros(POSE_DOF), np.zeros((POSE_DOF, POSE_DOF)))]
         return "keyframe"
 
     def _register(self, t_s, points_level, load_xy_level, load_radius_m) -> str:
-        guess = self.pose_at(t_s)
+        cfg, guess = self.cfg, self.pose_at(t_s)
         if guess is None:  # the last registration too old to extrapolate: from it, re-acquired
-            T_guess, prior_sigma_m = pose_matrix(*self.poses[-1][1]), 3.0 * self.cfg.registration.kiss_above_sigma_m
+            T_guess, prior_sigma_m = pose_matrix(*self.poses[-1][1]), 3.0 * cfg.registration.kiss_above_sigma_m
+            prior_cov6 = np.zeros((POSE_DOF, POSE_DOF))
         else:  # the guess's sigma on the deck below the tip, where the structure is (not at the tip, 80 m above)
             below_tip = np.array([0.0, 0.0, self.deck_plane_key[0]])
-            T_guess = guess.T_deck_level
-            prior_sigma_m = max(self.cfg.prior_sigma_m, point_sigma_m(guess.cov6, below_tip, inverse(T_guess)[:3, 3]))
+            T_guess, prior_cov6 = guess.T_deck_level, guess.cov6
+            prior_sigma_m = max(cfg.prior_sigma_m, point_sigma_m(guess.cov6, below_tip, inverse(T_guess)[:3, 3]))
         structure = self._structure(points_level, T_guess, load_xy_level, load_radius_m, self.footprint, self.deck_plane_key)
         reg = self.model.register(structure, T_guess, prior_sigma_m)
         if reg.status != "ok":
             self.failures += 1
             return reg.status
         self.failures = 0
-        cov6 = pose_covariance(reg.info6, self.cfg.prior_sigma_m)
+        prior_cov6 = prior_cov6 + np.diag([prior_sigma_m**2] * 3 + [cfg.prior_rotation_sigma_rad**2] * 3)
+        cov6 = pose_covariance(reg.info6, prior_cov6)
         self.poses = (self.poses + [(t_s, pose_vector(reg.T_map_level), cov6)])[-2:]
         return "ok"
 
@@ -248,6 +255,7 @@ class DeckFrameTracker:
         x, cov = x1, cov1.copy()
         if len(self.poses) == 1:  # the keyframe alone: nothing says how fast the feeder moves
             cov[:3, :3] += np.eye(3) * (self.cfg.speed_sigma_mps * dt) ** 2
+            cov[3:, 3:] += np.eye(3) * (self.cfg.turn_rate_sigma_radps * dt) ** 2
         elif t1 > self.poses[0][0]:
             t0, x0, cov0 = self.poses[0]
             k = dt / (t1 - t0)
@@ -260,8 +268,11 @@ class DeckFrameTracker:
         return DeckPose(pose_matrix(*x), cov, self.key_t_s)
 
     def remember_deck(self, t_s: float, deck_plane_level: np.ndarray, sigma_m: float) -> None:
-        """A deck plane measured under the load (level frame, z = a + b x + c y): kept in the deck
-        frame, where it moves with the feeder, for frames that show too little of the deck."""
+        """A deck plane measured under the load (level frame, z = a + b x + c y; its height's
+        1-sigma): kept in the deck frame, where it moves with the feeder, for frames that show
+        too little of the deck. The pose's error now is not added: it and the pose's error when
+        the plane is carried back are both registrations' to the same keyframe, largely shared,
+        and the carried plane's sigma adds the later one."""
         pose = self.pose_at(t_s)
         if pose is not None and np.all(np.isfinite(deck_plane_level)) and math.isfinite(sigma_m):
             self.deck_seen = plane_in(pose.T_deck_level, deck_plane_level), sigma_m

@@ -74,7 +74,7 @@ def test_a_deck_hidden_about_the_load_is_taken_from_the_fallback_with_its_sigma_
     assert abs(obs.clearance_m - C_true) <= 3 * obs.sigma_m and 0.01 < obs.sigma_m < 0.02  # the fallback's sigma in C's
     low = measure_clearance(pts, HOOK, BLOCK_M, SIZE, cfg, **noise, deck_fallback=(deck - (0.05, 0.0, 0.0), 0.01))
     assert low.clearance_m - obs.clearance_m == pytest.approx(0.05, abs=1e-6)  # C is measured against it
-    seen = measure_clearance(scene(deck=tuple(deck))[0], HOOK, BLOCK_M, SIZE, cfg, **noise, deck_fallback=(deck - 0.05, 0.01))
+    seen = measure_clearance(scene(deck=tuple(deck))[0], HOOK, BLOCK_M, SIZE, cfg, **noise, deck_fallback=(deck - (0.05, 0.0, 0.0), 0.01))
     assert seen.deck_hidden is None and abs(seen.clearance_m - C_true) <= 3 * seen.sigma_m  # a deck seen is the frame's own
 
 

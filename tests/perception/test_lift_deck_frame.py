@@ -97,10 +97,13 @@ def test_a_points_sigmas_are_those_of_the_registrations_pose_moving_it():
 
 
 def test_a_direction_the_structure_leaves_free_keeps_the_priors_variance():
-    info = np.zeros((6, 6))
-    info[2, 2] = info[3, 3] = info[4, 4] = 1e8  # a bare deck: z, roll and pitch pinned; x, y and yaw free
-    cov = pose_covariance(info, 0.1)
-    assert cov[0, 0] == pytest.approx(0.01) and cov[5, 5] == pytest.approx(0.01) and cov[2, 2] == pytest.approx(1e-8)
+    rng = np.random.default_rng(2)
+    deck = np.column_stack([rng.uniform(-30, 30, 2000), rng.uniform(-10, 10, 2000), np.full(2000, -79.0)])
+    info = pose_information(deck, np.tile([0.0, 0.0, 1.0], (2000, 1)), np.zeros(3), 0.03)  # a bare deck: x, y, yaw free
+    prior = np.diag([0.1**2] * 3 + [0.01**2] * 3)
+    cov = pose_covariance(info, prior)
+    assert cov[0, 0] == pytest.approx(0.01, rel=1e-6) and cov[5, 5] == pytest.approx(1e-4, rel=1e-6)
+    assert cov[2, 2] < 1e-3 * prior[2, 2] and cov[3, 3] < 1e-3 * prior[3, 3]  # z and the tilts pinned by the deck
 
 
 def test_a_point_sigma_is_the_translation_and_the_rotation_times_its_lever_arm():
@@ -160,15 +163,19 @@ def test_the_deck_last_seen_is_carried_with_the_feeder_to_where_the_load_hides_i
         plane = deck_plane_about(T)
         if tracker.due(t) or t >= 2.0:  # the deck hidden: every frame registered (as the lift chain does)
             tracker.update(t, pts, plane, deck_ring(pts, plane), LOAD_XY, LOAD_RADIUS_M)
-        if t < 2.0:  # the deck seen about the load, then hidden by it
-            tracker.remember_deck(t, plane, 0.003)
+        if t < 2.0:  # the deck seen about the load (exactly: the sigma is the pose's alone), then hidden by it
+            tracker.remember_deck(t, plane, 0.0)
         elif (predicted := tracker.deck_plane_at(t, LOAD_XY)) is not None:
             z_true = plane[0] + plane[1:] @ LOAD_XY
             errors.append(predicted[0][0] + predicted[0][1:] @ LOAD_XY - z_true)
             sigmas.append(predicted[1])
     errors, sigmas = np.array(errors), np.array(sigmas)
     assert len(errors) == 160  # every frame from 2 s
-    assert np.sqrt(np.mean(errors**2)) < 0.004 and np.mean(np.abs(errors) <= 3.0 * sigmas) > 0.95  # the feeder heaves 2 m
+    rms = np.sqrt(np.mean(errors**2))
+    assert rms < 0.004 and np.mean(np.abs(errors) <= 3.0 * sigmas) > 0.95  # the feeder heaves 2 m
+    # the registration's sigma is its information's, thinned for residuals a real scan shares: on these
+    # independent samples of perfect boxes it errs wide, by about 3.5 times
+    assert np.median(sigmas) < 5.0 * rms
 
 
 def test_the_deck_frame_waits_for_the_tip_to_settle_and_keeps_its_error_in_the_landing_points_sigma():

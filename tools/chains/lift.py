@@ -133,9 +133,10 @@ class LiftChain:
                     self.radar.add_fix(frame.t_s, obs, self.hook.tracker.tip_attitude(), p_hook, self.hook.tracker.velocity())
                 row.update(self.landing.update(frame.t_s, obs, p_hook, cov_hook, res.points_level,
                                                self.hook.tracker.tip_attitude_sigma_rad(), out.times))
+                sigma_m, centre_sigma_m = self.landing.filter_sigmas(obs)
                 with out.times.stage("lift.filter"):
-                    self.filters.add_heights(frame.t_s, (obs.clearance_m, obs.sigma_m),
-                                             (obs.centre_clearance_m, obs.centre_height_sigma_m), self.hoist)
+                    self.filters.add_heights(frame.t_s, (obs.clearance_m, sigma_m), (obs.centre_clearance_m, centre_sigma_m),
+                                             self.hoist)
         else:
             self.touchdown.update(frame.t_s, math.nan, math.nan)
         if self.touchdown.landed_s is not None:  # landed: the filters stopped

@@ -25,7 +25,7 @@ class LiftLanding:
         self.offset = LandingOffsetFilter(cfg.landing_offset_rate_sigma_mps, cfg.landing_error_correlation_s)
         self.deck_frame = DeckFrameTracker(cfg.deck_frame) if cfg.deck_frame.enabled else None
         self.boom_length_m = boom_length_m
-        # a carried deck's error is shared by the frames of its correlation time: each frame's sigma widened by their root
+        # a carried deck's error is shared by the frames of its correlation time: the filters' sigma widened by their root
         self.fallback_widening = math.sqrt(max(1.0, cfg.deck_frame.fallback_error_correlation_s * lidar_rate_hz))
         self.load_column_m = footprint_radius_m(load_size_m, cfg.detector) + cfg.detector.load_margin_m
 
@@ -57,8 +57,16 @@ class LiftLanding:
     def deck_fallback(self, t_s: float, hook_level: np.ndarray) -> tuple[np.ndarray, float] | None:
         """The deck plane below the hook from the feeder's predicted pose, and its 1-sigma there:
         for a frame whose returns show too little of the deck about the load."""
-        carried = None if self.deck_frame is None else self.deck_frame.deck_plane_at(t_s, hook_level[:2])
-        return None if carried is None else (carried[0], carried[1] * self.fallback_widening)
+        return None if self.deck_frame is None else self.deck_frame.deck_plane_at(t_s, hook_level[:2])
+
+    def filter_sigmas(self, obs: LoadClearance) -> tuple[float, float]:
+        """The sigmas of C and of the centre's height as the clearance's filters are to take them:
+        a carried deck's error, shared by the frames of its correlation time, widened by their
+        root (the frame's own sigma, as measured, stays for the rows and the touchdown test)."""
+        if obs.deck_hidden is None:
+            return obs.sigma_m, obs.centre_height_sigma_m
+        shared_var_m2 = (self.fallback_widening**2 - 1.0) * obs.deck_sigma_m**2
+        return math.sqrt(obs.sigma_m**2 + shared_var_m2), math.sqrt(obs.centre_height_sigma_m**2 + shared_var_m2)
 
     def kpis(self) -> dict | None:
         """The deck frame's registrations by outcome and its keyframe's time."""
