@@ -120,8 +120,8 @@ def test_a_deck_the_load_hides_is_carried_by_the_feeders_pose_within_its_sigma(t
     assert all(d == "predicted (too few deck points about the load)" for d in rows["deck"][w])
     assert all(e == "ok" for e in rows["estimate"][w])  # not lost: the feeder's pose still places the deck
     err = rows["clearance_m"][w] - np.interp(rows["t"][w], truth["t"], truth["clearance"])
-    # the carried deck errs by millimetres more than the one seen (0.4 cm), and its sigma says so
-    assert np.sqrt(np.mean(err**2)) < 0.012 and np.mean(np.abs(err) <= 3.0 * rows["sigma_m"][w]) > 0.95
+    # the carried deck errs by about a millimetre more than the one seen (0.37 cm here; 0.45 cm), and its sigma says so
+    assert np.sqrt(np.mean(err**2)) < 0.008 and np.mean(np.abs(err) <= 3.0 * rows["sigma_m"][w]) > 0.95
     assert json.loads((out / "kpis.json").read_text())["lift"]["deck_predicted_frames"] == np.count_nonzero(w)
 
 
