@@ -10,6 +10,8 @@ stays still when the feeder moves under the load.
                                               registered to the first frame's (the feeder chain's
                                               FeederModel: a keyframe, point-to-plane ICP)
     between registrations                   -> the last two poses extrapolated at constant velocity
+    the deck measured under the load        -> kept in the deck frame: a frame in which the load
+                                              hides it takes it from there, carried by the pose
 
 The deck frame is the levelled frame (z up, world axes, origin at the boom tip) as it was at the
 keyframe's instant, carried along with the feeder from then on: `key_t_s` names it. Built from the
@@ -291,7 +293,8 @@ class DeckFrameTracker:
 
     def landing_in_deck(self, t_s: float, landing_level: np.ndarray, landing_sigma_m: float) -> tuple[np.ndarray, float] | None:
         """The landing point (level frame) in the deck frame and its horizontal 1-sigma per axis:
-        the point's own and the deck frame's pose's at it."""
+        the point's own, the deck frame's pose's at it, and the levelled frame's origin's at the
+        keyframe (which the deck frame keeps)."""
         pose = self.pose_at(t_s)
         if pose is None:
             return None

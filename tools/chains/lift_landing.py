@@ -18,7 +18,8 @@ from boomtip.tools.report import lift as outputs
 
 
 class LiftLanding:
-    """Built from the lift's settings, the load's size (None: no model) and the boom's length."""
+    """Built from the lift's settings, the load's size (None: no model), the boom's length and
+    the LiDAR's frame rate (installation)."""
 
     def __init__(self, cfg: LiftProcessing, load_size_m: tuple[float, float, float] | None, boom_length_m: float,
                  lidar_rate_hz: float) -> None:
