@@ -52,6 +52,12 @@ def rpy_matrices(rpy: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(R.T).reshape(-1, 3, 3)
 
 
+def matrices_rpy(R: np.ndarray) -> np.ndarray:
+    """(T,3) angles (roll, pitch, yaw) of (T,3,3) rotations R = Rz(yaw) Ry(pitch) Rx(roll): rpy_matrices' inverse."""
+    return np.column_stack([np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(np.clip(R[:, 2, 0], -1.0, 1.0)),
+                            np.arctan2(R[:, 1, 0], R[:, 0, 0])])
+
+
 def pose_matrix(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> np.ndarray:
     """4x4 from a position and R = Rz(yaw) Ry(pitch) Rx(roll)."""
     T = np.eye(4)

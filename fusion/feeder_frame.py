@@ -23,7 +23,7 @@ import numpy as np
 from boomtip.fusion.level_calibration import Tilt, correction, median_and_sigma, tilt_from_normals, with_heading, within_the_survey
 from boomtip.fusion.models.relative_motion import rotation
 from boomtip.fusion.records import Records
-from boomtip.data.poses import inverse, pose_matrix, rpy_matrices, transform
+from boomtip.data.poses import inverse, matrices_rpy, pose_matrix, rpy_matrices, transform
 
 UPDATE_EVERY_S = 1.0  # the causal definition is recomputed this often (and at the last row)
 JACOBIAN_STEP = 1e-6  # central differences' step in the map's pose (m, rad)
@@ -271,5 +271,4 @@ def feeder_poses(pose_map_level: np.ndarray, C: np.ndarray, pivot: np.ndarray, T
     R_out = C @ R @ T_map_feeder[:3, :3]  # (N, 3, 3)
     t_map = np.einsum("nij,j->ni", R, T_map_feeder[:3, 3]) + pose_map_level[:, :3]
     t_out = t_map @ C.T + pivot - pivot @ C.T
-    return np.column_stack([t_out, np.arctan2(R_out[:, 2, 1], R_out[:, 2, 2]),
-                            -np.arcsin(np.clip(R_out[:, 2, 0], -1.0, 1.0)), np.arctan2(R_out[:, 1, 0], R_out[:, 0, 0])])
+    return np.column_stack([t_out, matrices_rpy(R_out)])

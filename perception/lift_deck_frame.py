@@ -127,13 +127,6 @@ def plane_in(T_to_from: np.ndarray, plane: np.ndarray) -> np.ndarray:
     return np.array([p0[2] + (n[0] * p0[0] + n[1] * p0[1]) / n[2], -n[0] / n[2], -n[1] / n[2]])
 
 
-def height_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> float:
-    """A level point's vertical 1-sigma in a frame whose pose has covariance cov6 (as point_sigma_m)."""
-    r = point_level - origin_level
-    J = np.array([0.0, 0.0, 1.0, r[1], -r[0], 0.0])  # (dw x r)_z = dw_x r_y - dw_y r_x
-    return math.sqrt(max(float(J @ cov6 @ J), 0.0))
-
-
 def pose_covariance(info6: np.ndarray, prior_cov6: np.ndarray) -> np.ndarray:
     """The covariance of a registration's pose from its information (6x6) and its prior's
     covariance: a direction the structure leaves free keeps the prior's variance instead of none
@@ -141,15 +134,25 @@ def pose_covariance(info6: np.ndarray, prior_cov6: np.ndarray) -> np.ndarray:
     return np.linalg.inv(info6 + np.linalg.inv(prior_cov6))
 
 
-def point_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> float:
-    """A level point's horizontal 1-sigma per axis in a frame whose pose (translation and small
-    rotations about the level axes through `origin_level`) has covariance cov6."""
+def point_cov_m2(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> np.ndarray:
+    """A level point's 3x3 covariance in a frame whose pose (translation and small rotations
+    about the level axes through `origin_level`) has covariance cov6: it moves by dt + dw x r."""
     r = point_level - origin_level
-    J = np.zeros((2, POSE_DOF))
-    J[:, :2] = np.eye(2)
-    J[0, 3:] = (0.0, r[2], -r[1])  # (dw x r)_x = dw_y r_z - dw_z r_y
-    J[1, 3:] = (-r[2], 0.0, r[0])  # (dw x r)_y = dw_z r_x - dw_x r_z
-    return math.sqrt(max(0.5 * float(np.trace(J @ cov6 @ J.T)), 0.0))
+    J = np.zeros((3, POSE_DOF))
+    J[:, :3] = np.eye(3)
+    J[:, 3:] = [[0.0, r[2], -r[1]], [-r[2], 0.0, r[0]], [r[1], -r[0], 0.0]]  # dw x r = -[r]x dw
+    return J @ cov6 @ J.T
+
+
+def point_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> float:
+    """Its horizontal 1-sigma per axis (as point_cov_m2)."""
+    cov = point_cov_m2(cov6, point_level, origin_level)
+    return math.sqrt(max(0.5 * float(cov[0, 0] + cov[1, 1]), 0.0))
+
+
+def height_sigma_m(cov6: np.ndarray, point_level: np.ndarray, origin_level: np.ndarray) -> float:
+    """Its vertical 1-sigma (as point_cov_m2)."""
+    return math.sqrt(max(float(point_cov_m2(cov6, point_level, origin_level)[2, 2]), 0.0))
 
 
 class DeckFrameTracker:

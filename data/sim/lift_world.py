@@ -23,7 +23,7 @@ from boomtip.data.meshes import Label
 from boomtip.data.sim.hook_world import HookSimulation, hanging_rotation, hook_bodies, rot_z
 from boomtip.data.sim.lift_programme import LiftPlan
 from boomtip.data.sim.load_mesh import load_parts
-from boomtip.data.poses import rpy_matrices
+from boomtip.data.poses import matrices_rpy, rpy_matrices
 from boomtip.data.sim.run import SimulatedRun
 from boomtip.data.sim.scene import Body, feeder_vessel, sea_surface
 from boomtip.data.sim.simulator import frame_times
@@ -178,13 +178,12 @@ class LiftSimulation(HookSimulation):
             centre = np.where(tc >= t_td, 0.0, height_above_deck(p, *pose_f, self.scenario.world.feeder.geometry.freeboard_m))
             tip = np.column_stack([files.read(f"tip_{a}", a0, a0 + len(tc)) for a in "xyz"]) + self._vessel_translation(tc)
             rel = touch[:, :2] - tip[:, :2]
-            R_f, feeder_rel = pose_f[0], pose_f[1] - tip  # the feeder's pose at the tip, world axes: its deck frame's truth
+            feeder_rel, feeder_rpy = pose_f[1] - tip, matrices_rpy(pose_f[0])  # the feeder's pose at the tip, world axes
             for name, v in (("clearance", C), ("centre_clearance", centre), ("landing_x", landing[:, 0]), ("landing_y", landing[:, 1]),
                             ("landing_rel_x", rel[:, 0]), ("landing_rel_y", rel[:, 1]),
                             ("feeder_rel_x", feeder_rel[:, 0]), ("feeder_rel_y", feeder_rel[:, 1]),
-                            ("feeder_rel_z", feeder_rel[:, 2]), ("feeder_roll", np.arctan2(R_f[:, 2, 1], R_f[:, 2, 2])),
-                            ("feeder_pitch", -np.arcsin(np.clip(R_f[:, 2, 0], -1.0, 1.0))),
-                            ("feeder_yaw", np.arctan2(R_f[:, 1, 0], R_f[:, 0, 0])),
+                            ("feeder_rel_z", feeder_rel[:, 2]), ("feeder_roll", feeder_rpy[:, 0]),
+                            ("feeder_pitch", feeder_rpy[:, 1]), ("feeder_yaw", feeder_rpy[:, 2]),
                             ("load_x", p[:, 0]), ("load_y", p[:, 1]), ("load_z", p[:, 2]),
                             ("contact", (tc >= t_td).astype(float))):
                 files.append(name, v)
